@@ -1,0 +1,1 @@
+"""Agents: TLPS, REPS and stable-baselines3 adapters behind one interface."""

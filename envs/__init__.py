@@ -1,0 +1,1 @@
+"""The paper's car tasks as Gymnasium environments."""

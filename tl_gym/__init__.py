@@ -1,0 +1,23 @@
+"""tl_gym: temporal-logic rewards and policy search for Gymnasium.
+
+The engine (`parse`, `Formula`) turns TLTL formulas and trajectories into exact
+and smoothed robustness; `TLTLRewardWrapper` pays it as reward on any Gymnasium
+env; `tl_gym.envs` registers the paper's car tasks and `tl_gym.agents` holds
+TLPS, REPS and stable-baselines3 adapters.
+"""
+
+from importlib.metadata import PackageNotFoundError, version
+
+from tl_gym import logic
+from tl_gym.errors import SpecError, TLGymError, TraceError, UnknownSignalError
+from tl_gym.tltl.ast import Formula
+from tl_gym.tltl.parser import parse
+
+try:
+    __version__ = version("tl_gym")
+except PackageNotFoundError:  # running from a source tree that was not installed
+    __version__ = "0.0.0"
+
+__all__ = [
+    "Formula", "SpecError", "TLGymError", "TraceError", "UnknownSignalError", "logic", "parse", "__version__",
+]

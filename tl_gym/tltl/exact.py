@@ -1,0 +1,262 @@
+"""Exact robustness and Boolean semantics of TLTL, vectorised over trajectories and time.
+
+One evaluator serves both semantics through an `_Algebra`: robustness uses
+(max, min, negation, ±ρ_max), the Boolean semantics (or, and, not, true/false).
+Each node maps the ``(N, T)`` values of its children to its own ``(N, T)``
+values, entry ``[i, t]`` judging trajectory ``i`` from position ``t`` on
+(the paper's ρ(s_{t:T}, φ)). Every operator costs O(N·T), except ``U``/``T`` whose
+left operand is temporal: that operand must be judged on every truncated segment
+s_{t''..t'-1}, which costs O(N·T²) time (and O(N·T) memory).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from tl_gym.tltl.ast import (
+    Always,
+    And,
+    Constant,
+    Eventually,
+    Formula,
+    Implies,
+    Next,
+    Not,
+    Or,
+    Predicate,
+    Then,
+    Until,
+)
+from tl_gym.errors import TraceError
+from tl_gym.tltl.expressions import can_be_non_finite, evaluate_expression
+from tl_gym.tltl.trace import Trace, prepare
+
+
+@dataclass(frozen=True)
+class _Algebra:
+    """The lattice an evaluation runs in: numbers with max/min, or Booleans with or/and."""
+
+    top: Any
+    bottom: Any
+    dtype: Any
+    maximum: Callable[[Any, Any], Any]
+    minimum: Callable[[Any, Any], Any]
+    negate: Callable[[Any], Any]
+    predicate: Callable[[Any, str, Any], Any]
+    empty_max: Any  # value of a max over no terms (−inf / False)
+    empty_min: Any  # value of a min over no terms (+inf / True)
+
+
+def _numeric_predicate(lhs: Any, op: str, rhs: Any) -> Any:
+    return rhs - lhs if op in ("<", "<=") else lhs - rhs
+
+
+def _boolean_predicate(lhs: Any, op: str, rhs: Any) -> Any:
+    return {"<": np.less, "<=": np.less_equal, ">": np.greater, ">=": np.greater_equal}[op](lhs, rhs)
+
+
+def numeric_algebra(rho_max: float) -> _Algebra:
+    """Robustness: max/min over reals, ``true`` = ρ_max."""
+    return _Algebra(
+        top=float(rho_max), bottom=-float(rho_max), dtype=np.float64,
+        maximum=np.maximum, minimum=np.minimum, negate=np.negative,
+        predicate=_numeric_predicate, empty_max=-math.inf, empty_min=math.inf,
+    )
+
+
+BOOLEAN = _Algebra(
+    top=True, bottom=False, dtype=bool,
+    maximum=np.logical_or, minimum=np.logical_and, negate=np.logical_not,
+    predicate=_boolean_predicate, empty_max=False, empty_min=True,
+)
+
+
+def _reverse_accumulate(ufunc: np.ufunc, values: np.ndarray) -> np.ndarray:
+    """``out[:, t] = ufunc over values[:, t:]`` (a suffix scan along time)."""
+    return ufunc.accumulate(values[:, ::-1], axis=1)[:, ::-1]
+
+
+def _cummax_ufunc(alg: _Algebra) -> np.ufunc:
+    return alg.maximum  # np.maximum / np.logical_or are ufuncs with .accumulate
+
+
+class _Evaluator:
+    """Evaluates every node of one formula on one batch of signals."""
+
+    def __init__(self, alg: _Algebra, signals: dict[str, np.ndarray], n: int, length: int):
+        self.alg = alg
+        self.signals = signals
+        self.n = n
+        self.length = length
+
+    def full(self, value: Any) -> np.ndarray:
+        return np.full((self.n, self.length), value, dtype=self.alg.dtype)
+
+    def __call__(self, node: Formula) -> np.ndarray:
+        try:
+            rule = _RULES[type(node)]
+        except KeyError:
+            raise TypeError(f"no evaluation rule for formula node {type(node).__name__}") from None
+        return rule(self, node)
+
+    def on_prefix(self, node: Formula, length: int) -> np.ndarray:
+        """Values of ``node`` judged on the truncated trace s_0 … s_{length-1}."""
+        sub = _Evaluator(self.alg, {k: v[:, :length] for k, v in self.signals.items()}, self.n, length)
+        return sub(node)
+
+    # rules ----------------------------------------------------------------------------
+    def constant(self, node: Constant) -> np.ndarray:
+        return self.full(self.alg.top if node.value else self.alg.bottom)
+
+    def predicate(self, node: Predicate) -> np.ndarray:
+        sample = next(iter(self.signals.values()), np.zeros(1))
+        lhs = evaluate_expression(node.lhs, self.signals, sample)
+        rhs = evaluate_expression(node.rhs, self.signals, sample)
+        with np.errstate(all="ignore"):
+            values = self.alg.predicate(lhs, node.op, rhs)
+        values = np.broadcast_to(values, (self.n, self.length))
+        if self.alg.dtype is np.float64 and (can_be_non_finite(node.lhs) or can_be_non_finite(node.rhs)):
+            finite = np.isfinite(values)
+            if not finite.all():
+                i, t = np.argwhere(~finite)[0]
+                raise TraceError(
+                    f"predicate {str(node)!r} is NaN or infinite at trajectory {i}, position {t} "
+                    f"(its arithmetic is undefined there)"
+                )
+        return np.asarray(values, dtype=self.alg.dtype)
+
+    def not_(self, node: Not) -> np.ndarray:
+        return self.alg.negate(self(node.child))
+
+    def and_(self, node: And) -> np.ndarray:
+        out = self(node.operands[0])
+        for child in node.operands[1:]:
+            out = self.alg.minimum(out, self(child))
+        return out
+
+    def or_(self, node: Or) -> np.ndarray:
+        out = self(node.operands[0])
+        for child in node.operands[1:]:
+            out = self.alg.maximum(out, self(child))
+        return out
+
+    def implies(self, node: Implies) -> np.ndarray:
+        return self.alg.maximum(self.alg.negate(self(node.left)), self(node.right))
+
+    def next_(self, node: Next) -> np.ndarray:
+        child = self(node.child)
+        out = np.empty_like(child)
+        out[:, :-1] = child[:, 1:]
+        out[:, -1] = self.alg.bottom  # no next state: the paper's "k > 0" fails
+        return out
+
+    def eventually(self, node: Eventually) -> np.ndarray:
+        return _reverse_accumulate(self.alg.maximum, self(node.child))
+
+    def always(self, node: Always) -> np.ndarray:
+        return _reverse_accumulate(self.alg.minimum, self(node.child))
+
+    def until(self, node: Until) -> np.ndarray:
+        right = self(node.right)
+        if node.left.is_temporal:
+            return self._binary_on_segments(node, right, self.alg.minimum, self.alg.empty_min)
+        return _until_scan(self.alg, self(node.left), right)
+
+    def then(self, node: Then) -> np.ndarray:
+        right = self(node.right)
+        if node.left.is_temporal:
+            return self._binary_on_segments(node, right, self.alg.maximum, self.alg.empty_max)
+        # ρ(φ T ψ, t) = max_{s ≥ t} min(φ(s), max_{t' > s} ψ(t')): one suffix scan.
+        left = self(node.left)
+        later_right = np.full_like(right, self.alg.empty_max)
+        later_right[:, :-1] = _reverse_accumulate(self.alg.maximum, right)[:, 1:]
+        return _reverse_accumulate(self.alg.maximum, self.alg.minimum(left, later_right))
+
+    def _binary_on_segments(
+        self, node: Until | Then, right: np.ndarray, inner: np.ufunc, inner_empty: Any
+    ) -> np.ndarray:
+        """U/T with a temporal left operand, judged on each segment s_{t''..t'-1}: O(N·T²)."""
+        out = self.full(self.alg.empty_max)
+        for t_prime in range(self.length):
+            # inner[t] = reduce of φ(s_{t''..t'-1}) over t'' in [t, t'); empty for t ≥ t'
+            reduced = self.full(inner_empty)[:, : t_prime + 1]
+            if t_prime > 0:
+                left = self.on_prefix(node.left, t_prime)
+                reduced[:, :t_prime] = _reverse_accumulate(inner, left)
+            term = self.alg.minimum(right[:, t_prime : t_prime + 1], reduced)
+            out[:, : t_prime + 1] = self.alg.maximum(out[:, : t_prime + 1], term)
+        return out
+
+
+def _until_scan(alg: _Algebra, left: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """``U(t) = max(ψ(t), min(φ(t), U(t+1)))`` with a temporal-free φ, in vectorised steps.
+
+    Each position is the map ``x ↦ max(A, min(B, x))`` with ``(A, B) = (ψ(t), φ(t))``;
+    such maps compose associatively, ``(A1, B1)∘(A2, B2) = (max(A1, min(B1, A2)), min(B1, B2))``,
+    so a doubling suffix scan needs log2(T) whole-array steps. With many short
+    trajectories a plain backward loop over time is cheaper; pick by a cost estimate.
+    """
+    n, length = right.shape
+    if length <= 1:
+        return right.copy()
+    log_steps = math.ceil(math.log2(length))
+    if n * length * log_steps > 8 * (length * (2000 + n)):  # backward loop is cheaper
+        out = right.copy()
+        for t in range(length - 2, -1, -1):
+            out[:, t] = alg.maximum(right[:, t], alg.minimum(left[:, t], out[:, t + 1]))
+        return out
+    a, b = right.copy(), left.copy()
+    shift = 1
+    while shift < length:
+        a_next, b_next = a[:, shift:], b[:, shift:]
+        head_a, head_b = a[:, :-shift], b[:, :-shift]
+        new_a = alg.maximum(head_a, alg.minimum(head_b, a_next))
+        new_b = alg.minimum(head_b, b_next)
+        a[:, :-shift] = new_a
+        b[:, :-shift] = new_b
+        shift *= 2
+    return a
+
+
+_RULES: dict[type, Callable[[_Evaluator, Any], np.ndarray]] = {
+    Constant: _Evaluator.constant,
+    Predicate: _Evaluator.predicate,
+    Not: _Evaluator.not_,
+    And: _Evaluator.and_,
+    Or: _Evaluator.or_,
+    Implies: _Evaluator.implies,
+    Next: _Evaluator.next_,
+    Eventually: _Evaluator.eventually,
+    Always: _Evaluator.always,
+    Until: _Evaluator.until,
+    Then: _Evaluator.then,
+}
+
+
+def _evaluate(formula: Formula, trace: Trace, alg: _Algebra) -> tuple[np.ndarray, bool]:
+    prepared = prepare(formula.signals, trace)
+    values = _Evaluator(alg, prepared.signals, prepared.n, prepared.length)(formula)
+    return values, prepared.batched
+
+
+def robustness_over_time(formula: Formula, trace: Trace, rho_max: float = math.inf) -> np.ndarray:
+    """Robustness at every position: shape ``(T,)`` or ``(N, T)`` like the signals."""
+    values, batched = _evaluate(formula, trace, numeric_algebra(rho_max))
+    return values if batched else values[0]
+
+
+def robustness(formula: Formula, trace: Trace, rho_max: float = math.inf) -> float | np.ndarray:
+    """Robustness at position 0: a float, or an ``(N,)`` array for batched signals."""
+    values, batched = _evaluate(formula, trace, numeric_algebra(rho_max))
+    return values[:, 0].copy() if batched else float(values[0, 0])
+
+
+def satisfied(formula: Formula, trace: Trace) -> bool | np.ndarray:
+    """Boolean semantics at position 0: a bool, or an ``(N,)`` bool array."""
+    values, batched = _evaluate(formula, trace, BOOLEAN)
+    return values[:, 0].copy() if batched else bool(values[0, 0])

@@ -1,0 +1,94 @@
+"""Validation of the traces handed to the evaluators.
+
+A trace maps signal names to arrays of shape ``(T,)`` (one trajectory) or
+``(N, T)`` (a batch). Checks happen once, before evaluation, and every error names
+its culprit: the missing signal, or the signal, trajectory and position of the
+first NaN or inf.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Union
+
+import numpy as np
+
+from tl_gym.errors import TraceError, UnknownSignalError
+
+Trace = Mapping[str, Union[np.ndarray, Sequence[float], Any]]
+
+
+def is_torch(value: Any) -> bool:
+    """Whether ``value`` is a torch tensor, without importing torch."""
+    return type(value).__module__.startswith("torch")
+
+
+def _first_bad(name: str, finite: np.ndarray, batched: bool) -> TraceError:
+    bad = np.argwhere(~finite)[0]
+    if batched:
+        where = f"trajectory {bad[0]}, position {bad[1]}"
+    else:
+        where = f"position {bad[0]}"
+    return TraceError(f"signal {name!r} is NaN or infinite at {where}")
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """Checked signals, each of shape ``(N, T)``, and whether the caller passed a batch."""
+
+    signals: dict[str, Any]
+    n: int
+    length: int
+    batched: bool
+
+
+def prepare(names: tuple[str, ...], trace: Trace, *, torch_ok: bool = False) -> Prepared:
+    """Check the signals a formula reads and return them as ``(N, T)`` arrays.
+
+    The arrays are float64 numpy arrays, or the caller's torch tensors when
+    ``torch_ok`` and the trace holds tensors.
+    """
+    if not isinstance(trace, Mapping):
+        raise TypeError(f"a trace maps signal names to arrays, got {type(trace).__name__}")
+    missing = [n for n in names if n not in trace]
+    if missing:
+        available = ", ".join(sorted(map(str, trace))) or "none"
+        raise UnknownSignalError(
+            f"the trace has no signal {missing[0]!r}, which the formula reads (trace has: {available})"
+        )
+    out: dict[str, Any] = {}
+    shape: tuple[int, ...] | None = None
+    first = names[0] if names else None
+    for name in names:
+        value = trace[name]
+        if torch_ok and is_torch(value):
+            array = value
+            finite = value.detach().isfinite().cpu().numpy()
+        else:
+            try:
+                array = np.asarray(value, dtype=np.float64)
+            except (TypeError, ValueError) as exc:
+                raise TraceError(f"signal {name!r} is not numeric: {exc}") from None
+            finite = np.isfinite(array)
+        if array.ndim not in (1, 2) or array.shape[-1] == 0:
+            raise TraceError(
+                f"signal {name!r} has shape {tuple(array.shape)}; expected (T,) or (N, T) with T >= 1"
+            )
+        if shape is None:
+            shape = tuple(array.shape)
+        elif tuple(array.shape) != shape:
+            raise TraceError(
+                f"signal {name!r} has shape {tuple(array.shape)} but {first!r} has {shape}; "
+                "all signals of a trace share one shape"
+            )
+        if not finite.all():
+            raise _first_bad(name, finite, array.ndim == 2)
+        out[name] = array if array.ndim == 2 else array[None, :]
+    if shape is None:  # the formula reads no signal: take the length from the trace
+        shapes = [tuple(np.shape(v)) for v in trace.values()]
+        shapes = [s for s in shapes if len(s) in (1, 2) and s[-1] > 0]
+        if not shapes:
+            raise TraceError("the formula reads no signal, so the trace must hold an array that gives its length")
+        shape = shapes[0]
+    return Prepared(out, shape[0] if len(shape) == 2 else 1, shape[-1], len(shape) == 2)
