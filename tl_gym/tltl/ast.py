@@ -273,7 +273,7 @@ class Formula:
         return tuple(names)
 
     def walk(self) -> list[Formula]:
-        """This node and every sub-formula, parents before children."""
+        """Every node of the formula, parents before children (pre-order)."""
         out: list[Formula] = [self]
         for child in self.children:
             out.extend(child.walk())
@@ -316,17 +316,27 @@ class Formula:
 
         return exact.satisfied(self, trace)
 
-    def smooth_robustness(self, trace: Trace, beta: float, rho_max: float = math.inf) -> Any:
+    def smooth_robustness(self, trace: Trace, beta: float, rho_max: float = math.inf, form: str = "nested") -> Any:
         """Log-sum-exp smoothed robustness with sharpness ``beta`` (paper, section V).
 
         Every max and min of the definition, the ones over time included, becomes
         ``±log(Σ exp(±β x))/β``, nested as the definition nests. Given torch tensors
         the result is a torch tensor differentiable by autograd; given numpy arrays, a
-        float or an ``(N,)`` array (computed in float64).
+        float or an ``(N,)`` array (computed in float64). ``form="linear"`` trades the
+        prescribed O(T²) nesting of a ``T`` under another temporal operator for an
+        O(T) smoothing with the same limit and bracket (see `tl_gym.tltl.smooth`).
         """
         from tl_gym.tltl import smooth
 
-        return smooth.smooth_robustness(self, trace, beta, rho_max)
+        return smooth.smooth_robustness(self, trace, beta, rho_max, form)
+
+    def smooth_robustness_over_time(
+        self, trace: Trace, beta: float, rho_max: float = math.inf, form: str = "nested"
+    ) -> Any:
+        """Smoothed robustness of every suffix, as a torch tensor ``(T,)`` or ``(N, T)``."""
+        from tl_gym.tltl import smooth
+
+        return smooth.smooth_over_time(self, trace, beta, rho_max, form)
 
     def smoothing_bracket(self, horizon: int, beta: float) -> tuple[float, float]:
         """Bounds ``(below, above)`` with ``ρ - below ≤ ρ̂ ≤ ρ + above`` (paper, Lemma 1).

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from tl_gym.errors import TraceError
 from tl_gym.tltl.ast import (
     Always,
     And,
@@ -32,7 +33,6 @@ from tl_gym.tltl.ast import (
     Then,
     Until,
 )
-from tl_gym.errors import TraceError
 from tl_gym.tltl.expressions import can_be_non_finite, evaluate_expression
 from tl_gym.tltl.trace import Trace, prepare
 
@@ -76,37 +76,41 @@ BOOLEAN = _Algebra(
 )
 
 
-def _reverse_accumulate(ufunc: np.ufunc, values: np.ndarray) -> np.ndarray:
-    """``out[:, t] = ufunc over values[:, t:]`` (a suffix scan along time)."""
-    return ufunc.accumulate(values[:, ::-1], axis=1)[:, ::-1]
-
-
-def _cummax_ufunc(alg: _Algebra) -> np.ufunc:
-    return alg.maximum  # np.maximum / np.logical_or are ufuncs with .accumulate
-
-
 class _Evaluator:
-    """Evaluates every node of one formula on one batch of signals."""
+    """Evaluates every node of one formula on one batch of signals.
+
+    Arrays are laid out time-major and time-reversed, shape ``(T, N)`` with row
+    ``j`` holding position ``T-1-j``: suffix reductions over time (F, G, U, T) then
+    become forward ``ufunc.accumulate`` passes over contiguous rows, which numpy
+    vectorises across the N trajectories.
+    """
 
     def __init__(self, alg: _Algebra, signals: dict[str, np.ndarray], n: int, length: int):
         self.alg = alg
         self.signals = signals
         self.n = n
         self.length = length
+        self.cache: dict[Formula, np.ndarray] = {}  # a sub-formula repeated in the formula is evaluated once
 
-    def full(self, value: Any) -> np.ndarray:
-        return np.full((self.n, self.length), value, dtype=self.alg.dtype)
+    def full(self, value: Any, length: int | None = None) -> np.ndarray:
+        return np.full((self.length if length is None else length, self.n), value, dtype=self.alg.dtype)
 
     def __call__(self, node: Formula) -> np.ndarray:
+        """Values of ``node``; callers must not modify them in place (they are shared)."""
+        cached = self.cache.get(node)
+        if cached is not None:
+            return cached
         try:
             rule = _RULES[type(node)]
         except KeyError:
             raise TypeError(f"no evaluation rule for formula node {type(node).__name__}") from None
-        return rule(self, node)
+        values = self.cache[node] = rule(self, node)
+        return values
 
     def on_prefix(self, node: Formula, length: int) -> np.ndarray:
-        """Values of ``node`` judged on the truncated trace s_0 … s_{length-1}."""
-        sub = _Evaluator(self.alg, {k: v[:, :length] for k, v in self.signals.items()}, self.n, length)
+        """Values of ``node`` judged on the truncated trace s_0 … s_{length-1} (reversed layout)."""
+        first_row = self.length - length  # reversed rows of positions length-1 … 0
+        sub = _Evaluator(self.alg, {k: v[first_row:] for k, v in self.signals.items()}, self.n, length)
         return sub(node)
 
     # rules ----------------------------------------------------------------------------
@@ -119,14 +123,14 @@ class _Evaluator:
         rhs = evaluate_expression(node.rhs, self.signals, sample)
         with np.errstate(all="ignore"):
             values = self.alg.predicate(lhs, node.op, rhs)
-        values = np.broadcast_to(values, (self.n, self.length))
+        values = np.broadcast_to(values, (self.length, self.n))
         if self.alg.dtype is np.float64 and (can_be_non_finite(node.lhs) or can_be_non_finite(node.rhs)):
             finite = np.isfinite(values)
             if not finite.all():
-                i, t = np.argwhere(~finite)[0]
+                j, i = np.argwhere(~finite)[-1]  # the last row is the earliest position
                 raise TraceError(
-                    f"predicate {str(node)!r} is NaN or infinite at trajectory {i}, position {t} "
-                    f"(its arithmetic is undefined there)"
+                    f"predicate {str(node)!r} is NaN or infinite at trajectory {i}, position "
+                    f"{self.length - 1 - j} (its arithmetic is undefined there)"
                 )
         return np.asarray(values, dtype=self.alg.dtype)
 
@@ -134,15 +138,15 @@ class _Evaluator:
         return self.alg.negate(self(node.child))
 
     def and_(self, node: And) -> np.ndarray:
-        out = self(node.operands[0])
-        for child in node.operands[1:]:
-            out = self.alg.minimum(out, self(child))
+        out = self.alg.minimum(self(node.operands[0]), self(node.operands[1]))
+        for child in node.operands[2:]:
+            self.alg.minimum(out, self(child), out=out)
         return out
 
     def or_(self, node: Or) -> np.ndarray:
-        out = self(node.operands[0])
-        for child in node.operands[1:]:
-            out = self.alg.maximum(out, self(child))
+        out = self.alg.maximum(self(node.operands[0]), self(node.operands[1]))
+        for child in node.operands[2:]:
+            self.alg.maximum(out, self(child), out=out)
         return out
 
     def implies(self, node: Implies) -> np.ndarray:
@@ -151,15 +155,15 @@ class _Evaluator:
     def next_(self, node: Next) -> np.ndarray:
         child = self(node.child)
         out = np.empty_like(child)
-        out[:, :-1] = child[:, 1:]
-        out[:, -1] = self.alg.bottom  # no next state: the paper's "k > 0" fails
+        out[1:] = child[:-1]
+        out[0] = self.alg.bottom  # no next state: the paper's "k > 0" fails
         return out
 
     def eventually(self, node: Eventually) -> np.ndarray:
-        return _reverse_accumulate(self.alg.maximum, self(node.child))
+        return self.alg.maximum.accumulate(self(node.child), axis=0)
 
     def always(self, node: Always) -> np.ndarray:
-        return _reverse_accumulate(self.alg.minimum, self(node.child))
+        return self.alg.minimum.accumulate(self(node.child), axis=0)
 
     def until(self, node: Until) -> np.ndarray:
         right = self(node.right)
@@ -171,54 +175,56 @@ class _Evaluator:
         right = self(node.right)
         if node.left.is_temporal:
             return self._binary_on_segments(node, right, self.alg.maximum, self.alg.empty_max)
-        # ρ(φ T ψ, t) = max_{s ≥ t} min(φ(s), max_{t' > s} ψ(t')): one suffix scan.
-        left = self(node.left)
-        later_right = np.full_like(right, self.alg.empty_max)
-        later_right[:, :-1] = _reverse_accumulate(self.alg.maximum, right)[:, 1:]
-        return _reverse_accumulate(self.alg.maximum, self.alg.minimum(left, later_right))
+        # ρ(φ T ψ, t) = max_{s ≥ t} min(φ(s), max_{t' > s} ψ(t')): two scans.
+        later_right = np.empty_like(right)
+        later_right[0] = self.alg.empty_max
+        self.alg.maximum.accumulate(right[:-1], axis=0, out=later_right[1:])
+        return self.alg.maximum.accumulate(self.alg.minimum(self(node.left), later_right), axis=0)
 
     def _binary_on_segments(
         self, node: Until | Then, right: np.ndarray, inner: np.ufunc, inner_empty: Any
     ) -> np.ndarray:
-        """U/T with a temporal left operand, judged on each segment s_{t''..t'-1}: O(N·T²)."""
+        """U/T with a temporal left operand, judged on each segment s_{t''..t'-1}: O(N·T²).
+
+        Works in natural time order (row = position) and returns the reversed layout.
+        """
+        right_natural = right[::-1]
         out = self.full(self.alg.empty_max)
         for t_prime in range(self.length):
-            # inner[t] = reduce of φ(s_{t''..t'-1}) over t'' in [t, t'); empty for t ≥ t'
-            reduced = self.full(inner_empty)[:, : t_prime + 1]
+            # reduced[t] = inner reduction of φ(s_{t''..t'-1}) over t'' in [t, t'); empty at t = t'
+            reduced = self.full(inner_empty, t_prime + 1)
             if t_prime > 0:
-                left = self.on_prefix(node.left, t_prime)
-                reduced[:, :t_prime] = _reverse_accumulate(inner, left)
-            term = self.alg.minimum(right[:, t_prime : t_prime + 1], reduced)
-            out[:, : t_prime + 1] = self.alg.maximum(out[:, : t_prime + 1], term)
-        return out
+                left = self.on_prefix(node.left, t_prime)  # reversed: row k is t'' = t'-1-k
+                reduced[:t_prime] = inner.accumulate(left, axis=0)[::-1]
+            term = self.alg.minimum(right_natural[t_prime], reduced)
+            out[: t_prime + 1] = self.alg.maximum(out[: t_prime + 1], term)
+        return np.ascontiguousarray(out[::-1])
 
 
 def _until_scan(alg: _Algebra, left: np.ndarray, right: np.ndarray) -> np.ndarray:
     """``U(t) = max(ψ(t), min(φ(t), U(t+1)))`` with a temporal-free φ, in vectorised steps.
 
-    Each position is the map ``x ↦ max(A, min(B, x))`` with ``(A, B) = (ψ(t), φ(t))``;
-    such maps compose associatively, ``(A1, B1)∘(A2, B2) = (max(A1, min(B1, A2)), min(B1, B2))``,
-    so a doubling suffix scan needs log2(T) whole-array steps. With many short
-    trajectories a plain backward loop over time is cheaper; pick by a cost estimate.
+    In the reversed layout row ``j`` applies the map ``x ↦ max(A, min(B, x))`` with
+    ``(A, B) = (ψ, φ)`` to row ``j-1``'s value. Such maps compose associatively,
+    ``(A1, B1)∘(A2, B2) = (max(A1, min(B1, A2)), min(B1, B2))``, so a doubling scan needs
+    log2(T) whole-array steps; with many short trajectories a plain loop over rows
+    (each vectorised over N) is cheaper, so pick by a cost estimate.
     """
-    n, length = right.shape
+    length, n = right.shape
     if length <= 1:
         return right.copy()
-    log_steps = math.ceil(math.log2(length))
-    if n * length * log_steps > 8 * (length * (2000 + n)):  # backward loop is cheaper
+    steps = math.ceil(math.log2(length))
+    if n * steps > 2 * n + 3000:  # the row loop's per-call overhead is worth ~3000 elements
         out = right.copy()
-        for t in range(length - 2, -1, -1):
-            out[:, t] = alg.maximum(right[:, t], alg.minimum(left[:, t], out[:, t + 1]))
+        for j in range(1, length):
+            alg.maximum(out[j], alg.minimum(left[j], out[j - 1]), out=out[j])
         return out
     a, b = right.copy(), left.copy()
     shift = 1
     while shift < length:
-        a_next, b_next = a[:, shift:], b[:, shift:]
-        head_a, head_b = a[:, :-shift], b[:, :-shift]
-        new_a = alg.maximum(head_a, alg.minimum(head_b, a_next))
-        new_b = alg.minimum(head_b, b_next)
-        a[:, :-shift] = new_a
-        b[:, :-shift] = new_b
+        new_a = alg.maximum(a[shift:], alg.minimum(b[shift:], a[:-shift]))
+        b[shift:] = alg.minimum(b[shift:], b[:-shift])
+        a[shift:] = new_a
         shift *= 2
     return a
 
@@ -239,24 +245,27 @@ _RULES: dict[type, Callable[[_Evaluator, Any], np.ndarray]] = {
 
 
 def _evaluate(formula: Formula, trace: Trace, alg: _Algebra) -> tuple[np.ndarray, bool]:
+    """Values in the evaluator's reversed ``(T, N)`` layout, and whether the input was batched."""
     prepared = prepare(formula.signals, trace)
-    values = _Evaluator(alg, prepared.signals, prepared.n, prepared.length)(formula)
+    reversed_signals = {k: np.ascontiguousarray(v.T[::-1]) for k, v in prepared.signals.items()}
+    values = _Evaluator(alg, reversed_signals, prepared.n, prepared.length)(formula)
     return values, prepared.batched
 
 
 def robustness_over_time(formula: Formula, trace: Trace, rho_max: float = math.inf) -> np.ndarray:
     """Robustness at every position: shape ``(T,)`` or ``(N, T)`` like the signals."""
     values, batched = _evaluate(formula, trace, numeric_algebra(rho_max))
-    return values if batched else values[0]
+    natural = np.ascontiguousarray(values[::-1].T)
+    return natural if batched else natural[0]
 
 
 def robustness(formula: Formula, trace: Trace, rho_max: float = math.inf) -> float | np.ndarray:
     """Robustness at position 0: a float, or an ``(N,)`` array for batched signals."""
     values, batched = _evaluate(formula, trace, numeric_algebra(rho_max))
-    return values[:, 0].copy() if batched else float(values[0, 0])
+    return values[-1].copy() if batched else float(values[-1, 0])
 
 
 def satisfied(formula: Formula, trace: Trace) -> bool | np.ndarray:
     """Boolean semantics at position 0: a bool, or an ``(N,)`` bool array."""
     values, batched = _evaluate(formula, trace, BOOLEAN)
-    return values[:, 0].copy() if batched else bool(values[0, 0])
+    return values[-1].copy() if batched else bool(values[-1, 0])

@@ -24,6 +24,7 @@ from tl_gym.tltl.ast import (
     Expr,
     Formula,
     Implies,
+    Neg,
     Next,
     Not,
     Num,
@@ -32,7 +33,6 @@ from tl_gym.tltl.ast import (
     Then,
     Until,
     Var,
-    Neg,
 )
 
 # Keywords spelled out, mapped to their symbol.
