@@ -1,0 +1,103 @@
+"""Callbacks: code run after every training iteration, able to stop training.
+
+Modelled on stable-baselines3's template methods, but with an explicit payload:
+`AbstractCallback.on_iteration(agent, row)` receives the agent and the history row
+just appended, and returning ``False`` stops `Agent.learn`. A plain function
+``f(agent, row) -> bool | None`` works too (``None`` means continue).
+
+Example:
+    >>> stop = StopOnSuccessRate(0.8)
+    >>> stop.on_iteration(None, {"success_rate": 0.5}), stop.on_iteration(None, {"success_rate": 0.9})
+    (True, False)
+"""
+
+from __future__ import annotations
+
+import abc
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, Union
+
+Row = dict[str, Any]
+
+
+class AbstractCallback(abc.ABC):
+    """Interface of a training callback."""
+
+    @abc.abstractmethod
+    def on_iteration(self, agent: Any, row: Row) -> bool:
+        """Called after each update with the new history row; return False to stop training."""
+
+
+class FunctionCallback(AbstractCallback):
+    """Adapts a plain function ``f(agent, row) -> bool | None`` (``None`` continues)."""
+
+    def __init__(self, function: Callable[[Any, Row], Any]):
+        self.function = function
+
+    def on_iteration(self, agent: Any, row: Row) -> bool:
+        return self.function(agent, row) is not False
+
+
+class CallbackList(AbstractCallback):
+    """Runs several callbacks in order; training stops if any of them says so."""
+
+    def __init__(self, callbacks: Sequence[CallbackLike]):
+        self.callbacks = [as_callback(c) for c in callbacks]
+
+    def on_iteration(self, agent: Any, row: Row) -> bool:
+        results = [c.on_iteration(agent, row) for c in self.callbacks if c is not None]
+        return all(results)
+
+
+class StopOnSuccessRate(AbstractCallback):
+    """Stops training once an iteration's success rate reaches ``threshold``."""
+
+    def __init__(self, threshold: float):
+        if not 0 <= threshold <= 1:
+            raise ValueError(f"threshold must be in [0, 1], got {threshold}")
+        self.threshold = threshold
+
+    def on_iteration(self, agent: Any, row: Row) -> bool:
+        return row["success_rate"] < self.threshold
+
+
+class StopOnRobustness(AbstractCallback):
+    """Stops training once an iteration's mean exact robustness exceeds ``threshold``."""
+
+    def __init__(self, threshold: float = 0.0):
+        self.threshold = threshold
+
+    def on_iteration(self, agent: Any, row: Row) -> bool:
+        return row["mean_robustness"] <= self.threshold
+
+
+class CheckpointCallback(AbstractCallback):
+    """Saves the agent every ``every`` iterations as ``<directory>/<prefix>_<iteration>.zip``."""
+
+    def __init__(self, every: int, directory: str | Path, prefix: str = "agent"):
+        if every < 1:
+            raise ValueError(f"every must be >= 1, got {every}")
+        self.every = every
+        self.directory = Path(directory)
+        self.prefix = prefix
+
+    def on_iteration(self, agent: Any, row: Row) -> bool:
+        if row["iteration"] % self.every == 0:
+            self.directory.mkdir(parents=True, exist_ok=True)
+            agent.save(self.directory / f"{self.prefix}_{row['iteration']}.zip")
+        return True
+
+
+CallbackLike = Union[AbstractCallback, Callable[[Any, Row], Any], Sequence[Any], None]
+
+
+def as_callback(callback: CallbackLike) -> AbstractCallback | None:
+    """Normalise ``None``, a callback, a function or a list of them into one callback."""
+    if callback is None or isinstance(callback, AbstractCallback):
+        return callback
+    if callable(callback):
+        return FunctionCallback(callback)
+    if isinstance(callback, Sequence):
+        return CallbackList(callback)
+    raise TypeError(f"callback must be an AbstractCallback, a function or a list of them, got {callback!r}")

@@ -1,0 +1,266 @@
+"""Batched episode sampling on a Gymnasium vector env.
+
+`make_vector_env` turns what a user hands an agent (an env id, an `Env`, a
+`VectorEnv`) into a `VectorEnv`, preferring the env's own batched simulator
+(its ``vector_entry_point``, one numpy call per step for all cars) over
+`SyncVectorEnv`. `rollout` runs ``N`` episodes of horizon ``T`` with a linear
+controller ``a_t = K_t s_t + k_t^i`` and returns what every agent needs: the
+actions, the observations, the formula's signal traces ``(N, T+1)``, the exact
+robustness and success flags read from the reward wrapper's terminal ``info``.
+The Python loop runs over time steps only; all envs of a step move in one call.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from tl_gym.tltl.ast import Formula
+
+
+def make_vector_env(env: Any, num_envs: int, env_kwargs: Mapping[str, Any] | None = None) -> gym.vector.VectorEnv:
+    """Build a vector env of ``num_envs`` copies of ``env``.
+
+    Args:
+        env: an env id (``"TLCarNav-v0"``), an `Env` (rebuilt from its spec, or deep-copied when it
+            has none) or a `VectorEnv` (returned as is).
+        num_envs: number of parallel envs wanted.
+        env_kwargs: keyword arguments for the env constructor (env ids only).
+
+    Raises:
+        TypeError: ``env`` is none of the above, or ``env_kwargs`` come with an env object.
+    """
+    env_kwargs = dict(env_kwargs or {})
+    if isinstance(env, gym.vector.VectorEnv):
+        if env_kwargs:
+            raise TypeError("env_kwargs can only be used with an env id, not with a VectorEnv")
+        return env
+    if isinstance(env, str):
+        spec = gym.spec(env)
+        mode = "vector_entry_point" if spec.vector_entry_point is not None else "sync"
+        return gym.make_vec(env, num_envs=num_envs, vectorization_mode=mode, **env_kwargs)
+    if isinstance(env, gym.Env):
+        if env_kwargs:
+            raise TypeError("env_kwargs can only be used with an env id, not with an Env object")
+        spec = env.spec
+        if spec is not None:
+            try:
+                if spec.vector_entry_point is not None and not spec.additional_wrappers:
+                    return gym.make_vec(spec.id, num_envs=num_envs, vectorization_mode="vector_entry_point",
+                                        **spec.kwargs)
+                return gym.make_vec(spec, num_envs=num_envs, vectorization_mode="sync")
+            except Exception:  # noqa: BLE001 - a spec that cannot rebuild the env: copy it instead
+                pass
+        copies = [copy.deepcopy(env) for _ in range(num_envs)]
+        return gym.vector.SyncVectorEnv([lambda e=e: e for e in copies])
+    raise TypeError(f"env must be an env id, a gymnasium Env or a VectorEnv, got {type(env).__name__}")
+
+
+def find_formula(venv: gym.vector.VectorEnv) -> Formula:
+    """The TLTL formula the env pays as reward (its ``formula`` attribute).
+
+    Raises:
+        TypeError: the env exposes no formula; wrap it in `tl_gym.TLTLRewardWrapper`.
+    """
+    formula = getattr(venv, "formula", None)
+    if formula is None and isinstance(venv, (gym.vector.SyncVectorEnv, gym.vector.AsyncVectorEnv)):
+        try:
+            formula = venv.get_attr("formula")[0]
+        except AttributeError:
+            formula = None
+    if not isinstance(formula, Formula):
+        raise TypeError(
+            "the env has no `formula`: wrap it in tl_gym.TLTLRewardWrapper(env, spec, signals) "
+            "so that agents can read the TLTL robustness"
+        )
+    return formula
+
+
+@dataclass(frozen=True)
+class Rollouts:
+    """A batch of ``N`` finished episodes of up to ``T`` actions.
+
+    Attributes:
+        actions: actions sent to the env (clipped to its Box), shape ``(N, T, act_dim)``.
+        observations: ``s_0 … s_T``, shape ``(N, T+1, obs_dim)``; an episode that ended early
+            repeats its last observation.
+        traces: the formula's signals recorded by the wrapper, name -> ``(N, T+1)`` (padded the same way).
+        lengths: number of actions of each episode, shape ``(N,)``.
+        robustness: exact robustness of each episode, shape ``(N,)``.
+        satisfied: whether each episode satisfied the formula (robustness > 0), shape ``(N,)``.
+        env_steps: total number of env steps taken by the ``N`` episodes.
+    """
+
+    actions: np.ndarray
+    observations: np.ndarray
+    traces: dict[str, np.ndarray]
+    lengths: np.ndarray
+    robustness: np.ndarray
+    satisfied: np.ndarray
+    env_steps: int
+
+    @property
+    def mean_robustness(self) -> float:
+        """Mean exact robustness over the batch."""
+        return float(np.mean(self.robustness))
+
+    @property
+    def success_rate(self) -> float:
+        """Share of episodes with robustness > 0."""
+        return float(np.mean(self.robustness > 0))
+
+
+def rollout(
+    venv: gym.vector.VectorEnv,
+    feedforward: np.ndarray,
+    gains: np.ndarray | None = None,
+    seed: int | None = None,
+) -> Rollouts:
+    """Run one episode per row of ``feedforward`` with actions ``a_t = K_t s_t + k_t^i``.
+
+    Episodes run ``venv.num_envs`` at a time; chunk ``c`` resets with seed
+    ``seed + c * num_envs``, so episode ``i`` always sees seed ``seed + i`` (a vector env
+    seeds its env ``j`` with ``seed + j``).
+
+    Args:
+        venv: a vector env whose episodes end within ``T`` steps, wrapped so that the terminal
+            ``info`` holds ``robustness`` and ``trace`` (`tl_gym.TLTLRewardWrapper`).
+        feedforward: per-episode action sequences ``k_t^i``, shape ``(N, T, act_dim)``.
+        gains: feedback gains ``K_t``, shape ``(T, act_dim, obs_dim)``; none for open loop.
+        seed: reset seed of episode 0.
+
+    Raises:
+        RuntimeError: an episode did not end within ``T`` steps, or the env reports no robustness.
+    """
+    feedforward = np.asarray(feedforward, dtype=float)
+    n_episodes, horizon, act_dim = feedforward.shape
+    n_envs = venv.num_envs
+    chunks = [
+        _rollout_chunk(venv, feedforward[start:start + n_envs], gains,
+                       None if seed is None else seed + start)
+        for start in range(0, n_episodes, n_envs)
+    ]
+    if len(chunks) == 1:
+        return chunks[0]
+    return Rollouts(
+        actions=np.concatenate([c.actions for c in chunks]),
+        observations=np.concatenate([c.observations for c in chunks]),
+        traces={k: np.concatenate([c.traces[k] for c in chunks]) for k in chunks[0].traces},
+        lengths=np.concatenate([c.lengths for c in chunks]),
+        robustness=np.concatenate([c.robustness for c in chunks]),
+        satisfied=np.concatenate([c.satisfied for c in chunks]),
+        env_steps=sum(c.env_steps for c in chunks),
+    )
+
+
+def _rollout_chunk(
+    venv: gym.vector.VectorEnv, feedforward: np.ndarray, gains: np.ndarray | None, seed: int | None
+) -> Rollouts:
+    """Run at most ``num_envs`` episodes at once (the rows past ``n`` are padding)."""
+    n, horizon, act_dim = feedforward.shape
+    n_envs = venv.num_envs
+    space = venv.single_action_space
+    low, high = np.asarray(space.low, dtype=float), np.asarray(space.high, dtype=float)
+    ff = np.zeros((n_envs, horizon, act_dim))
+    ff[:n] = feedforward
+
+    obs, _ = venv.reset(seed=seed)
+    obs = np.asarray(obs, dtype=float).reshape(n_envs, -1)
+    observations = np.zeros((n_envs, horizon + 1, obs.shape[1]))
+    observations[:, 0] = obs
+    actions = np.zeros((n_envs, horizon, act_dim))
+    lengths = np.full(n_envs, -1)
+    robustness = np.full(n_envs, np.nan)
+    traces: dict[str, np.ndarray] = {}
+    for t in range(horizon):
+        action = ff[:, t]
+        if gains is not None:
+            action = action + np.einsum("nij,nj->ni", np.broadcast_to(gains[t], (n_envs, *gains.shape[1:])), obs)
+        action = np.clip(action, low, high)
+        actions[:, t] = action
+        obs, _, terminated, truncated, info = venv.step(action.astype(space.dtype))
+        obs = np.asarray(obs, dtype=float).reshape(n_envs, -1)
+        observations[:, t + 1] = obs
+        ended = (np.asarray(terminated) | np.asarray(truncated)) & (lengths < 0)
+        if ended.any():
+            if "robustness" not in info:
+                raise RuntimeError(
+                    "the env's terminal info holds no 'robustness': wrap it in tl_gym.TLTLRewardWrapper"
+                )
+            lengths[ended] = t + 1
+            robustness[ended] = np.asarray(info["robustness"], dtype=float)[ended]
+            for name, values in _trace_of(info).items():
+                values = np.asarray(values, dtype=float)  # (n_envs, t + 2): s_0 ... s_{t+1}
+                rows = traces.setdefault(name, np.zeros((n_envs, horizon + 1)))
+                rows[ended, : values.shape[1]] = values[ended, : horizon + 1]
+        if np.all(lengths[:n] >= 0):
+            break
+    if np.any(lengths[:n] < 0):
+        raise RuntimeError(
+            f"{int(np.sum(lengths[:n] < 0))} episode(s) did not end within the horizon T={horizon}; "
+            "set the agent's horizon to the env's episode length"
+        )
+    lengths = lengths[:n]
+    # pad episodes that ended early with their last observation / signal value
+    idx = np.minimum(np.arange(horizon + 1), lengths[:, None])
+    rows = np.arange(n)[:, None]
+    observations = observations[:n][rows, idx]
+    traces = {name: values[:n][rows, idx] for name, values in traces.items()}
+    robustness = robustness[:n]
+    return Rollouts(
+        actions=actions[:n] if lengths.min() == horizon else _zero_after(actions[:n], lengths),
+        observations=observations,
+        traces=traces,
+        lengths=lengths,
+        robustness=robustness,
+        satisfied=robustness > 0,
+        env_steps=int(lengths.sum()),
+    )
+
+
+def _zero_after(actions: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """Zero the actions of steps after an episode ended (they went to the next episode)."""
+    mask = np.arange(actions.shape[1])[None, :] < lengths[:, None]
+    return actions * mask[:, :, None]
+
+
+def _trace_of(info: Mapping[str, Any]) -> Mapping[str, Any]:
+    """The batched ``trace`` dict of a vector env's info, without Gymnasium's ``_name`` masks."""
+    trace = info.get("trace", {})
+    return {k: v for k, v in trace.items() if not k.startswith("_")}
+
+
+def infer_horizon(venv: gym.vector.VectorEnv) -> int | None:
+    """The env's episode length if it states one (a ``horizon`` attribute or ``max_episode_steps``)."""
+    horizon = getattr(venv, "horizon", None)
+    if horizon is None and isinstance(venv, (gym.vector.SyncVectorEnv, gym.vector.AsyncVectorEnv)):
+        try:
+            horizon = venv.get_attr("horizon")[0]
+        except AttributeError:
+            horizon = None
+    if horizon is None:
+        spec = getattr(venv, "spec", None)
+        horizon = getattr(spec, "max_episode_steps", None)
+    return None if horizon is None else int(horizon)
+
+
+def resolve_horizon(horizon: int | None, env: Any) -> int:
+    """The agent's horizon: the configured one, checked against the env's, or the env's own.
+
+    Raises:
+        ValueError: the two disagree, or neither is known.
+    """
+    stated = infer_horizon(env)
+    if horizon is None:
+        if stated is None:
+            raise ValueError("the env states no episode length: pass horizon=T (the number of actions per episode)")
+        return stated
+    if stated is not None and stated != horizon:
+        raise ValueError(f"horizon={horizon} but the env's episodes last {stated} steps; pass horizon={stated}")
+    return int(horizon)
+
