@@ -1,0 +1,244 @@
+"""The trust-region trajectory update of TLPS (paper, Eq. tlps-eq-1; Algorithm 1, line 8).
+
+Each sampled trajectory τ^i (the recorded signal values, shape ``(T, S)``) is moved to
+
+    τ̄^i = argmax ρ̂(τ̄, φ)  subject to  ‖τ̄ − τ^i‖² ≤ ε,
+
+with ρ̂ the engine's log-sum-exp smoothed robustness at sharpness β. The trust region
+keeps the updated trajectory close to one the dynamics produced; ε is in squared
+signal units, summed over every time step and signal.
+
+Two solvers:
+
+- ``"slsqp"``: scipy's SLSQP, one trajectory at a time, as the paper does. Accurate
+  but slow (a few hundred milliseconds per trajectory).
+- ``"projected"``: projected normalised-gradient ascent for all N trajectories at
+  once. The first step goes to the boundary along the gradient (the linearised
+  solution); later steps slide along the ball with a geometrically decaying length,
+  and the best iterate of each trajectory is kept. One value-and-gradient call per
+  step serves the whole batch. ``benchmarks/tlps_research.py`` checks it against SLSQP.
+
+Example:
+    >>> import numpy as np
+    >>> from tl_gym import parse
+    >>> phi = parse("F (x > 1)")
+    >>> tau = np.zeros((1, 5, 1))  # one trajectory, 5 steps, signal x
+    >>> result = improve_trajectories(phi, ("x",), tau, beta=20.0, epsilon=0.25)
+    >>> bool(result.smooth_after[0] > result.smooth_before[0])
+    True
+    >>> float(np.sum((result.updated - tau) ** 2)) <= 0.25 + 1e-9
+    True
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import torch
+from scipy.optimize import minimize
+
+from tl_gym.tltl.ast import Formula
+
+Solver = Literal["projected", "slsqp"]
+SOLVERS = ("projected", "slsqp")
+_GROWTH = 1.2  # step growth of the projected solver after a successful step
+
+
+@dataclass(frozen=True)
+class TrustRegionResult:
+    """Output of `improve_trajectories`.
+
+    Attributes:
+        updated: the updated trajectories τ̄, shape ``(N, T, S)``.
+        smooth_before: ρ̂ of the sampled trajectories, shape ``(N,)``.
+        smooth_after: ρ̂ of the updated trajectories, shape ``(N,)``.
+        evaluations: value-and-gradient calls made (summed over trajectories for SLSQP).
+    """
+
+    updated: np.ndarray
+    smooth_before: np.ndarray
+    smooth_after: np.ndarray
+    evaluations: int
+
+
+@contextmanager
+def torch_threads(n: int | None) -> Iterator[None]:
+    """Run the block with ``n`` torch intra-op threads (unchanged when ``n`` is None)."""
+    if n is None:
+        yield
+        return
+    old = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(old)
+
+
+def smooth_value_and_grad(
+    formula: Formula,
+    names: Sequence[str],
+    trajectories: np.ndarray,
+    beta: float,
+    rho_max: float = math.inf,
+    form: str = "nested",
+) -> tuple[np.ndarray, np.ndarray]:
+    """ρ̂ of each trajectory and its gradient with respect to the trajectory.
+
+    Args:
+        formula: the task formula.
+        names: signal names, in the order of the last axis of ``trajectories``.
+        trajectories: shape ``(N, T, S)``.
+        beta: smoothing sharpness.
+        rho_max: the value of ``true`` passed to the engine.
+        form: the engine's smoothing form, ``"nested"`` (the paper's) or ``"linear"``.
+
+    Returns:
+        ``(values (N,), gradients (N, T, S))``; trajectories do not interact, so the
+        gradient of the sum is each trajectory's own gradient.
+    """
+    x = torch.tensor(trajectories, dtype=torch.float64, requires_grad=True)
+    values = formula.smooth_robustness({name: x[:, :, j] for j, name in enumerate(names)}, beta, rho_max, form)
+    values.sum().backward()
+    grad = x.grad.numpy()
+    # A saturated (±∞) value has no gradient; report zeros rather than NaN.
+    return values.detach().numpy().copy(), np.nan_to_num(grad, nan=0.0, posinf=0.0, neginf=0.0)
+
+
+def improve_trajectories(
+    formula: Formula,
+    names: Sequence[str],
+    trajectories: np.ndarray,
+    beta: float,
+    epsilon: float,
+    solver: Solver = "projected",
+    steps: int = 20,
+    decay: float = 0.5,
+    rho_max: float = math.inf,
+    form: str = "nested",
+    threads: int | None = None,
+) -> TrustRegionResult:
+    """Solve the trust-region problem for every trajectory (Algorithm 1, line 8).
+
+    Args:
+        formula: the task formula; it must read exactly the signals in ``names``.
+        names: signal names, in the order of the last axis of ``trajectories``.
+        trajectories: sampled trajectories τ, shape ``(N, T, S)``.
+        beta: smoothing sharpness (> 0).
+        epsilon: squared radius of the trust region (> 0), in squared signal units.
+        solver: ``"projected"`` (batched) or ``"slsqp"`` (the paper's, per trajectory).
+        steps: iterations of the projected solver; the iteration cap of SLSQP is ``5 · steps``.
+        decay: the projected solver's step-length factor after a step that did not
+            improve a trajectory, in (0, 1) (a step that did grows the length by 1.2).
+        rho_max: the value of ``true`` passed to the engine.
+        form: the engine's smoothing form, ``"nested"`` (the paper's) or ``"linear"``.
+        threads: torch threads while solving (None keeps the process setting).
+
+    Returns:
+        A `TrustRegionResult`.
+
+    Raises:
+        ValueError: on a bad shape, solver, ε, β, step count or decay.
+    """
+    trajectories = np.asarray(trajectories, dtype=np.float64)
+    if trajectories.ndim != 3 or trajectories.shape[2] != len(names):
+        raise ValueError(f"trajectories must have shape (N, T, {len(names)}), got {trajectories.shape}")
+    check_trust_region(epsilon, beta, solver, steps, decay)
+
+    def evaluate(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return smooth_value_and_grad(formula, names, x, beta, rho_max, form)
+
+    with torch_threads(threads):
+        if solver == "projected":
+            return _projected(evaluate, trajectories, epsilon, steps, decay)
+        return _slsqp(evaluate, trajectories, epsilon, 5 * steps)
+
+
+def check_trust_region(epsilon: float, beta: float, solver: str, steps: int, decay: float) -> None:
+    """Raise ``ValueError`` naming the first bad trust-region setting."""
+    if not (isinstance(epsilon, (int, float)) and math.isfinite(epsilon) and epsilon > 0):
+        raise ValueError(f"epsilon must be a positive finite number, got {epsilon!r}")
+    if not (isinstance(beta, (int, float)) and math.isfinite(beta) and beta > 0):
+        raise ValueError(f"beta must be a positive finite number, got {beta!r}")
+    if solver not in SOLVERS:
+        raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
+    if isinstance(steps, bool) or not (isinstance(steps, int) and steps >= 1):
+        raise ValueError(f"steps must be a positive integer, got {steps!r}")
+    if not (isinstance(decay, (int, float)) and 0 < decay < 1):
+        raise ValueError(f"decay must lie in (0, 1), got {decay!r}")
+
+
+Evaluate = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+def _projected(evaluate: Evaluate, tau: np.ndarray, epsilon: float, steps: int, decay: float) -> TrustRegionResult:
+    radius = math.sqrt(epsilon)
+    best_x = tau.copy()
+    best_value, grad = evaluate(best_x)
+    before = best_value.copy()
+    # per-trajectory step length: grows after a gain, shrinks after a loss ("bold driver");
+    # the first step, of length √ε along the gradient, is the linearised solution
+    step = np.full((tau.shape[0], 1, 1), radius)
+    for _ in range(steps):
+        norm = np.sqrt(np.sum(grad**2, axis=(1, 2), keepdims=True))
+        x = best_x + step * grad / np.maximum(norm, 1e-300)
+        offset = x - tau  # project back onto the ball ‖x − τ‖ ≤ √ε
+        length = np.sqrt(np.sum(offset**2, axis=(1, 2), keepdims=True))
+        x = tau + offset * np.minimum(1.0, radius / np.maximum(length, 1e-300))
+        value, new_grad = evaluate(x)
+        better = value > best_value
+        best_x[better], best_value[better], grad[better] = x[better], value[better], new_grad[better]
+        step[better] *= _GROWTH
+        step[~better] *= decay
+    return TrustRegionResult(best_x, before, best_value, steps + 1)
+
+
+def _slsqp(evaluate: Evaluate, tau: np.ndarray, epsilon: float, max_iterations: int) -> TrustRegionResult:
+    n = tau.shape[0]
+    updated = tau.copy()
+    before = np.empty(n)
+    after = np.empty(n)
+    calls = 0
+    for i in range(n):
+        updated[i], before[i], after[i], used = _slsqp_one(evaluate, tau[i], epsilon, max_iterations)
+        calls += used
+    return TrustRegionResult(updated, before, after, calls)
+
+
+def _slsqp_one(
+    evaluate: Evaluate, tau: np.ndarray, epsilon: float, max_iterations: int
+) -> tuple[np.ndarray, float, float, int]:
+    """SLSQP on one trajectory ``(T, S)``: ``(τ̄, ρ̂(τ), ρ̂(τ̄), evaluations)``."""
+    shape = tau.shape
+    origin = tau.ravel()
+    cache: dict[bytes, tuple[float, np.ndarray]] = {}
+
+    def objective(flat: np.ndarray) -> tuple[float, np.ndarray]:
+        key = flat.tobytes()
+        if key not in cache:  # SLSQP asks for the same point more than once
+            value, grad = evaluate(flat.reshape((1,) + shape))
+            cache[key] = (-float(value[0]), -grad.ravel())
+        return cache[key]
+
+    before = -objective(origin)[0]
+    constraint = {
+        "type": "ineq",
+        "fun": lambda z: epsilon - np.sum((z - origin) ** 2),
+        "jac": lambda z: -2.0 * (z - origin),
+    }
+    result = minimize(objective, origin, jac=True, method="SLSQP", constraints=[constraint],
+                      options={"maxiter": max_iterations, "ftol": 1e-9})
+    candidate = result.x
+    offset = candidate - origin
+    length_sq = float(offset @ offset)
+    if length_sq > epsilon:  # SLSQP may end marginally outside the ball
+        candidate = origin + offset * math.sqrt(epsilon / length_sq)
+    after = -objective(candidate)[0]
+    if after < before:  # keep the sample when the solver did not improve it
+        return tau.copy(), before, before, len(cache)
+    return candidate.reshape(shape), before, after, len(cache)

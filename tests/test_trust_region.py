@@ -1,0 +1,83 @@
+"""Tests of the trust-region trajectory update (agents/trust_region.py)."""
+
+import math
+
+import numpy as np
+import pytest
+from tl_gym.agents.trust_region import improve_trajectories, smooth_value_and_grad
+
+from tl_gym import parse
+
+SOLVERS = ("projected", "slsqp")
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_linear_objective_moves_to_the_boundary_along_the_gradient(solver):
+    # ρ = x + y on a one-state trace: the optimum moves √ε along (1, 1)/√2, a gain of √(2ε).
+    phi = parse("x + y > 0")
+    tau = np.array([[[0.3, -0.1]], [[-2.0, 1.0]]])
+    epsilon = 0.09
+    result = improve_trajectories(phi, ("x", "y"), tau, beta=5.0, epsilon=epsilon, solver=solver)
+    np.testing.assert_allclose(result.smooth_after - result.smooth_before, math.sqrt(2 * epsilon), rtol=1e-6)
+    np.testing.assert_allclose(result.updated - tau, math.sqrt(epsilon / 2), rtol=1e-5)
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_updates_stay_in_the_trust_region_and_never_lose(solver):
+    phi = parse("F (x > 4 & y > 4) & G (sqrt((x - 2)^2 + (y - 2)^2) > 1)")
+    rng = np.random.default_rng(1)
+    tau = np.cumsum(rng.normal(0.2, 0.3, size=(4, 15, 2)), axis=1)
+    epsilon = 0.5
+    result = improve_trajectories(phi, ("x", "y"), tau, beta=10.0, epsilon=epsilon, solver=solver, steps=10)
+    assert np.all(np.sum((result.updated - tau) ** 2, axis=(1, 2)) <= epsilon * (1 + 1e-9))
+    assert np.all(result.smooth_after > result.smooth_before)
+    values, _ = smooth_value_and_grad(phi, ("x", "y"), result.updated, 10.0)
+    np.testing.assert_allclose(values, result.smooth_after)
+
+
+def test_projected_reaches_slsqp_within_one_percent_of_the_gain():
+    phi = parse("F (x > 4 & x < 5 & y > 4 & y < 5) & G (sqrt((x - 2)^2 + (y - 2.5)^2) > 1)")
+    rng = np.random.default_rng(2)
+    tau = np.cumsum(rng.normal(0.25, 0.3, size=(5, 20, 2)), axis=1)
+    kwargs = dict(beta=9.0, epsilon=0.3)
+    slsqp = improve_trajectories(phi, ("x", "y"), tau, solver="slsqp", **kwargs)
+    projected = improve_trajectories(phi, ("x", "y"), tau, solver="projected", **kwargs)
+    gain_slsqp = np.mean(slsqp.smooth_after - slsqp.smooth_before)
+    gain_projected = np.mean(projected.smooth_after - projected.smooth_before)
+    assert gain_projected >= 0.99 * gain_slsqp
+
+
+def test_gradient_matches_finite_differences():
+    phi = parse("F (x > 1) & G (y < 2)")
+    rng = np.random.default_rng(3)
+    tau = rng.normal(size=(2, 6, 2))
+    values, grad = smooth_value_and_grad(phi, ("x", "y"), tau, beta=3.0)
+    h = 1e-6
+    bumped = tau.copy()
+    bumped[1, 2, 0] += h
+    values_h, _ = smooth_value_and_grad(phi, ("x", "y"), bumped, beta=3.0)
+    assert values_h[0] == values[0]  # trajectories do not interact
+    np.testing.assert_allclose((values_h[1] - values[1]) / h, grad[1, 2, 0], rtol=1e-4)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "culprit"),
+    [
+        (dict(epsilon=0.0), "epsilon"),
+        (dict(epsilon=-1.0), "epsilon"),
+        (dict(epsilon=math.inf), "epsilon"),
+        (dict(beta=-9.0), "beta"),
+        (dict(solver="adam"), "solver"),
+        (dict(steps=0), "steps"),
+        (dict(decay=1.0), "decay"),
+    ],
+)
+def test_bad_settings_raise_naming_the_culprit(kwargs, culprit):
+    settings = dict(beta=9.0, epsilon=1.0) | kwargs
+    with pytest.raises(ValueError, match=culprit):
+        improve_trajectories(parse("x > 0"), ("x",), np.zeros((2, 3, 1)), **settings)
+
+
+def test_bad_shape_raises():
+    with pytest.raises(ValueError, match="shape"):
+        improve_trajectories(parse("x > 0"), ("x",), np.zeros((3, 1)), beta=9.0, epsilon=1.0)
