@@ -12,17 +12,17 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-from tl_gym.agents.base import Agent
-from tl_gym.agents.callbacks import (
+from .base import Agent
+from .callbacks import (
     AbstractCallback,
     CallbackList,
     CheckpointCallback,
     StopOnRobustness,
     StopOnSuccessRate,
 )
-from tl_gym.agents.evaluation import evaluate_policy
-from tl_gym.agents.policy import LinearGaussianPolicy
-from tl_gym.agents.reps import REPS, REPSConfig
+from .evaluation import evaluate_policy
+from .policy import LinearGaussianPolicy
+from .reps import REPS, REPSConfig
 
 _LAZY = {"TLPS": "tl_gym.agents.tlps", "TLPSConfig": "tl_gym.agents.tlps", "SB3Agent": "tl_gym.agents.sb3"}
 

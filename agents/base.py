@@ -26,10 +26,15 @@ from typing import Any, TypeVar
 
 import gymnasium as gym
 import numpy as np
-from tl_gym.agents.callbacks import CallbackLike, as_callback
-from tl_gym.agents.evaluation import evaluate_policy
-from tl_gym.agents.sampling import find_formula, make_vector_env
-from tl_gym.agents.serialization import (
+from tqdm import tqdm
+
+import tl_gym
+from tl_gym.errors import IncompatibleSaveError
+
+from .callbacks import CallbackLike, as_callback
+from .evaluation import evaluate_policy
+from .sampling import find_formula, make_vector_env
+from .serialization import (
     FORMAT_VERSION,
     check_arrays,
     describe_space,
@@ -38,10 +43,6 @@ from tl_gym.agents.serialization import (
     to_json,
     write_archive,
 )
-from tqdm import tqdm
-
-import tl_gym
-from tl_gym.errors import IncompatibleSaveError
 
 AgentT = TypeVar("AgentT", bound="Agent")
 

@@ -56,7 +56,7 @@ def evaluate_policy(
     if n_episodes < 1:
         raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
     if isinstance(env, gym.vector.VectorEnv):
-        robustness = _evaluate_vector(predictor, env, n_episodes, seed, deterministic)
+        robustness, _ = collect_episodes(predictor, env, n_episodes, seed, deterministic)
     elif isinstance(env, gym.Env):
         robustness = np.array([
             _evaluate_single(predictor, env, None if seed is None else seed + i, deterministic)
@@ -89,15 +89,31 @@ def _evaluate_single(predictor: PolicyPredictor, env: gym.Env, seed: int | None,
             return float(_terminal_robustness(info))
 
 
-def _evaluate_vector(
-    predictor: PolicyPredictor, venv: gym.vector.VectorEnv, n_episodes: int, seed: int | None, deterministic: bool
-) -> np.ndarray:
+def collect_episodes(
+    predictor: PolicyPredictor,
+    venv: gym.vector.VectorEnv,
+    n_episodes: int,
+    seed: int | None = None,
+    deterministic: bool = False,
+) -> tuple[np.ndarray, dict[str, list[np.ndarray]]]:
+    """Run ``n_episodes`` episodes on a vector env; return their robustness and signal traces.
+
+    Seeding as in `evaluate_policy`. Used for the trajectory plots: with ``deterministic=False``
+    the episodes are samples of the policy's trajectory distribution.
+
+    Returns:
+        ``(robustness (n_episodes,), traces)`` where ``traces[name]`` lists each episode's
+        recorded values ``s_0 … s_T`` of that signal (from the wrapper's terminal ``info["trace"]``).
+    """
     n_envs = venv.num_envs
     results: list[np.ndarray] = []
+    traces: dict[str, list[np.ndarray]] = {}
     for start in range(0, n_episodes, n_envs):
+        wanted = min(n_envs, n_episodes - start)
         obs, _ = venv.reset(seed=None if seed is None else seed + start)
         state, episode_start = None, np.ones(n_envs, dtype=bool)
         robustness = np.full(n_envs, np.nan)
+        batch_traces: dict[str, list[Any]] = {}
         done = np.zeros(n_envs, dtype=bool)
         while not done.all():
             action, state = predictor.predict(obs, state=state, episode_start=episode_start,
@@ -106,7 +122,14 @@ def _evaluate_vector(
             ended = (np.asarray(terminated) | np.asarray(truncated)) & ~done
             if ended.any():
                 robustness[ended] = np.asarray(_terminal_robustness(info), dtype=float)[ended]
+                for name, values in info.get("trace", {}).items():
+                    if not name.startswith("_"):
+                        rows = batch_traces.setdefault(name, [None] * n_envs)
+                        for i in np.flatnonzero(ended):  # once per finished episode
+                            rows[i] = np.asarray(values[i], dtype=float)
                 done |= ended
             episode_start = np.asarray(terminated) | np.asarray(truncated)
-        results.append(robustness[: min(n_envs, n_episodes - start)])
-    return np.concatenate(results)
+        results.append(robustness[:wanted])
+        for name, rows in batch_traces.items():
+            traces.setdefault(name, []).extend(rows[:wanted])
+    return np.concatenate(results), traces

@@ -31,9 +31,10 @@ from typing import Any
 import numpy as np
 from scipy.optimize import minimize
 from scipy.special import logsumexp
-from tl_gym.agents.base import Agent, build_config, check_episodic
-from tl_gym.agents.policy import DEFAULT_INIT_STD, DEFAULT_MIN_STD, LinearGaussianPolicy
-from tl_gym.agents.sampling import resolve_horizon, rollout
+
+from .base import Agent, build_config, check_episodic
+from .policy import DEFAULT_INIT_STD, DEFAULT_MIN_STD, LinearGaussianPolicy
+from .sampling import resolve_horizon, rollout
 
 #: Lower bound on the temperature ``η`` of standardised returns: below it the
 #: weights are one-hot to machine precision and the dual's gradient is noise.
