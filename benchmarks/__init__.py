@@ -1,0 +1,1 @@
+"""Benchmarks: the engine's speed against peer libraries, and the paper's experiments."""

@@ -1,0 +1,73 @@
+"""Adapters that evaluate the benchmark's task formulas with peer robustness libraries.
+
+One module per peer; each exposes ``NAME`` and ``evaluators(task, beta)``, which
+imports the library (raising ImportError when it is not installed) and returns the
+`Evaluator` objects it can offer for that task: exact robustness, and smoothed
+robustness with its gradient where the library has one. A peer that cannot
+express a formula returns an `Unsupported` that says why, so the benchmark's
+table can show it. The peers are installed in their own virtualenv
+(``benchmarks/requirements-peers.txt``), never in the project's.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from types import ModuleType
+
+import numpy as np
+
+PEER_MODULES = ("rtamt", "argus", "stlrom", "stlcgpp", "stljax")
+
+
+@dataclass(frozen=True)
+class Evaluator:
+    """One way a library evaluates one task.
+
+    Attributes:
+        library: the library's name as the table prints it.
+        mode: ``"exact"`` or ``"smooth+grad"`` (smoothed value and the gradient of its sum).
+        run: maps ``(x, y)`` signals of shape ``(N, T)`` to the ``(N,)`` robustness values; in
+            ``smooth+grad`` mode it also runs the backward pass.
+        expressed: the formula the library evaluates, when not literally the task's, and why.
+        per_trajectory: the library's cost is per trajectory (a loop, or a vmap in chunks), so
+            the benchmark times it on a prefix of the batch sized by a time budget; throughput
+            per trajectory is what is compared.
+        max_length: the longest T the library can take here (memory), or None.
+    """
+
+    library: str
+    mode: str
+    run: Batch
+    expressed: str = ""
+    per_trajectory: bool = True
+    max_length: int | None = None
+
+
+@dataclass(frozen=True)
+class Unsupported:
+    """A task/mode a library cannot evaluate as tl_gym defines it, and why."""
+
+    library: str
+    mode: str
+    reason: str
+
+
+def load(name: str) -> ModuleType:
+    """The adapter module of peer ``name`` (one of `PEER_MODULES`)."""
+    if name not in PEER_MODULES:
+        raise ValueError(f"unknown peer {name!r}; expected one of {', '.join(PEER_MODULES)}")
+    return importlib.import_module(f"benchmarks.peers.{name}")
+
+
+Batch = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def per_trajectory(run_one: Callable[[np.ndarray, np.ndarray], float]) -> Batch:
+    """Lift a one-trajectory evaluation ``(x[T], y[T]) -> float`` to a batch ``(N, T) -> (N,)``."""
+
+    def run(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return np.array([run_one(xi, yi) for xi, yi in zip(x, y)], dtype=np.float64)
+
+    return run
