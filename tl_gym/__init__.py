@@ -8,16 +8,28 @@ TLPS, REPS and stable-baselines3 adapters.
 
 from importlib.metadata import PackageNotFoundError, version
 
+from gymnasium.envs.registration import register, registry
+
 from tl_gym import logic
 from tl_gym.errors import SpecError, TLGymError, TraceError, UnknownSignalError
 from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.parser import parse
+from tl_gym.wrapper import TLTLRewardWrapper
 
 try:
     __version__ = version("tl_gym")
 except PackageNotFoundError:  # running from a source tree that was not installed
     __version__ = "0.0.0"
 
+# The car env, registered with string entry points so that `import tl_gym` stays cheap.
+if "TLCarNav-v0" not in registry:
+    register(
+        id="TLCarNav-v0",
+        entry_point="tl_gym.envs.car:make_car_env",
+        vector_entry_point="tl_gym.envs.vector:CarNavVectorEnv",
+    )
+
 __all__ = [
-    "Formula", "SpecError", "TLGymError", "TraceError", "UnknownSignalError", "logic", "parse", "__version__",
+    "Formula", "SpecError", "TLGymError", "TLTLRewardWrapper", "TraceError", "UnknownSignalError", "logic", "parse",
+    "__version__",
 ]

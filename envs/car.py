@@ -1,0 +1,235 @@
+"""`CarNavEnv`, the paper's car (section VI), and `make_car_env`, the entry point of TLCarNav-v0."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from tl_gym.envs.dynamics import CarParams, car_step, sample_episode_noise
+from tl_gym.envs.tasks import Layout, make_layout, task_formula
+
+from tl_gym.wrapper import DEFAULT_CLIP, TLTLRewardWrapper
+
+RENDER_SIZE = (480, 480)
+
+
+def observation_space(params: CarParams, layout: Layout) -> spaces.Box:
+    """The Box of ``[x, y, θ, ẋ, ẏ, θ̇]``: positions within ±`CarParams.position_bound`, rates by the actions."""
+    bound = params.position_bound(layout.start, layout.arena)
+    high = np.array(
+        [bound, bound, math.pi, params.max_speed, params.max_speed, params.max_turn_rate], dtype=np.float64
+    )
+    return spaces.Box(-high, high, dtype=np.float64)
+
+
+ACTION_SPACE = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+
+
+class CarNavEnv(gym.Env):
+    """The car of "A Policy Search Method For Temporal Logic Specified RL Tasks" (Li, Ma, Belta), section VI.
+
+    ## Description
+    A car drives in a 300 × 300 arena (units: read centimetres of a 3 m × 3 m arena)
+    past a circular obstacle towards one goal (task 1) or three goals in order
+    (task 2), as in the paper's Figure 1. This class is the bare simulator: its own
+    reward is 0. `gym.make("TLCarNav-v0")` wraps it in `tl_gym.TLTLRewardWrapper`
+    with the task's formula (`tl_gym.envs.tasks.task_formula`), which pays the
+    robustness; see ``docs/envs.md``.
+
+    ## Observation Space
+    ``Box(6,)`` float64, the full state (the agent is not told the model):
+
+    | Num | Observation | Min | Max | Unit |
+    |-----|-------------|-----|-----|------|
+    | 0 | x, position | -6400 | 6400 | unit |
+    | 1 | y, position | -6400 | 6400 | unit |
+    | 2 | θ, heading from the x axis | -π | π | rad |
+    | 3 | ẋ, x rate of the last step | -60 | 60 | unit/s |
+    | 4 | ẏ, y rate of the last step | -60 | 60 | unit/s |
+    | 5 | θ̇, turn rate of the last step | -2.74 | 2.74 | rad/s |
+
+    The arena has no walls: the position bound B = (farthest start coordinate or arena
+    side) + horizon · max_speed · dt + 100 is out of reach (a full-speed horizon covers
+    6000; the noise sum would need about 47 standard deviations more). Rate bounds follow
+    ``max_speed``, ``wheelbase`` and ``max_steer`` (θ̇ ≤ max_speed / L · tan(max_steer)).
+
+    ## Action Space
+    ``Box(-1, 1, (2,))`` float32, normalised and clipped, mapped to the physical action:
+
+    | Num | Action | Min | Max | Physical value | Unit |
+    |-----|--------|-----|-----|----------------|------|
+    | 0 | forward speed | -1 | 1 | a_v = 30 (u0 + 1) in [0, 60] | unit/s |
+    | 1 | steering angle | -1 | 1 | a_Φ = 0.6 u1 in [-0.6, 0.6] | rad |
+
+    ## Transition Dynamics
+    Euler steps of ``dt = 0.5`` s: ``ẋ = a_v cos θ``, ``ẏ = a_v sin θ``,
+    ``θ̇ = a_v / L tan a_Φ`` with ``L = 15``; ``x += dt ẋ + n_x``, ``y += dt ẏ + n_y``,
+    ``θ += dt θ̇ + n_θ`` with Gaussian noise of std (0.15, 0.15, 0.002). One full-speed
+    step moves 30 units (a goal's width). The obstacle is penetrable: the car drives
+    through it and the robustness pays for the depth.
+
+    ## Reward
+    0 on every step (the temporal-logic reward is `TLTLRewardWrapper`'s).
+
+    ## Starting State
+    ``(x, y, θ) = start + N(0, diag(1.5, 1.5, 0.01)²)`` with rates 0; ``start`` is
+    (30, 30, π/4) for task 1 and (30, 30, 0) for task 2.
+
+    ## Episode End
+    1. *Truncation*: after ``horizon`` actions (200 by default), so the trace is s_0 … s_200.
+    2. *Termination*: never (the obstacle is penetrable).
+
+    ## Arguments
+    >>> import gymnasium as gym
+    >>> import tl_gym
+    >>> env = gym.make("TLCarNav-v0", task=2)
+    >>> env.unwrapped
+    <CarNavEnv instance>
+    >>> env.unwrapped.params.horizon
+    200
+
+    | Parameter | Type | Default | Description |
+    |-----------|------|---------|-------------|
+    | task | int | 1 | 1 (Eq. 16) or 2 (Eq. 19) |
+    | horizon | int | 200 | actions per episode |
+    | dt | float | 0.5 | time step (s) |
+    | wheelbase | float | 15 | axle distance L (unit) |
+    | max_speed | float | 60 | upper bound of a_v (unit/s) |
+    | max_steer | float | 0.6 | bound of the steering angle a_Φ (rad) |
+    | noise_std | 3 floats | (0.15, 0.15, 0.002) | per-step noise on x, y, θ |
+    | start_std | 3 floats | (1.5, 1.5, 0.01) | start noise on x, y, θ |
+    | start | 3 floats | task's | mean start (x, y, θ) |
+    | goals | list of 4-tuples | task's | (x_low, x_high, y_low, y_high) per goal |
+    | obstacle | 3 floats | (150, 150, 40) | (x, y, radius) |
+    | arena | 2 floats | (300, 300) | drawn size (no walls) |
+    | render_mode | str | None | "rgb_array" or "human" |
+
+    ## Vectorized environment
+    `tl_gym.envs.vector.CarNavVectorEnv` steps many cars in one numpy call with the
+    same `car_step` (``gym.make_vec("TLCarNav-v0", num_envs=40, vectorization_mode="vector_entry_point")``).
+
+    ## Version History
+    * v0: initial version.
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 10}
+
+    def __init__(
+        self,
+        task: int = 1,
+        horizon: int = 200,
+        dt: float = 0.5,
+        wheelbase: float = 15.0,
+        max_speed: float = 60.0,
+        max_steer: float = 0.6,
+        noise_std: Sequence[float] = (0.15, 0.15, 0.002),
+        start_std: Sequence[float] = (1.5, 1.5, 0.01),
+        start: Sequence[float] | None = None,
+        goals: Sequence[Sequence[float]] | None = None,
+        obstacle: Sequence[float] | None = None,
+        arena: Sequence[float] | None = None,
+        render_mode: str | None = None,
+    ):
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
+        self.task = task
+        self.layout: Layout = make_layout(task, start=start, goals=goals, obstacle=obstacle, arena=arena)
+        self.params = CarParams(
+            dt=dt, wheelbase=wheelbase, max_speed=max_speed, max_steer=max_steer,
+            noise_std=tuple(noise_std), start_std=tuple(start_std), horizon=horizon,  # type: ignore[arg-type]
+        )
+        self.observation_space = observation_space(self.params, self.layout)
+        self.action_space = ACTION_SPACE
+        self.render_mode = render_mode
+        self.state = np.zeros(6, dtype=np.float64)
+        self._noise = np.zeros((self.params.horizon, 3))
+        self._path = np.zeros((self.params.horizon + 1, 2))
+        self._t = -1  # -1: never reset
+        self._viewer: Any = None
+
+    def __repr__(self) -> str:
+        return "<CarNavEnv instance>"
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
+        super().reset(seed=seed)
+        self.state, self._noise = sample_episode_noise(self.np_random, self.params, self.layout.start)
+        self._t = 0
+        self._path[0] = self.state[:2]
+        if self.render_mode == "human":
+            self.render()
+        return self.state.copy(), {}
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        if self._t < 0 or self._t >= self.params.horizon:
+            raise RuntimeError("the episode is over (or never started): call reset() before step()")
+        physical = self.params.physical_action(np.asarray(action, dtype=np.float64))
+        p = self.params
+        self.state = car_step(self.state, physical, p.dt, p.wheelbase, self._noise[self._t])
+        self._t += 1
+        self._path[self._t] = self.state[:2]
+        truncated = self._t >= p.horizon  # the env owns its horizon: no TimeLimit is registered
+        if self.render_mode == "human":
+            self.render()
+        return self.state.copy(), 0.0, False, truncated, {}
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode is None:
+            gym.logger.warn('call render() on an env made with render_mode="rgb_array" or "human"')
+            return None
+        from tl_gym.envs.rendering import HumanViewer, render_frame
+
+        t = max(self._t, 0)
+        frame = render_frame(self.layout, [self._path[: t + 1]], self.state[None, :3], RENDER_SIZE)
+        if self.render_mode == "rgb_array":
+            return frame
+        if self._viewer is None:
+            self._viewer = HumanViewer(RENDER_SIZE, self.metadata["render_fps"])
+        self._viewer.show(frame)
+        return None
+
+    def close(self) -> None:
+        if self._viewer is not None:
+            self._viewer.close()
+            self._viewer = None
+
+
+def make_car_env(
+    task: int = 1,
+    no_revisit: str = "leave",
+    reward: str = "exact",
+    beta: float = 9.0,
+    reward_mode: str = "terminal",
+    rho_max: float = math.inf,
+    clip: float = DEFAULT_CLIP,
+    **car_kwargs: Any,
+) -> TLTLRewardWrapper:
+    """The entry point of TLCarNav-v0: a `CarNavEnv` wrapped in `TLTLRewardWrapper` with its task's formula.
+
+    Args:
+        task: 1 or 2.
+        no_revisit: task 2's no-revisit conjunct, ``"leave"`` (default) or ``"strict"`` (Eq. 19).
+        reward: ``"exact"`` or ``"smooth"`` robustness (`TLTLRewardWrapper`).
+        beta: smoothing sharpness for ``reward="smooth"``; 9 as in the paper.
+        reward_mode: ``"terminal"`` or ``"dense"`` (`TLTLRewardWrapper`).
+        rho_max: robustness of ``true`` (and minus that of ``X φ`` at the last state).
+        clip: bound of the rewards (`TLTLRewardWrapper`).
+        **car_kwargs: `CarNavEnv` arguments (``horizon``, ``dt``, layout overrides, ``render_mode`` …).
+    """
+    car = CarNavEnv(task=task, **car_kwargs)
+    layout = car.layout
+    formula = task_formula(
+        task, no_revisit, start=layout.start, goals=[_goal_tuple(g) for g in layout.goals],
+        obstacle=(layout.obstacle.x, layout.obstacle.y, layout.obstacle.radius), arena=layout.arena,
+    )
+    return TLTLRewardWrapper(
+        car, formula, signals={"x": 0, "y": 1}, reward=reward, beta=beta, reward_mode=reward_mode,
+        rho_max=rho_max, clip=clip,
+    )
+
+
+def _goal_tuple(goal: Any) -> tuple[float, float, float, float]:
+    return (goal.x_low, goal.x_high, goal.y_low, goal.y_high)

@@ -1,0 +1,200 @@
+"""`CarNavVectorEnv`: many TLCarNav-v0 cars stepped in one numpy call.
+
+The agents sample 40 episodes at a time; stepping 40 wrapped single envs through
+`SyncVectorEnv` spends its time in Python, while this class calls the same
+`car_step` once on a ``(num_envs, 6)`` array and scores all finished episodes with
+one batched call of the engine.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+from tl_gym.envs.car import ACTION_SPACE, RENDER_SIZE, observation_space
+from tl_gym.envs.dynamics import CarParams, car_step, sample_episode_noise
+from tl_gym.envs.tasks import Layout, make_layout, task_formula
+
+from tl_gym.wrapper import DEFAULT_CLIP, REWARDS
+
+
+class CarNavVectorEnv(VectorEnv):
+    """``num_envs`` TLCarNav-v0 cars with one batched simulator and one batched reward.
+
+    It behaves as ``SyncVectorEnv`` over ``gym.make("TLCarNav-v0", ...)`` with the same
+    arguments: ``reset(seed=s)`` seeds car ``i`` with ``s + i`` and each car draws its
+    noise exactly as the single env does, so both give the same trajectories and
+    rewards for the same actions. Autoreset is Gymnasium's default (``NEXT_STEP``:
+    the step after an episode ends resets that car, ignores its action and pays 0),
+    and ``info`` uses the vector layout, arrays with ``_key`` masks: on the step that
+    ends episodes, ``"robustness"``, ``"satisfied"``, ``"trace"`` (``{"x": (num_envs,
+    T+1), "_x": mask, "y": ..., "_y": ...}``) and, with ``reward="smooth"``,
+    ``"smooth_robustness"``. Terminal rewards only (``reward_mode="terminal"``); for
+    dense rewards use ``vectorization_mode="sync"``.
+
+    Example:
+        >>> import gymnasium as gym
+        >>> import tl_gym
+        >>> envs = gym.make_vec("TLCarNav-v0", num_envs=40, vectorization_mode="vector_entry_point")
+        >>> obs, info = envs.reset(seed=0)
+        >>> obs.shape
+        (40, 6)
+        >>> for _ in range(200):
+        ...     obs, reward, terminated, truncated, info = envs.step(np.zeros((40, 2), dtype=np.float32))
+        >>> bool(truncated.all()), info["trace"]["x"].shape, bool(np.all(reward == info["robustness"]))
+        (True, (40, 201), True)
+
+    Change logs:
+        * v0.1.0 - Initially added.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10, "autoreset_mode": AutoresetMode.NEXT_STEP}
+
+    def __init__(
+        self,
+        num_envs: int = 40,
+        task: int = 1,
+        no_revisit: str = "leave",
+        reward: str = "exact",
+        beta: float = 9.0,
+        reward_mode: str = "terminal",
+        rho_max: float = math.inf,
+        clip: float = DEFAULT_CLIP,
+        horizon: int = 200,
+        dt: float = 0.5,
+        wheelbase: float = 15.0,
+        max_speed: float = 60.0,
+        max_steer: float = 0.6,
+        noise_std: Sequence[float] = (0.15, 0.15, 0.002),
+        start_std: Sequence[float] = (1.5, 1.5, 0.01),
+        start: Sequence[float] | None = None,
+        goals: Sequence[Sequence[float]] | None = None,
+        obstacle: Sequence[float] | None = None,
+        arena: Sequence[float] | None = None,
+        render_mode: str | None = None,
+    ):
+        """Check the arguments (as `make_car_env` does) and allocate the batch; see `CarNavEnv` for each one."""
+        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
+            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
+        if reward not in REWARDS:
+            raise ValueError(f"reward must be one of {REWARDS}, got {reward!r}")
+        if reward_mode != "terminal":
+            raise ValueError(
+                f"CarNavVectorEnv pays terminal rewards only, got reward_mode={reward_mode!r}; for dense rewards "
+                'use gym.make_vec("TLCarNav-v0", vectorization_mode="sync", reward_mode="dense")'
+            )
+        for name, value, allow_inf in (("beta", beta, False), ("rho_max", rho_max, True), ("clip", clip, False)):
+            if not (isinstance(value, (int, float)) and value > 0 and (allow_inf or math.isfinite(value))):
+                raise ValueError(f"{name} must be {'> 0' if allow_inf else 'finite and > 0'}, got {value!r}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
+        self.num_envs = int(num_envs)
+        self.task = task
+        self.layout: Layout = make_layout(task, start=start, goals=goals, obstacle=obstacle, arena=arena)
+        self.params = CarParams(
+            dt=dt, wheelbase=wheelbase, max_speed=max_speed, max_steer=max_steer,
+            noise_std=tuple(noise_std), start_std=tuple(start_std), horizon=horizon,  # type: ignore[arg-type]
+        )
+        self.formula = task_formula(task, no_revisit, start=start, goals=goals, obstacle=obstacle, arena=arena)
+        self.reward = reward
+        self.beta = float(beta)
+        self.rho_max = float(rho_max)
+        self.clip = float(clip)
+        self.render_mode = render_mode
+
+        self.single_observation_space = observation_space(self.params, self.layout)
+        self.single_action_space = ACTION_SPACE
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+
+        n, horizon = self.num_envs, self.params.horizon
+        self._rngs: list[np.random.Generator] = [seeding.np_random()[0] for _ in range(n)]
+        self._state = np.zeros((n, 6))
+        self._noise = np.zeros((horizon, n, 3))  # time-major, so that one step reads one block
+        self._path = np.zeros((horizon + 1, n, 2))
+        # Every car has the same horizon and restarts on the same step, so one clock serves all.
+        self._t = -1  # -1: never reset
+        self._autoreset = False
+
+    # episodes ---------------------------------------------------------------------------------
+    def _start_episodes(self) -> None:
+        for i, rng in enumerate(self._rngs):
+            self._state[i], self._noise[:, i] = sample_episode_noise(rng, self.params, self.layout.start)
+        self._t = 0
+        self._path[0] = self._state[:, :2]
+        self._autoreset = False
+
+    def reset(
+        self, *, seed: int | Sequence[int | None] | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        if seed is None:
+            seeds: Sequence[int | None] = [None] * self.num_envs
+        elif isinstance(seed, (int, np.integer)):
+            seeds = [int(seed) + i for i in range(self.num_envs)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"seed must be an int or {self.num_envs} seeds, got {len(seeds)}")
+        self._rngs = [seeding.np_random(s)[0] for s in seeds]
+        self._start_episodes()
+        return self._state.copy(), {}
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        if self._t < 0:
+            raise RuntimeError("call reset() before step()")
+        actions = np.asarray(actions, dtype=np.float64)
+        if actions.shape != (self.num_envs, 2):
+            raise ValueError(f"actions must have shape ({self.num_envs}, 2), got {actions.shape}")
+        n = self.num_envs
+        rewards = np.zeros(n)
+        done = np.zeros(n, dtype=bool)
+        if self._autoreset:  # NEXT_STEP autoreset: every car restarts and ignores its action
+            self._start_episodes()
+            return self._state.copy(), rewards, done, done.copy(), {}
+        p = self.params
+        t = self._t
+        self._state = car_step(
+            self._state, p.physical_action(actions), p.dt, p.wheelbase, self._noise[t]
+        )
+        self._t = t = t + 1
+        self._path[t] = self._state[:, :2]
+        infos: dict[str, Any] = {}
+        if t >= p.horizon:
+            self._autoreset = True
+            rewards = self._score(infos)
+            return self._state.copy(), rewards, done, ~done, infos
+        return self._state.copy(), rewards, done, done.copy(), infos
+
+    def _score(self, infos: dict[str, Any]) -> np.ndarray:
+        """Rewards of the episodes that just ended (all of them), filling ``infos`` in the vector layout."""
+        path = self._path[: self._t + 1]
+        trace = {"x": np.ascontiguousarray(path[:, :, 0].T), "y": np.ascontiguousarray(path[:, :, 1].T)}
+        rho = np.asarray(self.formula.robustness(trace, self.rho_max), dtype=np.float64)
+        everyone = np.ones(self.num_envs, dtype=bool)
+        infos["robustness"], infos["_robustness"] = rho, everyone.copy()
+        infos["satisfied"], infos["_satisfied"] = rho > 0, everyone.copy()
+        infos["trace"] = {"x": trace["x"], "_x": everyone.copy(), "y": trace["y"], "_y": everyone.copy()}
+        infos["_trace"] = everyone.copy()
+        value = rho
+        if self.reward == "smooth":
+            value = np.asarray(self.formula.smooth_robustness(trace, self.beta, self.rho_max), dtype=np.float64)
+            infos["smooth_robustness"], infos["_smooth_robustness"] = value, everyone.copy()
+        return np.clip(value, -self.clip, self.clip)
+
+    def render(self) -> np.ndarray | None:
+        """One frame with every car and its path so far (``render_mode="rgb_array"``)."""
+        if self.render_mode is None:
+            gym.logger.warn('call render() on a vector env made with render_mode="rgb_array"')
+            return None
+        from tl_gym.envs.rendering import render_frame
+
+        t = max(self._t, 0)
+        paths = [self._path[: t + 1, i] for i in range(self.num_envs)]
+        return render_frame(self.layout, paths, self._state[:, :3], RENDER_SIZE)

@@ -1,0 +1,384 @@
+"""`TLTLRewardWrapper`: the robustness of a TLTL formula as the reward of any Gymnasium env."""
+
+from __future__ import annotations
+
+import inspect
+import math
+import numbers
+from collections.abc import Callable, Mapping
+from typing import Any, SupportsFloat, Union
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from tl_gym.errors import TraceError, UnknownSignalError
+from tl_gym.tltl.ast import Formula
+from tl_gym.tltl.online import PrefixMonitor
+from tl_gym.tltl.parser import parse
+
+SignalSource = Union[int, str, tuple, Callable[..., Any]]
+SignalMap = Union[Mapping[str, SignalSource], Callable[..., Mapping[str, Any]]]
+
+REWARDS = ("exact", "smooth")
+REWARD_MODES = ("terminal", "dense")
+DEFAULT_CLIP = 1e4
+
+
+class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """Pays the robustness of a TLTL formula over the episode's trajectory as reward.
+
+    The wrapper records one value per signal the formula reads, from the reset
+    observation s_0 and from every observation after it. On the step that ends the
+    episode (terminated or truncated) it pays the robustness of the recorded trace
+    s_0 … s_T: the exact value by default, the log-sum-exp smoothed one with
+    ``reward="smooth"`` (sharpness ``beta``). Every other step pays 0. With
+    ``reward_mode="dense"`` each step instead pays the change of the robustness of
+    the prefix s_0 … s_t, so that the rewards of an episode add up to its (clipped)
+    terminal robustness; formulas in the incremental fragment of
+    `tl_gym.tltl.online` cost O(1) per step, the others O(t) (the prefix is
+    re-evaluated). ``env_reward_weight`` adds the env's own reward, weighted.
+
+    On the terminal step ``info`` gets ``"robustness"`` (exact, unclipped),
+    ``"satisfied"`` (ρ > 0), ``"trace"`` (signal name -> float64 array s_0 … s_T)
+    and, with ``reward="smooth"``, ``"smooth_robustness"``. Rewards are Python
+    floats clipped to ``[-clip, clip]``, so an infinite robustness (``true`` with
+    ``rho_max=inf``, ``X φ`` at the last state) never reaches an agent. Each
+    ``reset`` starts a new trace, so the wrapper works across the autoreset of
+    Gymnasium's vector envs and of stable-baselines3's VecEnvs.
+
+    Signals: ``signals`` maps each name to an observation index (Box; a tuple for
+    a multi-dimensional Box), a key (Dict observation whose entry holds one number),
+    a ``(key, index...)`` tuple (an element of a Box inside a Dict), or a callable
+    of ``(obs)`` or ``(obs, info)``; or it is one callable of ``(obs, info)`` returning
+    a mapping of all signals. Names the formula does not read are allowed.
+
+    Example:
+        >>> import gymnasium as gym
+        >>> from tl_gym import TLTLRewardWrapper
+        >>> env = TLTLRewardWrapper(gym.make("Pendulum-v1", max_episode_steps=50),
+        ...                         "F(cos_th > 0.95)", signals={"cos_th": 0})
+        >>> _ = env.reset(seed=0)
+        >>> _, reward, *_ = env.step(env.action_space.sample())
+        >>> reward
+        0.0
+        >>> for _ in range(49):
+        ...     _, reward, terminated, truncated, info = env.step(np.array([0.0], dtype=np.float32))
+        >>> truncated, round(reward, 4), info["satisfied"], len(info["trace"]["cos_th"])
+        (True, -1.1018, False, 51)
+
+    Change logs:
+        * v0.1.0 - Initially added.
+    """
+
+    def __init__(
+        self,
+        env: gym.Env,
+        spec: str | Formula,
+        signals: SignalMap,
+        reward: str = "exact",
+        beta: float = 9.0,
+        rho_max: float = math.inf,
+        reward_mode: str = "terminal",
+        env_reward_weight: float = 0.0,
+        clip: float = DEFAULT_CLIP,
+    ):
+        """Check every argument, then wrap ``env``.
+
+        Args:
+            env: the env to wrap.
+            spec: the formula, as text or a `Formula`.
+            signals: where each signal comes from (see the class docstring).
+            reward: ``"exact"`` robustness or ``"smooth"`` (log-sum-exp with ``beta``).
+            beta: smoothing sharpness, > 0; used with ``reward="smooth"``.
+            rho_max: the robustness of ``true`` (and minus that of ``X φ`` at the last state).
+            reward_mode: ``"terminal"`` (one reward at the end) or ``"dense"`` (increments of
+                the prefix robustness; exact robustness only).
+            env_reward_weight: weight of the wrapped env's own reward, added every step.
+            clip: the temporal-logic part of every reward lies in ``[-clip, clip]``. The
+                default 1e4 leaves every finite robustness of TLCarNav-v0 untouched (its
+                positions stay within a few thousand units) and keeps rewards finite in
+                float32 buffers; lower it for agents sensitive to reward scale.
+
+        Raises:
+            SpecError: ``spec`` does not parse.
+            UnknownSignalError: the formula reads a name ``signals`` does not map.
+            ValueError, TypeError: a bad option, or a signal the observation space cannot address.
+        """
+        formula = _as_formula(spec)
+        if reward not in REWARDS:
+            raise ValueError(f"reward must be one of {REWARDS}, got {reward!r}")
+        if reward_mode not in REWARD_MODES:
+            raise ValueError(f"reward_mode must be one of {REWARD_MODES}, got {reward_mode!r}")
+        if reward_mode == "dense" and reward == "smooth":
+            raise ValueError("reward_mode='dense' pays exact robustness increments; use reward='exact'")
+        _check_positive("beta", beta, allow_inf=False)
+        _check_positive("rho_max", rho_max, allow_inf=True)
+        _check_positive("clip", clip, allow_inf=False)
+        if not (isinstance(env_reward_weight, numbers.Real) and math.isfinite(env_reward_weight)):
+            raise ValueError(f"env_reward_weight must be a finite number, got {env_reward_weight!r}")
+        if not isinstance(env, gym.Env):
+            raise TypeError(f"env must be a gymnasium.Env, got {type(env).__name__}")
+        reader = _SignalReader(formula.signals, signals, env.observation_space)
+
+        gym.utils.RecordConstructorArgs.__init__(
+            self, spec=str(formula), signals=signals, reward=reward, beta=beta, rho_max=rho_max,
+            reward_mode=reward_mode, env_reward_weight=env_reward_weight, clip=clip,
+        )
+        gym.Wrapper.__init__(self, env)
+        self.formula = formula
+        self.reward = reward
+        self.beta = float(beta)
+        self.rho_max = float(rho_max)
+        self.reward_mode = reward_mode
+        self.env_reward_weight = float(env_reward_weight)
+        self.clip = float(clip)
+        self._reader = reader
+        self._monitor = PrefixMonitor(formula, self.rho_max) if reward_mode == "dense" else None
+        self._rows: list[list[float]] = []
+        self._paid = 0.0
+        self._done = True
+
+    # Gymnasium API ------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
+        obs, info = self.env.reset(seed=seed, options=options)
+        row = self._reader.first(obs, info)
+        self._rows = [row]
+        self._paid = 0.0
+        self._done = False
+        if self._monitor is not None:
+            self._monitor.reset()
+            self._monitor.update(dict(zip(self._reader.names, row)))
+        return obs, info
+
+    def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
+        if self._done:
+            raise RuntimeError("the episode is over (or never started): call reset() before step()")
+        obs, env_reward, terminated, truncated, info = self.env.step(action)
+        row = self._reader.read(obs, info, len(self._rows))
+        self._rows.append(row)
+        reward = 0.0
+        if terminated or truncated:
+            self._done = True
+            reward = self._terminal_reward(info)
+        elif self._monitor is not None:
+            target = self._clipped(self._monitor.update(dict(zip(self._reader.names, row))))
+            reward = target - self._paid
+            self._paid += reward
+        if self.env_reward_weight:
+            reward += self.env_reward_weight * float(env_reward)
+        return obs, reward, terminated, truncated, info
+
+    # Recorded trace -------------------------------------------------------------------------
+    @property
+    def trace(self) -> dict[str, np.ndarray]:
+        """Signals recorded since the last reset: name -> read-only float64 array s_0 … s_t."""
+        out = self._trace_arrays()
+        for array in out.values():
+            array.flags.writeable = False
+        return out
+
+    def _trace_arrays(self) -> dict[str, np.ndarray]:
+        table = np.array(self._rows, dtype=np.float64).reshape(len(self._rows), len(self._reader.names))
+        return {name: table[:, i].copy() for i, name in enumerate(self._reader.names)}
+
+    def _terminal_reward(self, info: dict[str, Any]) -> float:
+        trace = self._trace_arrays()
+        rho = float(self.formula.robustness(trace, self.rho_max))
+        info["robustness"] = rho
+        info["satisfied"] = rho > 0
+        info["trace"] = trace
+        value = rho
+        if self.reward == "smooth":
+            value = float(self.formula.smooth_robustness(trace, self.beta, self.rho_max))
+            info["smooth_robustness"] = value
+        return self._clipped(value) - self._paid
+
+    def _clipped(self, value: float) -> float:
+        return min(max(value, -self.clip), self.clip)
+
+
+# --------------------------------------------------------------------------- argument checks
+
+
+def _as_formula(spec: Any) -> Formula:
+    if isinstance(spec, Formula):
+        return spec
+    if isinstance(spec, str):
+        return parse(spec)
+    raise TypeError(f"spec must be formula text or a Formula, got {type(spec).__name__}")
+
+
+def _check_positive(name: str, value: Any, allow_inf: bool) -> None:
+    ok = isinstance(value, numbers.Real) and not isinstance(value, bool) and value > 0
+    if ok and not allow_inf:
+        ok = math.isfinite(value)
+    if not ok:
+        bound = "> 0 (inf allowed)" if allow_inf else "finite and > 0"
+        raise ValueError(f"{name} must be {bound}, got {value!r}")
+
+
+def _is_index(value: Any) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+
+
+def _accepts_info(fn: Callable[..., Any]) -> bool:
+    """Whether ``fn`` takes ``(obs, info)`` rather than ``(obs)``."""
+    try:
+        params = inspect.signature(fn).parameters.values()
+    except (TypeError, ValueError):  # builtins without a signature: assume (obs)
+        return False
+    positional = [p for p in params if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
+    return len(positional) >= 2 or any(p.kind == p.VAR_POSITIONAL for p in params)
+
+
+def _box_index(name: str, space: spaces.Space, index: tuple, where: str) -> tuple:
+    """Check that ``index`` picks one element of the Box ``space``; return it normalised."""
+    if not isinstance(space, spaces.Box):
+        raise TypeError(f"signal {name!r}: {where} is a {type(space).__name__} space, which an index cannot address")
+    if len(index) != len(space.shape) or not all(_is_index(i) for i in index):
+        raise ValueError(
+            f"signal {name!r}: index {index if len(index) != 1 else index[0]!r} does not pick one element of "
+            f"{where}, a Box of shape {space.shape}"
+        )
+    for i, size in zip(index, space.shape):
+        if not -size <= i < size:
+            raise ValueError(
+                f"signal {name!r}: index {index if len(index) != 1 else index[0]!r} lies outside {where}, "
+                f"a Box of shape {space.shape}"
+            )
+    return tuple(int(i) % size for i, size in zip(index, space.shape))
+
+
+class _SignalReader:
+    """Reads the formula's signals from an observation (and info), checking each value."""
+
+    def __init__(self, names: tuple[str, ...], signals: SignalMap, space: spaces.Space):
+        self.names = names
+        self._all_at_once: Callable[..., Any] | None = None
+        self._getters: list[Callable[[Any, dict], Any]] = []
+        self._fast_index: np.ndarray | None = None
+        self._pending_check = False
+        if callable(signals) and not isinstance(signals, Mapping):
+            self._all_at_once = signals
+            self._pending_check = True
+            return
+        if not isinstance(signals, Mapping):
+            raise TypeError(f"signals must be a mapping name -> source or one callable, got {type(signals).__name__}")
+        missing = [n for n in names if n not in signals]
+        if missing:
+            raise UnknownSignalError(
+                f"the formula reads signal {missing[0]!r}, which `signals` does not map "
+                f"(mapped: {', '.join(map(str, signals)) or 'none'})"
+            )
+        getters = {str(key): self._getter(str(key), source, space) for key, source in signals.items()}
+        self._getters = [getters[n] for n in names]
+        self._pending_check = any(callable(signals[n]) for n in names)
+        flat = [signals[n] for n in names]
+        if isinstance(space, spaces.Box) and len(space.shape) == 1 and all(_is_index(s) for s in flat):
+            self._fast_index = np.array([int(s) % space.shape[0] for s in flat], dtype=np.intp)
+
+    @staticmethod
+    def _getter(name: str, source: Any, space: spaces.Space) -> Callable[[Any, dict], Any]:
+        if callable(source):
+            return _CallableGetter(source, _accepts_info(source))
+        if _is_index(source) or (isinstance(source, tuple) and source and all(_is_index(i) for i in source)):
+            index = _box_index(name, space, source if isinstance(source, tuple) else (source,), "the observation")
+            return _KeyGetter(None, index)
+        if isinstance(source, str) or (isinstance(source, tuple) and source and isinstance(source[0], str)):
+            key, rest = (source, ()) if isinstance(source, str) else (source[0], tuple(source[1:]))
+            if not isinstance(space, spaces.Dict):
+                raise TypeError(
+                    f"signal {name!r}: key {key!r} needs a Dict observation space, got {type(space).__name__}"
+                )
+            if key not in space.spaces:
+                raise KeyError(f"signal {name!r}: the observation has no key {key!r} (keys: {', '.join(space.spaces)})")
+            sub = space.spaces[key]
+            if not rest:
+                if not (isinstance(sub, spaces.Box) and int(np.prod(sub.shape)) == 1):
+                    shape = getattr(sub, "shape", None)
+                    raise ValueError(
+                        f"signal {name!r}: key {key!r} holds {type(sub).__name__} of shape {shape}, not one number; "
+                        f"pick an element with a tuple such as ({key!r}, 0)"
+                    )
+                return _KeyGetter(key, (0,) * len(sub.shape))
+            return _KeyGetter(key, _box_index(name, sub, rest, f"observation[{key!r}]"))
+        raise TypeError(
+            f"signal {name!r}: expected an index, a key, a (key, index) tuple or a callable, got {source!r}"
+        )
+
+    def first(self, obs: Any, info: dict) -> list[float]:
+        """Read s_0; on the first call, check what callables return."""
+        if self._pending_check:
+            self._check_callables(obs, info)
+            self._pending_check = False
+        return self.read(obs, info, 0)
+
+    def _check_callables(self, obs: Any, info: dict) -> None:
+        if self._all_at_once is not None:
+            values = self._all_at_once(obs, info)
+            if not isinstance(values, Mapping):
+                raise TypeError(
+                    f"the signals callable must return a mapping name -> number, got {type(values).__name__}"
+                )
+            missing = [n for n in self.names if n not in values]
+            if missing:
+                raise UnknownSignalError(
+                    f"the signals callable returned no {missing[0]!r}, which the formula reads "
+                    f"(returned: {', '.join(map(str, values)) or 'none'})"
+                )
+            for name in self.names:
+                _check_scalar(name, values[name])
+            return
+        for name, getter in zip(self.names, self._getters):
+            _check_scalar(name, getter(obs, info))
+
+    def read(self, obs: Any, info: dict, step: int) -> list[float]:
+        """The signal values of one observation, as floats; NaN or inf raises `TraceError`."""
+        if self._fast_index is not None:
+            row = obs[self._fast_index].tolist()
+        elif self._all_at_once is not None:
+            values = self._all_at_once(obs, info)
+            row = [float(values[n]) for n in self.names]
+        else:
+            row = [float(g(obs, info)) for g in self._getters]
+        total = sum(row)
+        if total - total != 0.0:  # NaN or inf somewhere (or an overflowing sum): find it
+            for name, value in zip(self.names, row):
+                if not math.isfinite(value):
+                    raise TraceError(
+                        f"signal {name!r} is {value} at step {step} of the recorded trace (s_0 is step 0)"
+                    )
+        return row
+
+
+class _KeyGetter:
+    """Reads ``obs[index]`` or ``obs[key][index]`` (a class rather than a lambda, so the wrapper pickles)."""
+
+    def __init__(self, key: str | None, index: tuple[int, ...]):
+        self.key = key
+        self.index = index
+
+    def __call__(self, obs: Any, info: dict) -> Any:
+        return (obs if self.key is None else obs[self.key])[self.index]
+
+
+class _CallableGetter:
+    """Calls a user's signal function with ``(obs)`` or ``(obs, info)``."""
+
+    def __init__(self, fn: Callable[..., Any], with_info: bool):
+        self.fn = fn
+        self.with_info = with_info
+
+    def __call__(self, obs: Any, info: dict) -> Any:
+        return self.fn(obs, info) if self.with_info else self.fn(obs)
+
+
+def _check_scalar(name: str, value: Any) -> None:
+    if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.ndarray, np.generic)):
+        raise TypeError(f"signal {name!r} must be a real number, got {type(value).__name__}: {value!r}")
+    if np.ndim(value) != 0 or np.asarray(value).dtype.kind not in "iuf":
+        raise ValueError(
+            f"signal {name!r} must be one real number, got an array of shape {np.shape(value)} "
+            f"and dtype {np.asarray(value).dtype}"
+        )
