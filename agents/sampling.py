@@ -67,12 +67,7 @@ def find_formula(venv: gym.vector.VectorEnv) -> Formula:
     Raises:
         TypeError: the env exposes no formula; wrap it in `tl_gym.TLTLRewardWrapper`.
     """
-    formula = getattr(venv, "formula", None)
-    if formula is None and isinstance(venv, (gym.vector.SyncVectorEnv, gym.vector.AsyncVectorEnv)):
-        try:
-            formula = venv.get_attr("formula")[0]
-        except AttributeError:
-            formula = None
+    formula = _env_attr(venv, "formula")
     if not isinstance(formula, Formula):
         raise TypeError(
             "the env has no `formula`: wrap it in tl_gym.TLTLRewardWrapper(env, spec, signals) "
@@ -236,17 +231,30 @@ def _trace_of(info: Mapping[str, Any]) -> Mapping[str, Any]:
 
 
 def infer_horizon(venv: gym.vector.VectorEnv) -> int | None:
-    """The env's episode length if it states one (a ``horizon`` attribute or ``max_episode_steps``)."""
-    horizon = getattr(venv, "horizon", None)
-    if horizon is None and isinstance(venv, (gym.vector.SyncVectorEnv, gym.vector.AsyncVectorEnv)):
+    """The env's episode length if it states one.
+
+    Looks for a ``horizon`` attribute (on the vector env, else on its sub-envs), then for
+    ``params.horizon`` (the car env's parameters), then for the spec's ``max_episode_steps``.
+    """
+    for name in ("horizon", "params"):
+        value = _env_attr(venv, name)
+        if name == "params":
+            value = getattr(value, "horizon", None)
+        if isinstance(value, (int, np.integer)):
+            return int(value)
+    steps = getattr(getattr(venv, "spec", None), "max_episode_steps", None)
+    return None if steps is None else int(steps)
+
+
+def _env_attr(venv: gym.vector.VectorEnv, name: str) -> Any:
+    """Attribute ``name`` of the vector env, or of its first sub-env; ``None`` when absent."""
+    value = getattr(venv, name, None)
+    if value is None and isinstance(venv, (gym.vector.SyncVectorEnv, gym.vector.AsyncVectorEnv)):
         try:
-            horizon = venv.get_attr("horizon")[0]
+            value = venv.get_attr(name)[0]
         except AttributeError:
-            horizon = None
-    if horizon is None:
-        spec = getattr(venv, "spec", None)
-        horizon = getattr(spec, "max_episode_steps", None)
-    return None if horizon is None else int(horizon)
+            value = None
+    return value
 
 
 def resolve_horizon(horizon: int | None, env: Any) -> int:
