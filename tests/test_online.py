@@ -1,0 +1,149 @@
+"""PrefixMonitor against the offline engine on every prefix."""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from tl_gym import TraceError, UnknownSignalError, parse
+from tl_gym.logic import F, G, T, U, X, signal
+from tl_gym.tltl.ast import Constant, Formula
+from tl_gym.tltl.online import PrefixMonitor, is_incremental
+
+a, b = signal("a"), signal("b")
+
+# Temporal-free formulas over two signals, with arithmetic the engine checks for NaN/inf.
+predicates = st.sampled_from([
+    a < 1, a > -1, b < 0.5, a + b > 0, abs(a - b) < 1, a * b < 0.25, (a - 1) ** 2 < 2, b >= 0, a <= b,
+    parse("sqrt(a * a + 1) > 1.5"), parse("exp(b) < 2"),
+])
+
+
+def _state_formulas() -> st.SearchStrategy[Formula]:
+    return st.recursive(
+        predicates | st.sampled_from([Constant(True), Constant(False)]),
+        lambda inner: st.one_of(
+            inner.map(lambda f: ~f),
+            st.tuples(inner, inner).map(lambda p: p[0] & p[1]),
+            st.tuples(inner, inner).map(lambda p: p[0] | p[1]),
+            st.tuples(inner, inner).map(lambda p: p[0] >> p[1]),
+        ),
+        max_leaves=3,
+    )
+
+
+state_formulas = _state_formulas()
+temporal_atoms = st.one_of(
+    state_formulas.map(F), state_formulas.map(G), state_formulas.map(X),
+    st.tuples(state_formulas, state_formulas).map(lambda p: U(p[0], p[1])),
+    st.tuples(state_formulas, state_formulas).map(lambda p: T(p[0], p[1])),
+)
+fragment = st.recursive(
+    temporal_atoms | state_formulas,
+    lambda inner: st.one_of(
+        inner.map(lambda f: ~f),
+        st.tuples(inner, inner).map(lambda p: p[0] & p[1]),
+        st.tuples(inner, inner).map(lambda p: p[0] | p[1]),
+        st.tuples(inner, inner).map(lambda p: p[0] >> p[1]),
+    ),
+    max_leaves=4,
+)
+# Outside the fragment: a temporal operator over a temporal operand.
+nested = st.one_of(
+    temporal_atoms.map(F), temporal_atoms.map(G), temporal_atoms.map(X),
+    st.tuples(temporal_atoms, fragment).map(lambda p: U(p[0], p[1])),
+    st.tuples(fragment, temporal_atoms).map(lambda p: T(p[0], p[1])),
+)
+values = st.floats(-3, 3, allow_nan=False, width=32)
+traces = st.integers(1, 9).flatmap(lambda n: st.tuples(st.lists(values, min_size=n, max_size=n),
+                                                        st.lists(values, min_size=n, max_size=n)))
+rho_maxes = st.sampled_from([math.inf, 5.0])
+
+
+def _check_every_prefix(formula: Formula, trace: tuple, rho_max: float) -> PrefixMonitor:
+    xs, ys = np.array(trace[0], dtype=np.float64), np.array(trace[1], dtype=np.float64)
+    monitor = PrefixMonitor(formula, rho_max)
+    for t in range(len(xs)):
+        got = monitor.update({"a": xs[t], "b": ys[t]})
+        expected = formula.robustness({"a": xs[: t + 1], "b": ys[: t + 1]}, rho_max)
+        assert got == pytest.approx(expected, rel=1e-12, abs=1e-12), (str(formula), t)
+    assert monitor.length == len(xs)
+    return monitor
+
+
+@settings(max_examples=300, deadline=None)
+@given(fragment, traces, rho_maxes)
+def test_incremental_fragment_matches_engine_on_every_prefix(formula, trace, rho_max):
+    monitor = _check_every_prefix(formula, trace, rho_max)
+    assert monitor.incremental
+
+
+@settings(max_examples=80, deadline=None)
+@given(nested, traces, rho_maxes)
+def test_replay_fallback_matches_engine_on_every_prefix(formula, trace, rho_max):
+    monitor = _check_every_prefix(formula, trace, rho_max)
+    assert not monitor.incremental
+
+
+@settings(max_examples=50, deadline=None)
+@given(fragment, traces, traces)
+def test_reset_forgets_the_previous_trace(formula, first, second):
+    reused, fresh = PrefixMonitor(formula), PrefixMonitor(formula)
+    for x, y in zip(*first):
+        reused.update({"a": x, "b": y})
+    reused.reset()
+    assert reused.length == 0
+    for x, y in zip(*second):
+        assert reused.update({"a": x, "b": y}) == fresh.update({"a": x, "b": y})
+
+
+def test_fragment_membership():
+    assert is_incremental(parse("F(a > 1) & G(b < 2) | !X(a < 0) -> (a < 1 U b > 0)"))
+    assert is_incremental(parse("a > 1 & (b < 0 T a > 2)"))
+    assert not is_incremental(parse("G(a > 1 -> F b > 0)"))
+    assert not is_incremental(parse("F G a > 1"))
+
+
+def test_car_task_one_is_incremental_and_task_two_is_not():
+    from tl_gym.envs.tasks import task_formula
+
+    assert PrefixMonitor(task_formula(1)).incremental
+    assert not PrefixMonitor(task_formula(2)).incremental
+
+
+def test_nan_signal_and_undefined_arithmetic_raise():
+    monitor = PrefixMonitor(parse("F(sqrt(a) > 1)"))
+    monitor.update({"a": 4.0})
+    with pytest.raises(TraceError, match="'a'.*position 1"):
+        monitor.update({"a": float("nan")})
+    monitor.reset()
+    with pytest.raises(TraceError, match="sqrt"):
+        monitor.update({"a": -1.0})
+    with pytest.raises(TraceError, match="undefined"):
+        PrefixMonitor(parse("G(1 / a > 0)")).update({"a": 0.0})
+
+
+def test_missing_signal_and_bad_arguments():
+    with pytest.raises(UnknownSignalError, match="'b'"):
+        PrefixMonitor(parse("F(a > b)")).update({"a": 1.0})
+    with pytest.raises(ValueError, match="rho_max"):
+        PrefixMonitor(parse("F(a > 0)"), rho_max=0.0)
+    with pytest.raises(TypeError, match="Formula"):
+        PrefixMonitor("F(a > 0)")  # type: ignore[arg-type]
+
+
+def test_online_module_does_not_import_gymnasium():
+    import ast
+    import importlib.util
+
+    with open(importlib.util.find_spec("tl_gym.tltl.online").origin) as handle:
+        source = handle.read()
+    imported = set()
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            imported.update(alias.name.split(".")[0] for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            imported.add(node.module.split(".")[0])
+    assert imported <= {"__future__", "math", "collections", "typing", "numpy", "tl_gym"}, imported
