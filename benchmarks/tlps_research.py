@@ -1,0 +1,279 @@
+"""TLPS research driver: variants × seeds on the car's two tasks, REPS alongside.
+
+Writes, under ``docs/results/tlps_research/`` (or ``--out``):
+
+- ``runs/<task>_<variant>_s<seed>.csv``: every history row of one run (a finished run is
+  not recomputed: delete its file to rerun it);
+- ``summary.csv``: one row per run: first iteration with mean exact robustness > 0 and with
+  success ≥ 80 %, the best and final batch success, and the final policy's success on
+  200 fresh episodes (stochastic, as it is trained, and deterministic);
+- ``task<k>_curves.png``: success rate and mean exact robustness vs iteration, one panel
+  column per variant (thin lines: seeds; thick: median);
+- ``solver_check.csv`` (``--solver-check``): the projected solver's gain in ρ̂ against
+  SLSQP's on sampled car trajectories;
+- ``timing.csv`` (``--timing``): seconds per TLPS iteration on both tasks.
+
+Runs are spread over ``--workers`` processes (one torch thread each).
+
+Usage::
+
+    python -m benchmarks.tlps_research --tasks 1 2 --variants default reps --seeds 0 1 2
+    python -m benchmarks.tlps_research --solver-check --timing
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import os
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+OUT = Path(__file__).resolve().parent.parent / "docs" / "results" / "tlps_research"
+ITERATIONS = {1: 30, 2: 50}
+EVAL_EPISODES = 200
+EVAL_SEED = 1_000_000
+
+#: name -> (agent, hyperparameters over the agent's defaults)
+VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
+    "default": ("TLPS", {}),
+    "importance": ("TLPS", {"weights": "importance"}),
+    "paper": ("TLPS", {"weights": "paper"}),
+    "mix_1.0": ("TLPS", {"hybrid_mix": 1.0}),
+    "mix_0.5": ("TLPS", {"hybrid_mix": 0.5}),
+    "eps_0.45": ("TLPS", {"epsilon": 0.45}),
+    "eps_45": ("TLPS", {"epsilon": 45.0}),
+    "eps_450": ("TLPS", {"epsilon": 450.0}),
+    "no_floor": ("TLPS", {"exploration_floor": 0.0}),
+    "kl_1": ("TLPS", {"kl_bound": 1.0}),
+    "kl_3": ("TLPS", {"kl_bound": 3.0}),
+    "beta_30": ("TLPS", {"beta": 30.0}),
+    "beta_3": ("TLPS", {"beta": 3.0}),
+    "reg_90": ("TLPS", {"regularization": 90.0}),
+    "reg_9000": ("TLPS", {"regularization": 9000.0}),
+    "nested": ("TLPS", {"smoothing": "nested"}),
+    "reps": ("REPS", {"epsilon": 2.0}),
+    "reps_floor": ("REPS", {"epsilon": 2.0}),  # REPS with TLPS's exploration floor (see _floor_callback)
+}
+
+
+def _make_agent(variant: str, task: int, seed: int) -> Any:
+    from tl_gym.agents import REPS, TLPS
+
+    kind, hyperparameters = VARIANTS[variant]
+    cls = TLPS if kind == "TLPS" else REPS
+    return cls("TLCarNav-v0", seed=seed, env_kwargs={"task": task}, **hyperparameters)
+
+
+def _floor_callback(agent: Any, row: dict[str, Any]) -> bool:
+    """Give REPS the TLPS exploration schedule: re-floor the policy after each update."""
+    from tl_gym.agents.tlps import TLPSConfig
+
+    floor = TLPSConfig().std_floor(row["iteration"])
+    policy = agent.policy
+    policy.cov = policy._floored(policy.cov, max(floor, policy.min_std))
+    return True
+
+
+def run_one(variant: str, task: int, seed: int, iterations: int, out: Path) -> Path:
+    """Train one agent, evaluate it, and write its history CSV (skipped when it exists)."""
+    import torch
+
+    torch.set_num_threads(1)
+    path = out / "runs" / f"task{task}_{variant}_s{seed}.csv"
+    if path.exists():
+        return path
+    agent = _make_agent(variant, task, seed)
+    agent.learn(iterations, callback=_floor_callback if variant == "reps_floor" else None)
+    stochastic = agent.evaluate(EVAL_EPISODES, seed=EVAL_SEED, deterministic=False)
+    deterministic = agent.evaluate(EVAL_EPISODES, seed=EVAL_SEED, deterministic=True)
+    rows = [dict(row, eval_success_stochastic=stochastic["success_rate"],
+                 eval_success_deterministic=deterministic["success_rate"],
+                 eval_rho_stochastic=stochastic["mean_robustness"]) for row in agent.history]
+    agent.close()
+    _write_csv(path, rows)
+    return path
+
+
+def _write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    keys: list[str] = []
+    for row in rows:
+        keys.extend(k for k in row if k not in keys)
+    tmp = path.with_suffix(".tmp")
+    with tmp.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=keys)
+        writer.writeheader()
+        writer.writerows(rows)
+    os.replace(tmp, path)
+
+
+def _read_csv(path: Path) -> list[dict[str, float]]:
+    with path.open() as f:
+        return [{k: float(v) if v not in ("", None) else math.nan for k, v in row.items()} for row in csv.DictReader(f)]
+
+
+def summarise(out: Path) -> list[dict[str, Any]]:
+    """One summary row per finished run, written to ``summary.csv``."""
+    rows = []
+    for path in sorted((out / "runs").glob("task*_s*.csv")):
+        task_part, rest = path.stem.split("_", 1)
+        variant, seed = rest.rsplit("_s", 1)
+        history = _read_csv(path)
+        success = np.array([r["success_rate"] for r in history])
+        rho = np.array([r["mean_robustness"] for r in history])
+        first = lambda mask: int(np.argmax(mask)) + 1 if mask.any() else ""  # noqa: E731
+        rows.append({
+            "task": int(task_part[4:]), "variant": variant, "seed": int(seed), "iterations": len(history),
+            "first_rho_positive": first(rho > 0), "first_success_80": first(success >= 0.8),
+            "best_success": float(success.max()), "final_success": float(success[-1]),
+            "final_rho": float(rho[-1]),
+            "eval_success_stochastic": history[-1]["eval_success_stochastic"],
+            "eval_success_deterministic": history[-1]["eval_success_deterministic"],
+            "seconds_per_iteration": history[-1]["wall_time"] / len(history),
+        })
+    _write_csv(out / "summary.csv", rows)
+    return rows
+
+
+def plot(out: Path, task: int, variants: list[str]) -> None:
+    """Curves of success rate and mean exact robustness for ``variants`` on ``task``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    found = [v for v in variants if list((out / "runs").glob(f"task{task}_{v}_s*.csv"))]
+    if not found:
+        return
+    fig, axes = plt.subplots(2, len(found), figsize=(3.2 * len(found), 5.5), sharey="row", squeeze=False)
+    for col, variant in enumerate(found):
+        curves = [_read_csv(p) for p in sorted((out / "runs").glob(f"task{task}_{variant}_s*.csv"))]
+        for row, key in enumerate(("success_rate", "mean_robustness")):
+            ax = axes[row, col]
+            series = [np.array([r[key] for r in c]) for c in curves]
+            for s in series:
+                ax.plot(np.arange(1, len(s) + 1), s, lw=0.8, alpha=0.6)
+            length = min(len(s) for s in series)
+            ax.plot(np.arange(1, length + 1), np.median([s[:length] for s in series], axis=0), color="k", lw=2)
+            if key == "success_rate":
+                ax.axhline(0.8, color="gray", ls="--", lw=0.8)
+                ax.set_title(f"{variant} ({len(series)} seeds)", fontsize=9)
+            else:
+                ax.set_yscale("symlog", linthresh=5.0)
+                ax.axhline(0.0, color="gray", ls="--", lw=0.8)
+                ax.set_xlabel("iteration")
+        axes[0, 0].set_ylabel("success rate")
+        axes[1, 0].set_ylabel("mean exact robustness")
+    fig.suptitle(f"TLCarNav-v0 task {task}: TLPS variants and REPS")
+    fig.tight_layout()
+    fig.savefig(out / f"task{task}_curves.png", dpi=90)
+    plt.close(fig)
+
+
+def solver_check(out: Path, seeds: int = 2, n: int = 10) -> list[dict[str, Any]]:
+    """Projected solver vs SLSQP on trajectories sampled by the initial policy and a tighter one."""
+    import torch
+    from tl_gym.agents import TLPS
+    from tl_gym.agents.sampling import rollout
+    from tl_gym.agents.trust_region import improve_trajectories
+
+    torch.set_num_threads(1)
+    rows = []
+    for task in (1, 2):
+        for seed in range(seeds):
+            agent = TLPS("TLCarNav-v0", seed=seed, n_episodes=n, env_kwargs={"task": task})
+            rng = np.random.default_rng(seed)
+            for label, mean, std in (("initial", 0.0, 0.5), ("slow", -0.85, 0.1)):
+                feedforward = mean + std * rng.standard_normal((n, agent.horizon, 2))
+                batch = rollout(agent.env, feedforward, seed=seed)
+                tau = np.stack([batch.traces[s] for s in agent.signal_names], axis=-1)
+                for epsilon in (4.5, 45.0):
+                    kwargs = dict(beta=9.0, epsilon=epsilon, form=agent.config.smoothing)
+                    start = time.perf_counter()
+                    slsqp = improve_trajectories(agent.formula, agent.signal_names, tau, solver="slsqp", **kwargs)
+                    t_slsqp = time.perf_counter() - start
+                    start = time.perf_counter()
+                    proj = improve_trajectories(agent.formula, agent.signal_names, tau, solver="projected",
+                                                steps=agent.config.solver_steps, decay=agent.config.solver_decay,
+                                                **kwargs)
+                    t_proj = time.perf_counter() - start
+                    gain_s = slsqp.smooth_after - slsqp.smooth_before
+                    gain_p = proj.smooth_after - proj.smooth_before
+                    rows.append({
+                        "task": task, "seed": seed, "policy": label, "epsilon": epsilon,
+                        "mean_gain_slsqp": float(gain_s.mean()), "mean_gain_projected": float(gain_p.mean()),
+                        "gain_ratio": float(gain_p.mean() / gain_s.mean()),
+                        "worst_trajectory_ratio": float(np.min(gain_p / np.maximum(gain_s, 1e-12))),
+                        "objective_rel_gap": float(np.max(np.abs(slsqp.smooth_after - proj.smooth_after)
+                                                          / np.maximum(np.abs(slsqp.smooth_after), 1e-12))),
+                        "seconds_slsqp_per_trajectory": t_slsqp / n, "seconds_projected_batch": t_proj,
+                    })
+                    print(rows[-1], flush=True)
+            agent.close()
+    _write_csv(out / "solver_check.csv", rows)
+    return rows
+
+
+def timing(out: Path, iterations: int = 5) -> list[dict[str, Any]]:
+    """Seconds per TLPS iteration (default config, N = 40, T = 200) on both tasks."""
+    import torch
+    from tl_gym.agents import TLPS
+
+    torch.set_num_threads(1)
+    rows = []
+    for task in (1, 2):
+        for smoothing in ("linear", "nested"):
+            agent = TLPS("TLCarNav-v0", seed=0, env_kwargs={"task": task}, smoothing=smoothing)
+            agent.learn(1)  # warm-up
+            agent.learn(iterations)
+            hist = agent.history[1:]
+            rows.append({
+                "task": task, "smoothing": smoothing,
+                "seconds_per_iteration": float(np.mean(np.diff([0.0] + [r["wall_time"] for r in agent.history])[1:])),
+                "sampling": float(np.mean([r["time_sampling"] for r in hist])),
+                "trust_region": float(np.mean([r["time_trust_region"] for r in hist])),
+            })
+            print(rows[-1], flush=True)
+            agent.close()
+    _write_csv(out / "timing.csv", rows)
+    return rows
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tasks", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--variants", nargs="+", default=["default", "reps"], choices=list(VARIANTS))
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--iterations", type=int, default=None, help="default: 30 (task 1), 50 (task 2)")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--out", type=Path, default=OUT)
+    parser.add_argument("--solver-check", action="store_true")
+    parser.add_argument("--timing", action="store_true")
+    parser.add_argument("--no-runs", action="store_true", help="only the checks, summary and plots")
+    args = parser.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    if args.timing:
+        timing(args.out)
+    if args.solver_check:
+        solver_check(args.out)
+    if not args.no_runs:
+        jobs = [(v, t, s, args.iterations or ITERATIONS[t], args.out)
+                for t in args.tasks for v in args.variants for s in args.seeds]
+        with ProcessPoolExecutor(max_workers=args.workers) as pool:
+            for path in pool.map(run_one, *zip(*jobs)):
+                print("done", path.name, flush=True)
+    rows = summarise(args.out)
+    for task in (1, 2):
+        plot(args.out, task, [v for v in VARIANTS if any(r["variant"] == v and r["task"] == task for r in rows)])
+    for row in rows:
+        print(row)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,88 @@
+"""Tests of the TLPS agent (agents/tlps.py) on the car env."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from tl_gym.agents.tlps import TLPS, TLPSConfig
+
+
+@pytest.mark.parametrize(
+    ("hyperparameters", "culprit"),
+    [
+        (dict(beta=-9.0), "beta"),
+        (dict(beta=0.0), "beta"),
+        (dict(epsilon=0.0), "epsilon"),
+        (dict(epsilon=-4.5), "epsilon"),
+        (dict(n_episodes=1), "n_episodes"),
+        (dict(horizon=0), "horizon"),
+        (dict(weights="softmax"), "weights"),
+        (dict(hybrid_mix=1.5), "hybrid_mix"),
+        (dict(kl_bound=0.0), "kl_bound"),
+        (dict(alpha=-1.0), "alpha"),
+        (dict(regularization=0.0), "regularization"),
+        (dict(solver="newton"), "solver"),
+        (dict(solver_steps=0), "steps"),
+        (dict(smoothing="cubic"), "smoothing"),
+        (dict(exploration_floor=-0.1), "exploration_floor"),
+        (dict(exploration_halflife=0.0), "exploration_halflife"),
+        (dict(threads=0), "threads"),
+    ],
+)
+def test_bad_hyperparameters_raise_at_construction(hyperparameters, culprit):
+    with pytest.raises(ValueError, match=culprit):
+        TLPSConfig(**hyperparameters)
+    with pytest.raises(ValueError, match=culprit):
+        TLPS("TLCarNav-v0", **hyperparameters)
+
+
+def test_unknown_hyperparameter_is_a_type_error():
+    with pytest.raises(TypeError, match="eps"):
+        TLPS("TLCarNav-v0", eps=1.0)
+
+
+def test_exploration_floor_halves_every_halflife():
+    cfg = TLPSConfig(exploration_floor=0.2, exploration_halflife=5.0, min_std=1e-3)
+    assert cfg.std_floor(0) == pytest.approx(0.2)
+    assert cfg.std_floor(5) == pytest.approx(0.1)
+    assert cfg.std_floor(10_000) == pytest.approx(1e-3)
+    assert TLPSConfig(exploration_floor=0.0).std_floor(1) == TLPSConfig().min_std
+
+
+def test_short_run_improves_task_1_robustness():
+    agent = TLPS("TLCarNav-v0", seed=0).learn(8)
+    rho = [row["mean_robustness"] for row in agent.history]
+    assert np.mean(rho[-2:]) > rho[0] + 20.0, rho
+    row = agent.history[-1]
+    for key in ("smooth_robustness", "smooth_updated", "alpha", "kl", "weight_rank_corr", "policy_std"):
+        assert np.isfinite(row[key]), key
+    assert row["smooth_updated"] > row["smooth_robustness"]  # the trust region improved the samples
+    assert row["kl"] == pytest.approx(agent.config.kl_bound, rel=1e-3)
+
+
+def test_same_seed_same_history_and_save_load_round_trip(tmp_path):
+    kwargs = dict(seed=3, n_episodes=6, solver_steps=3)
+    first = TLPS("TLCarNav-v0", **kwargs).learn(2)
+    second = TLPS("TLCarNav-v0", **kwargs).learn(2)
+    strip = [{k: v for k, v in row.items() if k != "wall_time" and not k.startswith("time_")} for row in first.history]
+    assert strip == [{k: v for k, v in row.items() if k != "wall_time" and not k.startswith("time_")}
+                     for row in second.history]
+    path = first.save(tmp_path / "tlps.zip")
+    loaded = TLPS.load(path)
+    assert dataclasses.asdict(loaded.config) == dataclasses.asdict(first.config)
+    obs = np.zeros((3, 6))
+    np.testing.assert_array_equal(loaded.predict(obs)[0], first.predict(obs)[0])
+    first.learn(1)
+    loaded.learn(1)
+    assert loaded.history[-1]["mean_robustness"] == first.history[-1]["mean_robustness"]
+
+
+@pytest.mark.parametrize("weights", ["importance", "paper"])
+def test_every_weighting_and_a_fixed_alpha_run(weights):
+    agent = TLPS("TLCarNav-v0", seed=1, n_episodes=6, solver_steps=2, weights=weights, alpha=0.5).learn(1)
+    assert agent.history[-1]["alpha"] == 0.5
+
+
+def test_slsqp_solver_runs():
+    agent = TLPS("TLCarNav-v0", seed=1, n_episodes=3, horizon=200, solver="slsqp", solver_steps=2).learn(1)
+    assert agent.history[-1]["smooth_updated"] >= agent.history[-1]["smooth_robustness"]
