@@ -166,7 +166,10 @@ class CarNavEnv(gym.Env):
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         if self._t < 0 or self._t >= self.params.horizon:
             raise RuntimeError("the episode is over (or never started): call reset() before step()")
-        physical = self.params.physical_action(np.asarray(action, dtype=np.float64))
+        action = np.asarray(action, dtype=np.float64)
+        if action.shape != (2,):
+            raise ValueError(f"action must have shape (2,) (speed, steering in [-1, 1]), got {action.shape}")
+        physical = self.params.physical_action(action)
         p = self.params
         self.state = car_step(self.state, physical, p.dt, p.wheelbase, self._noise[self._t])
         self._t += 1

@@ -184,13 +184,15 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def _terminal_reward(self, info: dict[str, Any]) -> float:
         trace = self._trace_arrays()
-        rho = float(self.formula.robustness(trace, self.rho_max))
+        # a formula that reads no signal still needs the trace's length
+        scored = trace if trace else {"_": np.zeros(len(self._rows))}
+        rho = float(self.formula.robustness(scored, self.rho_max))
         info["robustness"] = rho
         info["satisfied"] = rho > 0
         info["trace"] = trace
         value = rho
         if self.reward == "smooth":
-            value = float(self.formula.smooth_robustness(trace, self.beta, self.rho_max))
+            value = float(self.formula.smooth_robustness(scored, self.beta, self.rho_max))
             info["smooth_robustness"] = value
         return self._clipped(value) - self._paid
 

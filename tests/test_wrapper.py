@@ -1,0 +1,305 @@
+"""TLTLRewardWrapper on scripted envs, in vector envs and in SB3 VecEnvs."""
+
+import math
+import pickle
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium import spaces
+
+import tl_gym
+from tl_gym import SpecError, TLTLRewardWrapper, TraceError, UnknownSignalError, parse
+
+
+class Scripted(gym.Env):
+    """Replays ``values`` (T+1, 3) as observations; the env's own reward is 1 per step; truncates at T."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, values=None, dict_obs=False, terminate=False):
+        default = np.linspace(0, 1, 18).reshape(6, 3)
+        self.values = np.asarray(values if values is not None else default, dtype=np.float64)
+        self.dict_obs = dict_obs
+        self.terminate = terminate
+        box = spaces.Box(-np.inf, np.inf, shape=(3,), dtype=np.float64)
+        if dict_obs:
+            self.observation_space = spaces.Dict({
+                "pos": spaces.Box(-np.inf, np.inf, shape=(2,), dtype=np.float64),
+                "speed": spaces.Box(-np.inf, np.inf, shape=(1,), dtype=np.float64),
+            })
+        else:
+            self.observation_space = box
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+        self.t = 0
+
+    def _obs(self):
+        row = self.values[self.t]
+        if self.dict_obs:
+            return {"pos": row[:2].copy(), "speed": row[2:].copy()}
+        return row.copy()
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.t = 0
+        return self._obs(), {"t": 0}
+
+    def step(self, action):
+        self.t += 1
+        end = self.t == len(self.values) - 1
+        return self._obs(), 1.0, end and self.terminate, end and not self.terminate, {"t": self.t}
+
+
+def run(env, seed=0):
+    """One episode with zero actions: (rewards, last info)."""
+    env.reset(seed=seed)
+    rewards = []
+    while True:
+        _, reward, terminated, truncated, info = env.step(np.zeros(env.action_space.shape, dtype=np.float32))
+        rewards.append(reward)
+        if terminated or truncated:
+            return rewards, info
+
+
+SPEC = "F(a > 0.5) & G(b < 0.9)"
+
+
+@pytest.mark.parametrize("terminate", [False, True])
+def test_terminal_reward_is_the_robustness_of_the_recorded_trace(terminate):
+    env = TLTLRewardWrapper(Scripted(terminate=terminate), SPEC, signals={"a": 0, "b": 2})
+    rewards, info = run(env)
+    values = env.unwrapped.values
+    trace = {"a": values[:, 0], "b": values[:, 2]}
+    expected = parse(SPEC).robustness(trace)
+    assert rewards[:-1] == [0.0] * (len(values) - 2)
+    assert rewards[-1] == expected and type(rewards[-1]) is float
+    assert info["robustness"] == expected
+    assert info["satisfied"] == (expected > 0)
+    assert set(info["trace"]) == {"a", "b"}
+    np.testing.assert_array_equal(info["trace"]["a"], values[:, 0])
+    assert "smooth_robustness" not in info
+
+
+def test_smooth_reward_and_info():
+    env = TLTLRewardWrapper(Scripted(), SPEC, signals={"a": 0, "b": 2}, reward="smooth", beta=3.0)
+    rewards, info = run(env)
+    values = env.unwrapped.values
+    trace = {"a": values[:, 0], "b": values[:, 2]}
+    assert rewards[-1] == pytest.approx(parse(SPEC).smooth_robustness(trace, 3.0))
+    assert info["smooth_robustness"] == rewards[-1]
+    assert info["robustness"] == parse(SPEC).robustness(trace)
+
+
+@pytest.mark.parametrize("spec", [SPEC, "G(a > 0.1 -> F(b > 0.8))", "a < 0.2 U (b > 0.5 & X a > 0.6)"])
+def test_dense_rewards_sum_to_the_terminal_robustness(spec):
+    values = np.random.default_rng(0).uniform(-1, 1, size=(30, 3))
+    dense = TLTLRewardWrapper(Scripted(values), spec, signals={"a": 0, "b": 2}, reward_mode="dense")
+    rewards, info = run(dense)
+    assert math.fsum(rewards) == pytest.approx(info["robustness"], abs=1e-12)
+    # each step pays the change of the prefix robustness
+    formula = parse(spec)
+    prefix = [formula.robustness({"a": values[: t + 1, 0], "b": values[: t + 1, 2]}) for t in range(1, 30)]
+    np.testing.assert_allclose(np.cumsum(rewards), prefix, atol=1e-12)
+    assert dense._monitor.incremental == (spec == SPEC)
+
+
+def test_dense_rewards_are_clipped_and_sum_to_the_clipped_robustness():
+    env = TLTLRewardWrapper(Scripted(), "G(a > -1) & true", signals={"a": 0}, reward_mode="dense", clip=0.5)
+    rewards, info = run(env)
+    assert sum(rewards) == pytest.approx(0.5) and max(abs(r) for r in rewards) <= 0.5
+    assert info["robustness"] == 1.0
+
+
+def test_infinite_robustness_is_clipped_to_a_float():
+    rewards, info = run(TLTLRewardWrapper(Scripted(), "true", signals={}))
+    assert info["robustness"] == math.inf and rewards[-1] == tl_gym.wrapper.DEFAULT_CLIP
+    rewards, _ = run(TLTLRewardWrapper(Scripted(), "G(X a > -5)", signals={"a": 0}, clip=7.0))
+    assert rewards[-1] == -7.0 and type(rewards[-1]) is float
+    rewards, info = run(TLTLRewardWrapper(Scripted(), "G(X a > -5)", signals={"a": 0}, rho_max=3.0))
+    assert rewards[-1] == -3.0 == info["robustness"]
+
+
+def test_env_reward_is_added_with_its_weight():
+    rewards, info = run(TLTLRewardWrapper(Scripted(), SPEC, signals={"a": 0, "b": 2}, env_reward_weight=0.5))
+    assert rewards[:-1] == [0.5] * 4
+    assert rewards[-1] == pytest.approx(info["robustness"] + 0.5)
+
+
+def test_signals_from_keys_tuples_and_callables():
+    values = np.random.default_rng(1).uniform(size=(6, 3))
+    spec = "F(x > 0.5) & G(v < 0.99) & F(d > 0) & F(t >= 0)"
+    signals = {
+        "x": ("pos", 0),
+        "v": "speed",
+        "d": lambda obs: obs["pos"][1] - obs["pos"][0],
+        "t": lambda obs, info: info["t"],
+        "unused": ("pos", 1),
+    }
+    env = TLTLRewardWrapper(Scripted(values, dict_obs=True), spec, signals=signals)
+    _, info = run(env)
+    expected_trace = {"x": values[:, 0], "v": values[:, 2], "d": values[:, 1] - values[:, 0], "t": np.arange(6.0)}
+    assert set(info["trace"]) == set(expected_trace)
+    for name, expected in expected_trace.items():
+        np.testing.assert_allclose(info["trace"][name], expected)
+    assert info["robustness"] == parse(spec).robustness(expected_trace)
+
+
+def test_one_callable_returning_every_signal():
+    env = TLTLRewardWrapper(Scripted(), SPEC, signals=lambda obs, info: {"a": obs[0], "b": obs[2], "c": 1.0})
+    rewards, info = run(env)
+    values = env.unwrapped.values
+    assert rewards[-1] == parse(SPEC).robustness({"a": values[:, 0], "b": values[:, 2]})
+
+
+def test_trace_property_is_read_only_and_grows():
+    env = TLTLRewardWrapper(Scripted(), SPEC, signals={"a": 0, "b": 2})
+    env.reset()
+    env.step(np.zeros(1))
+    trace = env.trace
+    assert len(trace["a"]) == 2
+    with pytest.raises(ValueError):
+        trace["a"][0] = 1.0
+    with pytest.raises(AttributeError):
+        env.trace = {}
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "error", "match"),
+    [
+        ({"spec": "F(a >"}, SpecError, "column"),
+        ({"spec": 3}, TypeError, "spec"),
+        ({"signals": {"a": 0}}, UnknownSignalError, "'b'"),
+        ({"signals": {"a": 0, "b": 3}}, ValueError, "'b'.*index 3.*outside"),
+        ({"signals": {"a": 0, "b": (0, 1)}}, ValueError, "'b'.*does not pick one element"),
+        ({"signals": {"a": 0, "b": "speed"}}, TypeError, "'b'.*Dict"),
+        ({"signals": {"a": 0, "b": 1.5}}, TypeError, "'b'"),
+        ({"signals": [("a", 0)]}, TypeError, "mapping"),
+        ({"reward": "fast"}, ValueError, "reward"),
+        ({"reward_mode": "sparse"}, ValueError, "reward_mode"),
+        ({"reward_mode": "dense", "reward": "smooth"}, ValueError, "dense"),
+        ({"beta": 0.0}, ValueError, "beta"),
+        ({"rho_max": -1.0}, ValueError, "rho_max"),
+        ({"clip": math.inf}, ValueError, "clip"),
+        ({"env_reward_weight": math.nan}, ValueError, "env_reward_weight"),
+    ],
+)
+def test_bad_arguments_fail_at_construction(kwargs, error, match):
+    arguments = {"spec": SPEC, "signals": {"a": 0, "b": 2}, **kwargs}
+    with pytest.raises(error, match=match):
+        TLTLRewardWrapper(Scripted(), **arguments)
+
+
+@pytest.mark.parametrize(
+    ("signals", "error", "match"),
+    [
+        ({"a": ("pos",)}, ValueError, "'a'.*'pos'.*not one number"),
+        ({"a": ("nope", 0)}, KeyError, "'a'.*no key 'nope'"),
+        ({"a": ("pos", 2)}, ValueError, "'a'.*outside"),
+        ({"a": 0}, TypeError, "'a'.*Dict.*index"),
+    ],
+)
+def test_bad_dict_signals_fail_at_construction(signals, error, match):
+    with pytest.raises(error, match=match):
+        TLTLRewardWrapper(Scripted(dict_obs=True), "F(a > 0)", signals=signals)
+
+
+@pytest.mark.parametrize(
+    ("signals", "error", "match"),
+    [
+        ({"a": lambda obs: obs[:2]}, ValueError, "'a'.*one real number.*shape \\(2,\\)"),
+        ({"a": lambda obs: "high"}, TypeError, "'a'.*real number.*str"),
+        (lambda obs, info: {"b": 1.0}, UnknownSignalError, "'a'"),
+        (lambda obs, info: [1.0], TypeError, "mapping"),
+    ],
+)
+def test_bad_callable_signals_fail_at_the_first_reset(signals, error, match):
+    env = TLTLRewardWrapper(Scripted(), "F(a > 0)", signals=signals)
+    with pytest.raises(error, match=match):
+        env.reset()
+
+
+def test_nan_signal_names_the_signal_and_the_step():
+    values = np.zeros((6, 3))
+    values[3, 2] = np.nan
+    env = TLTLRewardWrapper(Scripted(values), SPEC, signals={"a": 0, "b": 2})
+    env.reset()
+    env.step(np.zeros(1))
+    env.step(np.zeros(1))
+    with pytest.raises(TraceError, match="signal 'b' is nan at step 3"):
+        env.step(np.zeros(1))
+    values[:] = 0.0
+    values[0, 0] = np.inf
+    with pytest.raises(TraceError, match="signal 'a' is inf at step 0"):
+        env.reset()
+
+
+def test_step_before_reset_or_after_the_end_raises():
+    env = TLTLRewardWrapper(Scripted(), SPEC, signals={"a": 0, "b": 2})
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(np.zeros(1))
+    run(env)
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(np.zeros(1))
+
+
+def test_formula_attribute_spec_and_rebuild_from_spec():
+    env = gym.make("TLCarNav-v0", horizon=5)
+    formula = env.get_wrapper_attr("formula")
+    assert formula == tl_gym.envs.tasks.task_formula(1)
+    recorded = env.spec.additional_wrappers[0]
+    assert recorded.name == "TLTLRewardWrapper" and recorded.kwargs["spec"] == str(formula)
+    rebuilt = gym.make(env.spec)
+    assert rebuilt.get_wrapper_attr("formula") == formula
+    (rewards, info), (rebuilt_rewards, rebuilt_info) = run(env, seed=3), run(rebuilt, seed=3)
+    assert rewards == rebuilt_rewards
+    np.testing.assert_array_equal(info["trace"]["x"], rebuilt_info["trace"]["x"])
+
+
+def test_pickle_mid_episode():
+    env = TLTLRewardWrapper(Scripted(), SPEC, signals={"a": 0, "b": 2})
+    env.reset()
+    env.step(np.zeros(1))
+    clone = pickle.loads(pickle.dumps(env))
+    assert len(clone.trace["a"]) == 2
+    finish = [clone.step(np.zeros(1))[1] for _ in range(4)]
+    assert finish[-1] == run(env)[0][-1]
+
+
+@pytest.mark.parametrize("mode", ["sync", "async"])
+def test_gymnasium_vector_envs_across_autoreset(mode):
+    horizon = 6
+    envs = gym.make_vec("TLCarNav-v0", num_envs=2, vectorization_mode=mode, horizon=horizon)
+    envs.reset(seed=0)
+    ended = 0
+    actions = np.zeros((2, 2), dtype=np.float32)
+    for _ in range(3 * (horizon + 1)):
+        _, rewards, terminated, truncated, info = envs.step(actions)
+        if truncated.any():
+            ended += 1
+            assert truncated.all() and info["_robustness"].all()
+            np.testing.assert_array_equal(rewards, info["robustness"])
+            assert info["trace"]["x"].shape == (2, horizon + 1)
+        else:
+            assert (rewards == 0).all()
+    envs.close()
+    assert ended == 3
+
+
+def test_sb3_vec_env_across_autoreset():
+    from stable_baselines3.common.env_util import make_vec_env
+
+    horizon = 5
+    venv = make_vec_env(lambda: gym.make("TLCarNav-v0", task=2, horizon=horizon), n_envs=2, seed=0)
+    venv.reset()
+    ends = 0
+    for _ in range(2 * horizon + 1):
+        _, rewards, dones, infos = venv.step(np.zeros((2, 2), dtype=np.float32))
+        for reward, done, info in zip(rewards, dones, infos):
+            if done:
+                ends += 1
+                assert reward == pytest.approx(info["robustness"])
+                assert len(info["trace"]["x"]) == horizon + 1
+                np.testing.assert_allclose(info["trace"]["x"][-1], info["terminal_observation"][0])
+            else:
+                assert reward == 0
+    assert ends == 4
