@@ -1,0 +1,216 @@
+"""The sweep runner: config expansion, parallel runs, resume, crash safety, Ray, aggregation.
+
+The runs use `StandInAgent`, a deterministic agent with the agents' interface whose
+robustness follows a known curve, so that the runner and the aggregation can be checked
+exactly and fast; the real agents have their own tests and the benchmarks run them.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from benchmarks import results
+from benchmarks.sweep import ConfigError, expand_config, load_config, run_sweep
+from benchmarks.sweep_run import DONE, HISTORY, RunSpec, execute_run, install_files, run_files
+
+ROOT = Path(__file__).resolve().parents[1]
+STAND_IN = "tests.test_sweep:StandInAgent"
+
+
+class StandInAgent:
+    """The agents' interface with a known learning curve: ρ_m = rate · m − 1 + seed / 100.
+
+    ``marker_dir``: if ``<marker_dir>/hang`` exists, iteration 2 writes ``<marker_dir>/started``
+    and sleeps (the crash test kills it there).
+    """
+
+    def __init__(self, env, *, seed=None, env_kwargs=None, rate=0.5, marker_dir=None, fail=False):
+        if fail:
+            raise RuntimeError("stand-in told to fail")
+        self.seed, self.rate, self.marker_dir = seed or 0, rate, marker_dir
+        self.task = (env_kwargs or {}).get("task", 1)
+        self.history = []
+
+    def learn(self, iterations, callback=None, progress_bar=False):
+        for m in range(len(self.history) + 1, len(self.history) + iterations + 1):
+            if m == 2 and self.marker_dir and Path(self.marker_dir, "hang").exists():
+                Path(self.marker_dir, "started").touch()
+                time.sleep(120)
+            rho = self.rate * m - 1 + self.seed / 100
+            row = {"iteration": m, "env_steps": 100 * m, "mean_robustness": rho,
+                   "success_rate": min(1.0, max(0.0, rho)), "wall_time": 0.01 * m, "task": self.task}
+            self.history.append(row)
+            if callback is not None and callback(self, row) is False:
+                break
+        return self
+
+    def evaluate(self, n_episodes=100, seed=None, deterministic=True):
+        rho = self.history[-1]["mean_robustness"]
+        return {"mean_robustness": rho, "success_rate": float(rho > 0), "robustness": np.full(n_episodes, rho)}
+
+    def save(self, path):
+        Path(path).write_text(json.dumps(self.history))
+
+
+def config(**overrides):
+    data = {
+        "name": "tiny", "env": "TLCarNav-v0", "tasks": [1, 2], "seeds": [0, 1], "iterations": 4,
+        "evaluate_episodes": 3,
+        "agents": [{"label": "stand-in r={rate}", "agent": STAND_IN, "grid": {"rate": [0.5, 0.25]}}],
+    }
+    data.update(overrides)
+    return data
+
+
+def test_expansion_grid_labels_and_quick_overrides():
+    sweep = expand_config(config(quick={"seeds": [0], "iterations": 2}))
+    assert len(sweep.runs) == 2 * 2 * 2
+    assert {r.label for r in sweep.runs} == {"stand-in r=0.5", "stand-in r=0.25"}
+    assert {r.env_kwargs["task"] for r in sweep.runs} == {1, 2}
+    assert len({r.run_id for r in sweep.runs}) == len(sweep.runs)
+    quick = expand_config(config(quick={"seeds": [0], "iterations": 2}), quick=True)
+    assert quick.name == "tiny-quick" and len(quick.runs) == 4
+    assert all(r.iterations == 2 and r.seed == 0 for r in quick.runs)
+    agent = {"label": "a", "agent": STAND_IN, "hyperparameters": {"rate": 1.0, "marker_dir": "x"},
+             "quick": {"hyperparameters": {"rate": 2.0}, "seeds": [3]}}
+    (run, *_), = [expand_config(config(agents=[agent], tasks=[1]), quick=True).runs]
+    assert dict(run.hyperparameters) == {"rate": 2.0, "marker_dir": "x"} and run.seed == 3
+    assert expand_config(config(seeds=3)).runs[-1].seed == 2
+
+
+@pytest.mark.parametrize("change, culprit", [
+    ({"sedes": [0]}, "sedes"),
+    ({"iterations": 0}, "iterations"),
+    ({"seeds": ["a"]}, "seeds"),
+    ({"agents": []}, "agents"),
+    ({"agents": [{"agent": "dqn-please"}]}, "dqn-please"),
+    ({"agents": [{"agent": "sb3:"}]}, "sb3:"),
+    ({"agents": [{"agent": "tlps", "lable": "x"}]}, "lable"),
+    ({"agents": [{"agent": "tlps", "label": "β={beta}"}]}, "beta"),
+    ({"agents": [{"agent": "tlps", "grid": {"beta": 9}}]}, "grid.beta"),
+    ({"agents": [{"agent": "tlps"}, {"agent": "tlps"}]}, "twice"),
+])
+def test_bad_configs_name_the_culprit(change, culprit):
+    with pytest.raises(ConfigError, match=culprit.replace("{", r"\{")):
+        expand_config(config(**change))
+
+
+def test_shipped_configs_expand():
+    for path in sorted((ROOT / "benchmarks" / "configs").glob("*.toml")):
+        for quick in (False, True):
+            assert load_config(path, quick=quick).runs, path
+
+
+def test_tiny_sweep_runs_in_parallel_resumes_and_aggregates(tmp_path):
+    sweep = expand_config(config())
+    report = run_sweep(sweep, tmp_path, workers=2, progress=False)
+    assert not report.failed and len(report.finished) == 8 and not report.skipped
+    run_dir = tmp_path / "runs" / sweep.runs[0].run_id
+    stamp = (run_dir / DONE).stat().st_mtime_ns
+    # rerun: every run is finished already, nothing is redone
+    again = run_sweep(sweep, tmp_path, workers=2, progress=False)
+    assert len(again.skipped) == 8 and not again.finished
+    assert (run_dir / DONE).stat().st_mtime_ns == stamp
+
+    runs = results.load_runs(tmp_path)
+    assert len(runs) == 8
+    history = results.read_history(run_dir / HISTORY)
+    np.testing.assert_allclose(history["mean_robustness"], [0.5 * m - 1 for m in range(1, 5)])
+    tables = results.summaries_by_task(runs)
+    fast = next(row for row in tables[2] if row.label == "stand-in r=0.5")
+    # seeds 0 and 1: ρ = -0.5, 0, 0.5, 1 and -0.49, 0.01, 0.51, 1.01
+    assert fast.final_robustness[0] == pytest.approx(1.005)
+    assert fast.first_positive == [3, 2] and fast.first_success == [4, 4]
+    assert fast.eval_success == 1.0 and fast.env_steps == 400
+    slow = next(row for row in tables[2] if row.label == "stand-in r=0.25")
+    assert slow.first_positive == [None, 4]
+    table = results.markdown_table(tables[1])
+    assert "| stand-in r=0.25 | 2 | 4 |" in table and "never (0/2)" in table
+
+
+def test_failed_run_is_reported_and_leaves_no_result(tmp_path):
+    agents = [{"label": "bad", "agent": STAND_IN, "hyperparameters": {"fail": True}},
+              {"label": "good", "agent": STAND_IN}]
+    sweep = expand_config(config(agents=agents, tasks=[1], seeds=[0]))
+    report = run_sweep(sweep, tmp_path, workers=0, progress=False)
+    assert len(report.finished) == 1 and len(report.failed) == 1
+    (failed_id, text), = report.failed.items()
+    assert "stand-in told to fail" in text
+    assert not (tmp_path / "runs" / failed_id / DONE).exists()
+    assert [r.spec.label for r in results.load_runs(tmp_path)] == ["good"]
+
+
+def test_killed_sweep_leaves_no_half_result_and_rerun_completes(tmp_path):
+    markers = tmp_path / "markers"
+    markers.mkdir()
+    (markers / "hang").touch()
+    path = tmp_path / "sweep.toml"
+    path.write_text(
+        'name = "crash"\nenv = "TLCarNav-v0"\ntasks = [1]\nseeds = [0]\niterations = 3\n'
+        f'[[agents]]\nlabel = "stand-in"\nagent = "{STAND_IN}"\n'
+        f'hyperparameters = {{ marker_dir = "{markers}" }}\n'
+    )
+    out = tmp_path / "out"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "benchmarks.sweep", str(path), "--out", str(out), "--workers", "1"],
+        cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+    )
+    try:
+        deadline = time.monotonic() + 40
+        while not (markers / "started").exists():
+            assert process.poll() is None and time.monotonic() < deadline, "the sweep never reached iteration 2"
+            time.sleep(0.1)
+    finally:
+        os.killpg(process.pid, signal.SIGKILL)
+        process.wait()
+    (run,) = load_config(path).runs
+    run_dir = out / "runs" / run.run_id
+    assert (run_dir / HISTORY).read_text().count("\n") == 2  # header and iteration 1, then killed
+    assert not (run_dir / DONE).exists()
+    assert results.load_runs(out) == []
+
+    (markers / "hang").unlink()
+    report = run_sweep(load_config(path), out, workers=0, progress=False)
+    assert report.finished == [run.run_id]
+    history = results.read_history(run_dir / HISTORY)
+    assert history["iteration"].tolist() == [1, 2, 3]  # restarted from scratch, no duplicated rows
+
+
+def test_run_files_round_trip_installs_done_last(tmp_path):
+    spec = RunSpec(env="TLCarNav-v0", env_kwargs={"task": 1}, agent=STAND_IN, label="s", hyperparameters={},
+                   seed=0, iterations=2, save_agent=True)
+    files = run_files(spec.to_json())
+    assert {DONE, HISTORY, "spec.json", "agent.zip"} <= set(files)
+    install_files(files, tmp_path / "run")
+    assert json.loads((tmp_path / "run" / DONE).read_text())["iterations"] == 2
+    with pytest.raises(ValueError, match="no done.json"):
+        install_files({HISTORY: b""}, tmp_path / "other")
+    assert execute_run(spec, tmp_path / "run")["iterations"] == 2  # finished: returned, not rerun
+
+
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")
+@pytest.mark.filterwarnings("ignore::FutureWarning")
+@pytest.mark.filterwarnings("ignore::ResourceWarning")
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
+def test_sweep_on_a_local_ray(tmp_path):
+    ray = pytest.importorskip("ray")
+    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False,
+             runtime_env={"env_vars": {"PYTHONPATH": str(ROOT)}})
+    try:
+        sweep = expand_config(config(tasks=[1], seeds=[0, 1]))
+        report = run_sweep(sweep, tmp_path, ray_address="auto", progress=False)
+    finally:
+        ray.shutdown()
+    assert not report.failed and len(report.finished) == 4
+    runs = results.load_runs(tmp_path)
+    assert sorted(r.spec.seed for r in runs) == [0, 0, 1, 1]
+    assert all(len(r.history["iteration"]) == 4 for r in runs)
