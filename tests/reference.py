@@ -1,0 +1,275 @@
+"""A naive recursive reference for TLTL, written from the definitions, not from the engine.
+
+Sources: section II-A of the paper (Boolean and quantitative semantics), section V
+(log-sum-exp smoothing) and the loose ends decided in issue 3:
+
+* a trace is s_0 … s_{T-1}; at position t, ``F`` and ``G`` range over t' in [t, T);
+* ``X φ`` at t is ρ(φ, t+1) if t+1 < T, else −ρ_max (Boolean: false);
+  ``true`` is ρ_max and ``false`` is −ρ_max;
+* ``φ U ψ`` at t is max over t' in [t, T) of min(ρ(ψ, t'), min over t'' in [t, t') of
+  ρ(φ judged on the segment s_{t''} … s_{t'-1})); the segment is the trace truncated to
+  length t', read at position t''. An empty min is +∞. ``φ T ψ`` replaces the inner
+  min by a max (empty: −∞);
+* ``φ -> ψ`` is max(−ρ(φ), ρ(ψ)); ``&``/``|`` are n-ary min/max over their operands;
+* ``a < b`` and ``a <= b`` have robustness b − a, ``a > b`` and ``a >= b`` a − b;
+  the Boolean semantics is strict for ``<``/``>`` and not for ``<=``/``>=``;
+* smoothed: every max/min above (those over time included) is a log-sum-exp with
+  +β (max) or −β (min), nested exactly as the definition nests.
+
+Everything is a plain Python loop over positions of one trajectory, memoised on
+(node, truncated length, position) so that nested ``U``/``T`` stay cheap on short
+traces. A batch is evaluated trajectory by trajectory.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from tl_gym.tltl.ast import (
+    Always,
+    And,
+    BinOp,
+    Call,
+    Constant,
+    Eventually,
+    Expr,
+    Formula,
+    Implies,
+    Neg,
+    Next,
+    Not,
+    Num,
+    Or,
+    Predicate,
+    Then,
+    Until,
+    Var,
+)
+
+INF = math.inf
+
+
+class UndefinedPredicate(ValueError):
+    """A predicate's arithmetic is NaN or infinite somewhere on the trace."""
+
+
+# --------------------------------------------------------------------------- arithmetic
+
+
+def expr_value(expr: Expr, state: Mapping[str, float]) -> float:
+    """IEEE float64 value of an arithmetic expression on one state (NaN/inf allowed)."""
+    with np.errstate(all="ignore"):
+        return float(_expr(expr, state))
+
+
+def _expr(e: Expr, state: Mapping[str, float]) -> np.float64:
+    if isinstance(e, Var):
+        return np.float64(state[e.name])
+    if isinstance(e, Num):
+        return np.float64(e.value)
+    if isinstance(e, Neg):
+        return -_expr(e.operand, state)
+    if isinstance(e, BinOp):
+        a, b = _expr(e.left, state), _expr(e.right, state)
+        ops: dict[str, Callable[[Any, Any], Any]] = {
+            "+": np.add, "-": np.subtract, "*": np.multiply, "/": np.divide, "^": np.power,
+        }
+        return ops[e.op](a, b)
+    if isinstance(e, Call):
+        args = [_expr(a, state) for a in e.args]
+        if e.func == "min":
+            return np.min(args)  # NaN-propagating, like the IEEE minimum
+        if e.func == "max":
+            return np.max(args)
+        return {"abs": np.abs, "sqrt": np.sqrt, "exp": np.exp, "log": np.log}[e.func](args[0])
+    raise TypeError(f"reference has no rule for expression node {type(e).__name__}")
+
+
+def margin(pred: Predicate, state: Mapping[str, float]) -> float:
+    """Robustness of a predicate on one state: b − a for ``a < b``, a − b for ``a > b``."""
+    a, b = expr_value(pred.lhs, state), expr_value(pred.rhs, state)
+    return b - a if pred.op in ("<", "<=") else a - b
+
+
+def holds(pred: Predicate, state: Mapping[str, float]) -> bool:
+    """Boolean value of a predicate on one state (``<`` strict, ``<=`` not)."""
+    a, b = expr_value(pred.lhs, state), expr_value(pred.rhs, state)
+    return {"<": a < b, "<=": a <= b, ">": a > b, ">=": a >= b}[pred.op]
+
+
+def check_defined(formula: Formula, trace: Mapping[str, Sequence[float]]) -> None:
+    """Raise `UndefinedPredicate` if a predicate is NaN/inf at any position of the trace."""
+    length = len(next(iter(trace.values())))
+    for node in formula.walk():
+        if isinstance(node, Predicate):
+            for t in range(length):
+                if not math.isfinite(margin(node, _state(trace, t))):
+                    raise UndefinedPredicate(f"{node} is undefined at position {t}")
+
+
+def _state(trace: Mapping[str, Sequence[float]], t: int) -> dict[str, float]:
+    return {name: float(values[t]) for name, values in trace.items()}
+
+
+# --------------------------------------------------------------------------- max / min
+
+
+def smooth_max(values: Sequence[float], beta: float) -> float:
+    """(1/β)·log Σ exp(β·x), shifted by the largest term; −∞ terms drop out, +∞ wins."""
+    if any(v == INF for v in values):
+        return INF
+    finite = [v for v in values if v != -INF]
+    if not finite:
+        return -INF
+    top = max(finite)
+    return top + math.log(math.fsum(math.exp(beta * (v - top)) for v in finite)) / beta
+
+
+def smooth_min(values: Sequence[float], beta: float) -> float:
+    """−(1/β)·log Σ exp(−β·x): the smooth max of the negated terms, negated."""
+    return -smooth_max([-v for v in values], beta)
+
+
+@dataclass(frozen=True)
+class Semantics:
+    """What the recursion computes with: the paper's max/min/negation and constants."""
+
+    top: Any  # value of `true`
+    bottom: Any  # value of `false` and of `X φ` at the last state
+    maximum: Callable[[list[Any]], Any]  # over a possibly empty list
+    minimum: Callable[[list[Any]], Any]
+    negate: Callable[[Any], Any]
+    predicate: Callable[[Predicate, Mapping[str, float]], Any]
+
+
+def exact_semantics(rho_max: float = INF) -> Semantics:
+    """Robustness degree: max/min of reals (empty max −∞, empty min +∞)."""
+    return Semantics(
+        top=rho_max, bottom=-rho_max,
+        maximum=lambda xs: max(xs, default=-INF), minimum=lambda xs: min(xs, default=INF),
+        negate=lambda x: -x, predicate=margin,
+    )
+
+
+def smooth_semantics(beta: float, rho_max: float = INF) -> Semantics:
+    """Log-sum-exp robustness: every max/min replaced by its smooth form with sharpness β."""
+    return Semantics(
+        top=rho_max, bottom=-rho_max,
+        maximum=lambda xs: smooth_max(xs, beta), minimum=lambda xs: smooth_min(xs, beta),
+        negate=lambda x: -x, predicate=margin,
+    )
+
+
+BOOLEAN = Semantics(
+    top=True, bottom=False, maximum=any, minimum=all, negate=lambda x: not x, predicate=holds,
+)
+
+
+# --------------------------------------------------------------------------- the recursion
+
+
+class _Reference:
+    """ρ(φ, s_t … s_{L-1}) for one trajectory, memoised on (node, L, t)."""
+
+    def __init__(self, sem: Semantics, trace: Mapping[str, Sequence[float]]):
+        self.sem = sem
+        self.states = [_state(trace, t) for t in range(len(next(iter(trace.values()))))]
+        self.memo: dict[tuple[int, int, int], Any] = {}
+
+    def value(self, node: Formula, length: int, t: int) -> Any:
+        """Value of ``node`` on the trace truncated to ``length`` states, at position ``t``."""
+        key = (id(node), length, t)
+        if key not in self.memo:
+            self.memo[key] = self._value(node, length, t)
+        return self.memo[key]
+
+    def _value(self, node: Formula, length: int, t: int) -> Any:
+        sem, v = self.sem, self.value
+        if isinstance(node, Constant):
+            return sem.top if node.value else sem.bottom
+        if isinstance(node, Predicate):
+            return sem.predicate(node, self.states[t])
+        if isinstance(node, Not):
+            return sem.negate(v(node.child, length, t))
+        if isinstance(node, And):
+            return sem.minimum([v(c, length, t) for c in node.operands])
+        if isinstance(node, Or):
+            return sem.maximum([v(c, length, t) for c in node.operands])
+        if isinstance(node, Implies):
+            return sem.maximum([sem.negate(v(node.left, length, t)), v(node.right, length, t)])
+        if isinstance(node, Next):
+            return v(node.child, length, t + 1) if t + 1 < length else sem.bottom
+        if isinstance(node, Eventually):
+            return sem.maximum([v(node.child, length, k) for k in range(t, length)])
+        if isinstance(node, Always):
+            return sem.minimum([v(node.child, length, k) for k in range(t, length)])
+        if isinstance(node, (Until, Then)):
+            inner = sem.minimum if isinstance(node, Until) else sem.maximum
+            terms = []
+            for k in range(t, length):  # t' = k
+                # φ on the segment s_j … s_{k-1}: the trace truncated to length k, at j
+                before = inner([v(node.left, k, j) for j in range(t, k)])
+                terms.append(sem.minimum([v(node.right, length, k), before]))
+            return sem.maximum(terms)
+        raise TypeError(f"reference has no rule for formula node {type(node).__name__}")
+
+
+def _rows(trace: Mapping[str, Any]) -> tuple[list[dict[str, list[float]]], bool]:
+    """Split a trace into one dict of float lists per trajectory; tell whether it was batched."""
+    arrays = {k: np.asarray(v, dtype=np.float64) for k, v in trace.items()}
+    batched = next(iter(arrays.values())).ndim == 2
+    if not batched:
+        return [{k: a.tolist() for k, a in arrays.items()}], False
+    n = next(iter(arrays.values())).shape[0]
+    return [{k: a[i].tolist() for k, a in arrays.items()} for i in range(n)], True
+
+
+def _evaluate(formula: Formula, trace: Mapping[str, Any], sem: Semantics, check: bool) -> np.ndarray:
+    """Values at every position, shape ``(N, T)`` (N = 1 for an unbatched trace)."""
+    rows, _ = _rows(trace)
+    out = []
+    for row in rows:
+        if check:
+            check_defined(formula, row)
+        ref = _Reference(sem, row)
+        length = len(ref.states)
+        out.append([ref.value(formula, length, t) for t in range(length)])
+    return np.array(out, dtype=object)
+
+
+def robustness_over_time(formula: Formula, trace: Mapping[str, Any], rho_max: float = INF) -> np.ndarray:
+    """Exact robustness at every position: ``(T,)`` or ``(N, T)`` like the trace."""
+    values = _evaluate(formula, trace, exact_semantics(rho_max), check=True).astype(np.float64)
+    return values if _rows(trace)[1] else values[0]
+
+
+def smooth_over_time(formula: Formula, trace: Mapping[str, Any], beta: float, rho_max: float = INF) -> np.ndarray:
+    """Smoothed robustness at every position: ``(T,)`` or ``(N, T)`` like the trace."""
+    values = _evaluate(formula, trace, smooth_semantics(beta, rho_max), check=True).astype(np.float64)
+    return values if _rows(trace)[1] else values[0]
+
+
+def satisfied_over_time(formula: Formula, trace: Mapping[str, Any]) -> np.ndarray:
+    """Boolean semantics at every position: ``(T,)`` or ``(N, T)`` bools like the trace."""
+    values = _evaluate(formula, trace, BOOLEAN, check=False).astype(bool)
+    return values if _rows(trace)[1] else values[0]
+
+
+def robustness(formula: Formula, trace: Mapping[str, Any], rho_max: float = INF) -> Any:
+    """Exact robustness at position 0: a float, or ``(N,)`` for a batch."""
+    return robustness_over_time(formula, trace, rho_max)[..., 0]
+
+
+def smooth_robustness(formula: Formula, trace: Mapping[str, Any], beta: float, rho_max: float = INF) -> Any:
+    """Smoothed robustness at position 0: a float, or ``(N,)`` for a batch."""
+    return smooth_over_time(formula, trace, beta, rho_max)[..., 0]
+
+
+def satisfied(formula: Formula, trace: Mapping[str, Any]) -> Any:
+    """Boolean semantics at position 0: a bool, or ``(N,)`` bools for a batch."""
+    return satisfied_over_time(formula, trace)[..., 0]
