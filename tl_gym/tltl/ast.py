@@ -529,3 +529,17 @@ class Always(_Unary):
 FORMULA_NODES: tuple[type[Formula], ...] = (
     Constant, Predicate, Not, And, Or, Implies, Next, Eventually, Always, Until, Then,
 )
+
+
+def _cached_hash(self: Any) -> int:
+    """Structural hash, computed once per node: evaluators key their caches by node."""
+    try:
+        return self.__dict__["_hash"]
+    except KeyError:
+        value = hash((type(self).__name__, *(getattr(self, f) for f in self.__dataclass_fields__)))
+        object.__setattr__(self, "_hash", value)
+        return value
+
+
+for _cls in (*FORMULA_NODES, Var, Num, Neg, BinOp, Call):
+    _cls.__hash__ = _cached_hash  # type: ignore[method-assign]

@@ -33,7 +33,7 @@ from tl_gym.tltl.ast import (
     Then,
     Until,
 )
-from tl_gym.tltl.expressions import can_be_non_finite, evaluate_expression
+from tl_gym.tltl.expressions import evaluate_expression
 from tl_gym.tltl.trace import Trace, prepare
 
 
@@ -47,17 +47,18 @@ class _Algebra:
     maximum: Callable[[Any, Any], Any]
     minimum: Callable[[Any, Any], Any]
     negate: Callable[[Any], Any]
-    predicate: Callable[[Any, str, Any], Any]
+    predicate: Callable[[Any, str], Any]  # predicate value from its numeric margin
     empty_max: Any  # value of a max over no terms (−inf / False)
     empty_min: Any  # value of a min over no terms (+inf / True)
 
 
-def _numeric_predicate(lhs: Any, op: str, rhs: Any) -> Any:
-    return rhs - lhs if op in ("<", "<=") else lhs - rhs
+def _numeric_predicate(margin: Any, op: str) -> Any:
+    return margin
 
 
-def _boolean_predicate(lhs: Any, op: str, rhs: Any) -> Any:
-    return {"<": np.less, "<=": np.less_equal, ">": np.greater, ">=": np.greater_equal}[op](lhs, rhs)
+def _boolean_predicate(margin: Any, op: str) -> Any:
+    # For finite doubles a < b exactly when b - a > 0 (subtraction is exact at 0).
+    return margin > 0 if op in ("<", ">") else margin >= 0
 
 
 def numeric_algebra(rho_max: float) -> _Algebra:
@@ -119,20 +120,19 @@ class _Evaluator:
 
     def predicate(self, node: Predicate) -> np.ndarray:
         sample = next(iter(self.signals.values()), np.zeros(1))
-        lhs = evaluate_expression(node.lhs, self.signals, sample)
-        rhs = evaluate_expression(node.rhs, self.signals, sample)
         with np.errstate(all="ignore"):
-            values = self.alg.predicate(lhs, node.op, rhs)
-        values = np.broadcast_to(values, (self.length, self.n))
-        if self.alg.dtype is np.float64 and (can_be_non_finite(node.lhs) or can_be_non_finite(node.rhs)):
-            finite = np.isfinite(values)
-            if not finite.all():
-                j, i = np.argwhere(~finite)[-1]  # the last row is the earliest position
-                raise TraceError(
-                    f"predicate {str(node)!r} is NaN or infinite at trajectory {i}, position "
-                    f"{self.length - 1 - j} (its arithmetic is undefined there)"
-                )
-        return np.asarray(values, dtype=self.alg.dtype)
+            lhs = evaluate_expression(node.lhs, self.signals, sample)
+            rhs = evaluate_expression(node.rhs, self.signals, sample)
+            margin = rhs - lhs if node.op in ("<", "<=") else lhs - rhs
+        margin = np.broadcast_to(margin, (self.length, self.n))
+        finite = np.isfinite(margin)
+        if not finite.all():  # undefined arithmetic (log of a negative, overflow...): refuse in both semantics
+            j, i = np.argwhere(~finite)[-1]  # the last row is the earliest position
+            raise TraceError(
+                f"predicate {str(node)!r} is NaN or infinite at trajectory {i}, position "
+                f"{self.length - 1 - j} (its arithmetic is undefined there)"
+            )
+        return np.asarray(self.alg.predicate(margin, node.op), dtype=self.alg.dtype)
 
     def not_(self, node: Not) -> np.ndarray:
         return self.alg.negate(self(node.child))

@@ -65,8 +65,99 @@ def evaluate_expression(expr: Expr, signals: dict[str, Any], sample: Any) -> Any
     return ev(expr)
 
 
+def evaluate_with_gradient(expr: Expr, signals: dict[str, np.ndarray]) -> tuple[Any, Any]:
+    """Value of ``expr`` on numpy signals, and the map from an upstream gradient to the signals' gradients.
+
+    The gradients come as a dict name -> array, summed over every use of the signal.
+
+    ``min``/``max`` pass the gradient to the first operand attaining the extreme;
+    ``abs`` has gradient 0 at 0 (subgradients, as torch does).
+    """
+
+    def ev(e: Expr) -> tuple[Any, Any]:
+        # returns (value, backward) where backward(grad, sink) accumulates into sink
+        if isinstance(e, Var):
+            def back_var(grad: Any, sink: dict[str, Any]) -> None:
+                sink[e.name] = grad if e.name not in sink else sink[e.name] + grad
+            return signals[e.name], back_var
+        if isinstance(e, Num):
+            return e.value, None
+        if isinstance(e, Neg):
+            value, back = ev(e.operand)
+            return -value, (None if back is None else lambda g, s: back(-g, s))
+        if isinstance(e, BinOp):
+            (a, back_a), (b, back_b) = ev(e.left), ev(e.right)
+            with np.errstate(all="ignore"):
+                if e.op == "+":
+                    out, da, db = a + b, 1.0, 1.0
+                elif e.op == "-":
+                    out, da, db = a - b, 1.0, -1.0
+                elif e.op == "*":
+                    out, da, db = a * b, b, a
+                elif e.op == "/":
+                    out = a / b
+                    da, db = 1.0 / b, -out / b
+                else:
+                    out = np.power(np.float64(a) if isinstance(a, float) else a, b)
+                    da = b * np.power(a, b - 1.0) if back_a is not None else 0.0
+                    db = out * np.log(a) if back_b is not None else 0.0
+
+            def back_bin(grad: Any, sink: dict[str, Any]) -> None:
+                if back_a is not None:
+                    back_a(grad * da, sink)
+                if back_b is not None:
+                    back_b(grad * db, sink)
+
+            return out, (None if back_a is None and back_b is None else back_bin)
+        if isinstance(e, Call):
+            parts = [ev(a) for a in e.args]
+            values = [p[0] for p in parts]
+            with np.errstate(all="ignore"):
+                if e.func in ("min", "max"):
+                    stacked = np.stack(np.broadcast_arrays(*values))
+                    pick = stacked.argmin(0) if e.func == "min" else stacked.argmax(0)
+                    out = np.take_along_axis(stacked, pick[None], 0)[0]
+                    slopes = [(pick == i).astype(np.float64) for i in range(len(values))]
+                else:
+                    x = values[0]
+                    x = np.float64(x) if isinstance(x, float) else x
+                    if e.func == "abs":
+                        out, slope = np.abs(x), np.sign(x)
+                    elif e.func == "sqrt":
+                        out = np.sqrt(x)
+                        slope = 0.5 / out
+                    elif e.func == "exp":
+                        out = np.exp(x)
+                        slope = out
+                    else:
+                        out, slope = np.log(x), 1.0 / x
+                    slopes = [slope]
+
+            def back_call(grad: Any, sink: dict[str, Any]) -> None:
+                for (_, back), slope in zip(parts, slopes):
+                    if back is not None:
+                        back(grad * slope, sink)
+
+            return out, (None if all(p[1] is None for p in parts) else back_call)
+        raise TypeError(f"no evaluation rule for expression node {type(e).__name__}")
+
+    value, back = ev(expr)
+
+    def gradient(grad: Any) -> dict[str, Any]:
+        sink: dict[str, Any] = {}
+        if back is not None:
+            back(grad, sink)
+        return sink
+
+    return value, gradient
+
+
 def can_be_non_finite(expr: Expr) -> bool:
-    """Whether finite signals can give a non-finite value (division, power, functions)."""
+    """Whether finite signals can obviously give a non-finite value (division, power, functions).
+
+    Sums and products can still overflow; evaluators that must refuse non-finite values
+    check the values themselves.
+    """
     if isinstance(expr, (Var, Num)):
         return False
     if isinstance(expr, Neg):

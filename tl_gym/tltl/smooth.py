@@ -1,4 +1,4 @@
-"""Smoothed robustness (paper, section V), differentiable by torch autograd.
+"""Smoothed robustness (paper, section V), with gradients for torch autograd.
 
 Every max and min of the robustness definition, those over time included, is
 replaced by log-sum-exp with sharpness β, nested as the definition nests (in
@@ -6,25 +6,35 @@ replaced by log-sum-exp with sharpness β, nested as the definition nests (in
 ``&`` (or ``|``) is one n-ary node. The paper's Eq. 18 is *not* this smoothing of
 Eq. 17: it merges the max over time into the min (see the tests).
 
-Numerics. The evaluator works in β-scaled units ``z = β·ρ``, where smoothing is a
-plain log-sum-exp, and represents ±∞ (``true`` with ρ_max = ∞, ``X φ`` at the last
-state, an empty max/min) by ±``_INF`` = ±1e300. All arithmetic then stays finite,
-so neither the values nor the gradients can be NaN for any β in (0, 1e6]; values
-beyond ±``_INF``/2 are reported as ±∞ with zero gradient.
+Implementation. A numpy forward pass over the formula records, per node, how to
+send a gradient back to its operands (the log-sum-exp rules of `tl_gym.tltl.lse`);
+torch sees the whole evaluation as one autograd Function. This keeps the per-call
+cost to a few whole-array numpy passes per node — the trust-region step of TLPS
+calls it dozens of times per iteration.
+
+Numerics. Values are kept in β-scaled units ``z = β·ρ``, where smoothing is a plain
+log-sum-exp, and ±∞ (``true`` with ρ_max = ∞, ``X φ`` at the last state, an empty
+max/min) is represented by ±``_INF`` = ±1e300. All arithmetic stays finite, so
+neither values nor gradients can be NaN for β in (0, 1e6]; results beyond
+±``_INF``/2 are reported as ±∞ with zero gradient.
 
 Cost. O(N·T) per node, except ``U``/``T`` evaluated at every position (when nested
 under another temporal operator): the prescribed nesting makes their inner
-max/min depend on both t and t', an O(N·T²) tensor, processed in chunks of
-trajectories to bound memory. A ``U``/``T`` needed only at position 0 stays linear.
+max/min depend on both t and t', an O(N·T²) computation done in chunks of
+trajectories. ``form="linear"`` smooths such a ``T`` through an O(N·T) identity.
+A ``U``/``T`` needed only at position 0 stays linear in both forms.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
+from tl_gym.errors import TraceError
+from tl_gym.tltl import lse
 from tl_gym.tltl.ast import (
     Always,
     And,
@@ -39,168 +49,309 @@ from tl_gym.tltl.ast import (
     Then,
     Until,
 )
-from tl_gym.tltl.expressions import evaluate_expression
+from tl_gym.tltl.expressions import evaluate_with_gradient
 from tl_gym.tltl.trace import Trace, is_torch, prepare
 
 _INF = 1e300  # stands for +∞ in β-scaled units
-_MAX_QUADRATIC_ELEMENTS = 1 << 23  # cap on N·T² per chunk of a quadratic U/T
+_MAX_QUADRATIC_ELEMENTS = 1 << 22  # cap on T²·N per chunk of a quadratic U/T
+FORMS = ("nested", "linear")
+
+_Key = tuple[Formula, bool]
+_Backward = Callable[[np.ndarray], None]
 
 
-def _torch() -> Any:
-    import torch
-
-    return torch
+def _smin2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return -np.logaddexp(-a, -b)
 
 
-def _lse(z: Any, dim: int) -> Any:
-    """Smooth max in β units: log Σ exp(z) (finite inputs, so finite gradients)."""
-    return _torch().logsumexp(z, dim=dim)
-
-
-def _suffix_lse(z: Any, dim: int) -> Any:
-    """``out[..., t, ...] = log Σ_{t' ≥ t} exp(z[..., t', ...])`` along ``dim``."""
-    torch = _torch()
-    return torch.flip(torch.logcumsumexp(torch.flip(z, (dim,)), dim=dim), (dim,))
-
-
-def _smin2(a: Any, b: Any) -> Any:
-    torch = _torch()
-    return -torch.logaddexp(-a, -b)
+def _smin2_backward(a: np.ndarray, b: np.ndarray, out: np.ndarray, grad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return grad * np.exp(out - a), grad * np.exp(out - b)
 
 
 class _Smoother:
-    """Smoothed values, in β units, of one formula's nodes on a batch of signals."""
+    """Smoothed values, in β units, of one formula's nodes on a batch of signals.
 
-    def __init__(self, signals: dict[str, Any], n: int, length: int, beta: float, top: float, form: str):
-        self.torch = _torch()
+    Signals and values are time-major, shape ``(T, N)`` (row t = position t); a node
+    evaluated at position 0 only has shape ``(1, N)``.
+    """
+
+    def __init__(self, signals: dict[str, np.ndarray], n: int, length: int, beta: float, top: float, form: str):
         self.signals = signals
         self.n = n
         self.length = length
         self.beta = beta
         self.top = top  # ρ_max in β units
         self.form = form
-        self.cache: dict[tuple[Formula, bool], Any] = {}  # a repeated sub-formula is smoothed once
+        self.values: dict[_Key, np.ndarray] = {}  # a repeated sub-formula is smoothed once
+        self.tape: list[tuple[_Key, _Backward]] = []
+        self.grads: dict[_Key, np.ndarray] = {}
+        self.signal_grads: dict[str, np.ndarray] = {}
 
-    def full(self, value: float, length: int | None = None) -> Any:
-        length = self.length if length is None else length
-        return self.torch.full((self.n, length), value, dtype=self.torch.float64)
+    # bookkeeping ------------------------------------------------------------------------
+    def full(self, value: float, length: int | None = None) -> np.ndarray:
+        return np.full((self.length if length is None else length, self.n), value)
 
-    def __call__(self, node: Formula, first_only: bool = False) -> Any:
-        """``(N, T)`` values, or ``(N, 1)`` (position 0) when ``first_only``."""
+    def __call__(self, node: Formula, first_only: bool = False) -> np.ndarray:
         key = (node, first_only)
-        cached = self.cache.get(key)
+        cached = self.values.get(key)
         if cached is not None:
             return cached
         try:
             rule = _RULES[type(node)]
         except KeyError:
             raise TypeError(f"no smoothing rule for formula node {type(node).__name__}") from None
-        values = self.cache[key] = rule(self, node, first_only)
-        return values
+        value, backward = rule(self, node, first_only)
+        self.values[key] = value
+        self.tape.append((key, backward))
+        return value
 
-    def on_prefix(self, node: Formula, length: int) -> Any:
-        signals = {k: v[:, :length] for k, v in self.signals.items()}
-        return _Smoother(signals, self.n, length, self.beta, self.top, self.form)(node)
+    def send(self, node: Formula, first_only: bool, grad: np.ndarray) -> None:
+        """Accumulate a gradient for a child's value."""
+        key = (node, first_only)
+        self.grads[key] = grad if key not in self.grads else self.grads[key] + grad
 
-    # rules ---------------------------------------------------------------------------
-    def constant(self, node: Constant, first_only: bool) -> Any:
-        return self.full(self.top if node.value else -self.top, 1 if first_only else None)
+    def send_signals(self, grads: dict[str, np.ndarray], rows: slice = slice(None)) -> None:
+        for name, grad in grads.items():
+            target = self.signal_grads.setdefault(name, np.zeros((self.length, self.n)))
+            target[rows] += grad
 
-    def predicate(self, node: Predicate, first_only: bool) -> Any:
-        torch = self.torch
-        sample = next(iter(self.signals.values()), torch.zeros(1, dtype=torch.float64))
-        lhs = evaluate_expression(node.lhs, self.signals, sample)
-        rhs = evaluate_expression(node.rhs, self.signals, sample)
-        value = rhs - lhs if node.op in ("<", "<=") else lhs - rhs
-        value = torch.as_tensor(value, dtype=torch.float64).expand(self.n, self.length)
-        if not bool(torch.isfinite(value.detach()).all()):
-            from tl_gym.errors import TraceError
+    def backward(self, root: _Key, grad: np.ndarray) -> dict[str, np.ndarray]:
+        """Gradients of ``Σ grad · value(root)`` wrt the signals, shape ``(T, N)`` each."""
+        self.grads = {root: grad}
+        self.signal_grads = {}
+        for key, backward in reversed(self.tape):  # parents were recorded after their children
+            g = self.grads.pop(key, None)
+            if g is not None:
+                backward(g)
+        return self.signal_grads
 
-            i, t = np.argwhere(~np.isfinite(value.detach().cpu().numpy()))[0]
+    def on_prefix(self, length: int) -> _Smoother:
+        signals = {k: v[:length] for k, v in self.signals.items()}
+        return _Smoother(signals, self.n, length, self.beta, self.top, self.form)
+
+    # rules: each returns (value, backward) ----------------------------------------------
+    def constant(self, node: Constant, first_only: bool) -> tuple[np.ndarray, _Backward]:
+        value = self.full(self.top if node.value else -self.top, 1 if first_only else None)
+        return value, lambda g: None
+
+    def predicate(self, node: Predicate, first_only: bool) -> tuple[np.ndarray, _Backward]:
+        lhs, lhs_grad = evaluate_with_gradient(node.lhs, self.signals)
+        rhs, rhs_grad = evaluate_with_gradient(node.rhs, self.signals)
+        with np.errstate(all="ignore"):
+            value = np.broadcast_to(rhs - lhs if node.op in ("<", "<=") else lhs - rhs, (self.length, self.n))
+        finite = np.isfinite(value)
+        if not finite.all():
+            t, i = np.argwhere(~finite)[0]
             raise TraceError(f"predicate {str(node)!r} is NaN or infinite at trajectory {i}, position {t}")
+        sign = -1.0 if node.op in ("<", "<=") else 1.0  # d value / d lhs
         z = self.beta * value
-        return z[:, :1] if first_only else z
 
-    def not_(self, node: Not, first_only: bool) -> Any:
-        return -self(node.child, first_only)
+        def backward(g: np.ndarray) -> None:
+            scale = np.zeros((self.length, self.n))
+            scale[: len(g)] = self.beta * g
+            shape = scale.shape
+            self.send_signals({k: np.broadcast_to(v, shape) for k, v in lhs_grad(sign * scale).items()})
+            self.send_signals({k: np.broadcast_to(v, shape) for k, v in rhs_grad(-sign * scale).items()})
 
-    def and_(self, node: And, first_only: bool) -> Any:
-        stacked = self.torch.stack([-self(c, first_only) for c in node.operands])
-        return -_lse(stacked, 0)
+        return np.array(z[:1] if first_only else z), backward
 
-    def or_(self, node: Or, first_only: bool) -> Any:
-        return _lse(self.torch.stack([self(c, first_only) for c in node.operands]), 0)
+    def not_(self, node: Not, first_only: bool) -> tuple[np.ndarray, _Backward]:
+        return -self(node.child, first_only), lambda g: self.send(node.child, first_only, -g)
 
-    def implies(self, node: Implies, first_only: bool) -> Any:
-        return self.torch.logaddexp(-self(node.left, first_only), self(node.right, first_only))
+    def _nary(self, node: And | Or, first_only: bool, sign: float) -> tuple[np.ndarray, _Backward]:
+        """``sign·lse(sign·children)``: smooth max (sign = 1) or min (sign = -1)."""
+        stacked = np.stack([sign * self(c, first_only) for c in node.operands])
+        reduced = lse.reduce_forward(stacked, 0)
 
-    def next_(self, node: Next, first_only: bool) -> Any:
+        def backward(g: np.ndarray) -> None:
+            weights = lse.reduce_backward(stacked, reduced, g, 0)
+            for child, w in zip(node.operands, weights):
+                self.send(child, first_only, w)
+
+        return sign * reduced, backward
+
+    def and_(self, node: And, first_only: bool) -> tuple[np.ndarray, _Backward]:
+        return self._nary(node, first_only, -1.0)
+
+    def or_(self, node: Or, first_only: bool) -> tuple[np.ndarray, _Backward]:
+        return self._nary(node, first_only, 1.0)
+
+    def implies(self, node: Implies, first_only: bool) -> tuple[np.ndarray, _Backward]:
+        neg_left, right = -self(node.left, first_only), self(node.right, first_only)
+        out = np.logaddexp(neg_left, right)
+
+        def backward(g: np.ndarray) -> None:
+            g_left, g_right = lse.logaddexp_backward(neg_left, right, out, g)
+            self.send(node.left, first_only, -g_left)
+            self.send(node.right, first_only, g_right)
+
+        return out, backward
+
+    def next_(self, node: Next, first_only: bool) -> tuple[np.ndarray, _Backward]:
         child = self(node.child)
-        last = self.full(-self.top, 1)
-        shifted = self.torch.cat([child[:, 1:], last], dim=1)
-        return shifted[:, :1] if first_only else shifted
+        out = np.concatenate([child[1:], self.full(-self.top, 1)])  # no next state: −ρ_max
+        if first_only:
+            out = out[:1]
 
-    def eventually(self, node: Eventually, first_only: bool) -> Any:
-        child = self(node.child)
-        return _lse(child, 1)[:, None] if first_only else _suffix_lse(child, 1)
+        def backward(g: np.ndarray) -> None:
+            g_child = np.zeros_like(child)
+            g_child[1 : 1 + len(g)] = g[: self.length - 1]
+            self.send(node.child, False, g_child)
 
-    def always(self, node: Always, first_only: bool) -> Any:
-        child = -self(node.child)
-        return -(_lse(child, 1)[:, None] if first_only else _suffix_lse(child, 1))
+        return out, backward
 
-    def until(self, node: Until, first_only: bool) -> Any:
-        return self._binary(node, first_only, inner_sign=-1.0)
+    def _over_time(self, node: Eventually | Always, first_only: bool, sign: float) -> tuple[np.ndarray, _Backward]:
+        child = sign * self(node.child)
+        out = lse.reduce_forward(child, 0)[None] if first_only else lse.suffix_forward(child)
 
-    def then(self, node: Then, first_only: bool) -> Any:
-        return self._binary(node, first_only, inner_sign=1.0)
+        def backward(g: np.ndarray) -> None:
+            g = sign * g  # gradient wrt `out`
+            if first_only:
+                g_child = lse.reduce_backward(child, out[0], g[0], 0)
+            else:
+                g_child = lse.suffix_backward(child, out, g)
+            self.send(node.child, False, sign * g_child)
 
-    def _binary(self, node: Until | Then, first_only: bool, inner_sign: float) -> Any:
-        """smax_{t'≥t} smin(ψ(t'), inner(t, t')), inner = smin (U) or smax (T) of φ over [t, t').
+        return sign * out, backward
 
-        ``inner_sign`` is -1 for U (smin, empty = +∞) and +1 for T (smax, empty = -∞);
-        smin(x) = -lse(-x), so the inner reduction is ``inner_sign · lse(inner_sign · φ)``.
+    def eventually(self, node: Eventually, first_only: bool) -> tuple[np.ndarray, _Backward]:
+        return self._over_time(node, first_only, 1.0)
+
+    def always(self, node: Always, first_only: bool) -> tuple[np.ndarray, _Backward]:
+        return self._over_time(node, first_only, -1.0)
+
+    def until(self, node: Until, first_only: bool) -> tuple[np.ndarray, _Backward]:
+        return self._binary(node, first_only, -1.0)
+
+    def then(self, node: Then, first_only: bool) -> tuple[np.ndarray, _Backward]:
+        return self._binary(node, first_only, 1.0)
+
+    def _binary(self, node: Until | Then, first_only: bool, sign: float) -> tuple[np.ndarray, _Backward]:
+        """smax_{t'≥t} smin(ψ(t'), inner(t, t')): the nested smoothing of U and T.
+
+        inner is the smin (U, sign -1) or smax (T, sign +1) of φ over t'' in [t, t');
+        ``sign·lse(sign·φ)`` is that inner reduction.
         """
-        torch = self.torch
-        right = self(node.right)
-        if first_only and not node.left.is_temporal:
-            # inner(0, t') = reduction over the exclusive prefix [0, t'): linear time.
-            left = inner_sign * self(node.left)
-            prefix = inner_sign * torch.logcumsumexp(left, dim=1)
-            inner = torch.cat([self.full(-inner_sign * _INF, 1), prefix[:, :-1]], dim=1)
-            return _lse(_smin2(right, inner), 1)[:, None]
-        if self.form == "linear" and isinstance(node, Then) and not node.left.is_temporal:
-            # The exact identity ρ(φ T ψ, t) = max_{s ≥ t} min(φ(s), max_{t' > s} ψ(t')), smoothed:
-            # linear time, a different smoothing with the same limit and the same bracket.
-            later = torch.cat([_suffix_lse(right, 1)[:, 1:], self.full(-_INF, 1)], dim=1)
-            return _suffix_lse(_smin2(self(node.left), later), 1)
-        length = self.length
-        # matrix[n, t'', t'] = sign·φ(t'') judged on s_{..t'-1}, or -∞ where t'' ≥ t'
         if node.left.is_temporal:
-            columns = [self.full(-_INF, length)]
-            for t_prime in range(1, length):
-                col = inner_sign * self.on_prefix(node.left, t_prime)
-                columns.append(torch.cat([col, self.full(-_INF, length - t_prime)], dim=1))
-            matrix = torch.stack(columns, dim=2)
-        else:
-            left = inner_sign * self(node.left)
-            mask = torch.ones(length, length, dtype=torch.bool).triu(1)  # t'' < t'
-            matrix = torch.where(mask, left[:, :, None], torch.tensor(-_INF, dtype=torch.float64))
-        chunk = max(1, _MAX_QUADRATIC_ELEMENTS // (length * length))
-        outputs = []
-        valid = torch.ones(length, length, dtype=torch.bool).triu(0)  # t' ≥ t
-        for start in range(0, self.n, chunk):
-            block = matrix[start : start + chunk]
-            # inner[n, t, t'] = sign·lse over t'' in [t, t') (suffix along t'')
-            # (where t ≥ t' every entry is -∞, so inner is the empty value ∓∞ there)
-            inner = inner_sign * _suffix_lse(block, 1)
-            terms = _smin2(right[start : start + chunk, None, :], inner)
-            terms = torch.where(valid, terms, torch.tensor(-_INF, dtype=torch.float64))
-            outputs.append(_lse(terms, 2))
-        out = torch.cat(outputs, dim=0)
-        return out[:, :1] if first_only else out
+            return self._binary_on_segments(node, first_only, sign)
+        if first_only:
+            return self._binary_first(node, sign)
+        if self.form == "linear" and isinstance(node, Then):
+            return self._then_linear(node)
+        return self._binary_quadratic(node, sign)
+
+    def _binary_first(self, node: Until | Then, sign: float) -> tuple[np.ndarray, _Backward]:
+        """Position 0 only: inner(0, t') is a reduction over the prefix [0, t'): linear time."""
+        left, right = sign * self(node.left), self(node.right)
+        prefix = lse.prefix_forward(left)
+        inner = sign * np.concatenate([self.full(-_INF, 1), prefix[:-1]])
+        terms = _smin2(right, inner)
+        out = lse.reduce_forward(terms, 0)[None]
+
+        def backward(g: np.ndarray) -> None:
+            g_terms = lse.reduce_backward(terms, out[0], g[0], 0)
+            g_right, g_inner = _smin2_backward(right, inner, terms, g_terms)
+            g_prefix = np.zeros_like(prefix)
+            g_prefix[:-1] = sign * g_inner[1:]
+            self.send(node.left, False, sign * lse.prefix_backward(left, prefix, g_prefix))
+            self.send(node.right, False, g_right)
+
+        return out, backward
+
+    def _then_linear(self, node: Then) -> tuple[np.ndarray, _Backward]:
+        """ρ(φ T ψ, t) = max_{s ≥ t} min(φ(s), max_{t' > s} ψ(t')), smoothed: O(N·T)."""
+        left, right = self(node.left), self(node.right)
+        right_suffix = lse.suffix_forward(right)
+        later = np.concatenate([right_suffix[1:], self.full(-_INF, 1)])
+        inner = _smin2(left, later)
+        out = lse.suffix_forward(inner)
+
+        def backward(g: np.ndarray) -> None:
+            g_inner = lse.suffix_backward(inner, out, g)
+            g_left, g_later = _smin2_backward(left, later, inner, g_inner)
+            g_suffix = np.zeros_like(right_suffix)
+            g_suffix[1:] = g_later[:-1]
+            self.send(node.left, False, g_left)
+            self.send(node.right, False, lse.suffix_backward(right, right_suffix, g_suffix))
+
+        return out, backward
+
+    def _binary_quadratic(self, node: Until | Then, sign: float) -> tuple[np.ndarray, _Backward]:
+        """Every position, prescribed nesting: O(N·T²), in chunks of trajectories."""
+        left, right = sign * self(node.left), self(node.right)
+        chunk = max(1, _MAX_QUADRATIC_ELEMENTS // (self.length * self.length))
+        parts = [slice(s, s + chunk) for s in range(0, self.n, chunk)]
+        out = np.concatenate([_quadratic(left[:, p], right[:, p], sign)[0] for p in parts], axis=1)
+
+        def backward(g: np.ndarray) -> None:
+            g_left, g_right = np.zeros_like(left), np.zeros_like(right)
+            for p in parts:  # recompute each chunk's intermediates instead of storing N·T² of them
+                _, (g_left[:, p], g_right[:, p]) = _quadratic(left[:, p], right[:, p], sign, g[:, p])
+            self.send(node.left, False, sign * g_left)
+            self.send(node.right, False, g_right)
+
+        return out, backward
+
+    def _binary_on_segments(self, node: Until | Then, first_only: bool, sign: float) -> tuple[np.ndarray, _Backward]:
+        """A temporal left operand judged on each truncated segment s_{t''..t'-1}: O(N·T²) time."""
+        right = self(node.right)
+        subs = [self.on_prefix(t_prime) for t_prime in range(1, self.length)]
+        matrix = np.full((self.length, self.length, self.n), -_INF)  # [t'', t', n]
+        for t_prime, sub in enumerate(subs, start=1):
+            matrix[:t_prime, t_prime] = sign * sub(node.left)
+        out, _ = _quadratic_from_matrix(matrix, right, sign)
+        if first_only:
+            out = out[:1]
+
+        def backward(g: np.ndarray) -> None:
+            g_full = np.zeros((self.length, self.n))
+            g_full[: len(g)] = g
+            _, (g_matrix, g_right) = _quadratic_from_matrix(matrix, right, sign, g_full)
+            for t_prime, sub in enumerate(subs, start=1):
+                grads = sub.backward((node.left, False), sign * g_matrix[:t_prime, t_prime])
+                self.send_signals(grads, slice(0, t_prime))
+            self.send(node.right, False, g_right)
+
+        return out, backward
 
 
-_RULES = {
+def _quadratic(
+    left: np.ndarray, right: np.ndarray, sign: float, grad: np.ndarray | None = None
+) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
+    """Nested U/T at every position for a temporal-free (sign-scaled) left operand."""
+    length = left.shape[0]
+    below = np.tri(length, length, -1, dtype=bool).T[:, :, None]  # [t'', t'] where t'' < t'
+    matrix = np.where(below, left[:, None, :], -_INF)
+    out, grads = _quadratic_from_matrix(matrix, right, sign, grad)
+    if grads is None:
+        return out, None
+    g_matrix, g_right = grads
+    return out, ((g_matrix * below).sum(axis=1), g_right)
+
+
+def _quadratic_from_matrix(
+    matrix: np.ndarray, right: np.ndarray, sign: float, grad: np.ndarray | None = None
+) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
+    """``out[t] = lse_{t' ≥ t} smin(ψ(t'), sign·lse_{t'' ∈ [t, t')} matrix[t'', t'])``.
+
+    ``matrix[t'', t', n]`` holds sign·φ(t'') judged on s_{..t'-1}, and -∞ where t'' ≥ t'.
+    With ``grad`` also returns the gradients wrt ``matrix`` and ``right``.
+    """
+    length = matrix.shape[0]
+    suffix = lse.suffix_forward(matrix)  # [t, t'] = lse over t'' ≥ t (entries t'' ≥ t' are -∞)
+    inner = sign * suffix
+    later = np.tri(length, length, -1, dtype=bool)[:, :, None]  # [t, t'] where t' < t: excluded
+    terms = np.where(later, -_INF, _smin2(right[None], inner))
+    out = lse.reduce_forward(terms, 1)
+    if grad is None:
+        return out, None
+    g_terms = np.where(later, 0.0, lse.reduce_backward(terms, out, grad, 1))
+    g_right, g_inner = _smin2_backward(right[None], inner, terms, g_terms)
+    g_matrix = lse.suffix_backward(matrix, suffix, sign * g_inner)
+    return out, (g_matrix, g_right.sum(axis=0))
+
+
+_RULES: dict[type, Callable[[_Smoother, Any, bool], tuple[np.ndarray, _Backward]]] = {
     Constant: _Smoother.constant,
     Predicate: _Smoother.predicate,
     Not: _Smoother.not_,
@@ -215,37 +366,89 @@ _RULES = {
 }
 
 
-def _to_rho(z: Any, beta: float) -> Any:
-    torch = _torch()
-    inf = torch.tensor(math.inf, dtype=torch.float64)
-    big = z.detach().abs() >= _INF / 2
-    return torch.where(big, torch.where(z.detach() > 0, inf, -inf), z / beta)
+def _to_rho(z: np.ndarray, beta: float) -> np.ndarray:
+    with np.errstate(invalid="ignore"):
+        return np.where(np.abs(z) >= _INF / 2, np.sign(z) * np.inf, z / beta)
 
 
-FORMS = ("nested", "linear")
-
-
-def _smoother(formula: Formula, trace: Trace, beta: float, rho_max: float, form: str) -> tuple[_Smoother, Any]:
+def _check(beta: float, rho_max: float, form: str) -> None:
     if isinstance(beta, bool) or not (isinstance(beta, (int, float)) and math.isfinite(beta) and beta > 0):
         raise ValueError(f"beta must be a positive finite number, got {beta!r}")
     if not rho_max > 0:
         raise ValueError(f"rho_max must be positive, got {rho_max!r}")
     if form not in FORMS:
         raise ValueError(f"form must be one of {FORMS}, got {form!r}")
-    torch = _torch()
-    prepared = prepare(formula.signals, trace, torch_ok=True)
-    signals = {k: v if is_torch(v) else torch.as_tensor(v, dtype=torch.float64) for k, v in prepared.signals.items()}
+
+
+def _evaluate(formula: Formula, signals: dict[str, np.ndarray], n: int, length: int,
+              beta: float, rho_max: float, form: str, first_only: bool) -> tuple[_Smoother, np.ndarray]:
     top = min(beta * rho_max, _INF) if math.isfinite(rho_max) else _INF
-    return _Smoother(signals, prepared.n, prepared.length, float(beta), top, form), prepared
+    smoother = _Smoother(signals, n, length, float(beta), top, form)
+    return smoother, smoother(formula, first_only)
 
 
-def smooth_over_time(
-    formula: Formula, trace: Trace, beta: float, rho_max: float = math.inf, form: str = "nested"
-) -> Any:
-    """Smoothed robustness at every position, as a torch tensor ``(T,)`` or ``(N, T)``."""
-    smoother, prepared = _smoother(formula, trace, beta, rho_max, form)
-    rho = _to_rho(smoother(formula), beta)
-    return rho if prepared.batched else rho[0]
+def _smooth(formula: Formula, trace: Trace, beta: float, rho_max: float, form: str, first_only: bool) -> Any:
+    """Shared entry: numpy in → numpy out; torch in → a differentiable torch tensor out."""
+    _check(beta, rho_max, form)
+    prepared = prepare(formula.signals, trace, torch_ok=True)
+    names = tuple(prepared.signals)
+    tensors = [prepared.signals[k] for k in names]
+    if not names and any(is_torch(v) for v in trace.values()):  # torch in, torch out, even with no signal read
+        import torch
+
+        return torch.as_tensor(_smooth_numpy(formula, prepared, beta, rho_max, form, first_only), dtype=torch.float64)
+    if any(is_torch(t) for t in tensors):
+        out = _autograd_function()(formula, names, float(beta), rho_max, form, first_only, prepared.n,
+                                   prepared.length, *tensors)
+        out = out[0] if first_only else out.T  # (N,) or (N, T)
+        return out if prepared.batched else out[0]
+    return _smooth_numpy(formula, prepared, beta, rho_max, form, first_only)
+
+
+def _smooth_numpy(formula: Formula, prepared: Any, beta: float, rho_max: float, form: str, first_only: bool) -> Any:
+    signals = {k: np.ascontiguousarray(v.T) for k, v in prepared.signals.items()}
+    _, z = _evaluate(formula, signals, prepared.n, prepared.length, beta, rho_max, form, first_only)
+    rho = _to_rho(z, beta)
+    if first_only:
+        return rho[0].copy() if prepared.batched else float(rho[0, 0])
+    return np.ascontiguousarray(rho.T) if prepared.batched else rho[:, 0].copy()
+
+
+_FUNCTION: Any = None
+
+
+def _autograd_function() -> Any:
+    """The torch autograd Function around the numpy evaluator (built on first use)."""
+    global _FUNCTION
+    if _FUNCTION is not None:
+        return _FUNCTION.apply
+    import torch
+
+    class SmoothRobustness(torch.autograd.Function):
+        @staticmethod
+        def forward(ctx: Any, formula: Formula, names: tuple[str, ...], beta: float, rho_max: float, form: str,
+                    first_only: bool, n: int, length: int, *tensors: Any) -> Any:
+            signals = {k: np.ascontiguousarray(t.detach().cpu().double().numpy().T) for k, t in zip(names, tensors)}
+            smoother, z = _evaluate(formula, signals, n, length, beta, rho_max, form, first_only)
+            ctx.smoother, ctx.root, ctx.z, ctx.beta, ctx.names = smoother, (formula, first_only), z, beta, names
+            ctx.meta = [(t.dtype, t.device) for t in tensors]
+            return torch.from_numpy(_to_rho(z, beta)).to(dtype=tensors[0].dtype, device=tensors[0].device)
+
+        @staticmethod
+        def backward(ctx: Any, grad_out: Any) -> Any:
+            g = grad_out.detach().cpu().double().numpy()
+            g = np.where(np.abs(ctx.z) >= _INF / 2, 0.0, g / ctx.beta)  # ±∞ results have zero gradient
+            grads = ctx.smoother.backward(ctx.root, g)
+            out = []
+            for name, (dtype, device) in zip(ctx.names, ctx.meta):
+                grad = grads.get(name)
+                if grad is not None:
+                    grad = torch.from_numpy(np.ascontiguousarray(grad.T)).to(dtype=dtype, device=device)
+                out.append(grad)
+            return (None,) * 8 + tuple(out)
+
+    _FUNCTION = SmoothRobustness
+    return _FUNCTION.apply
 
 
 def smooth_robustness(
@@ -259,12 +462,11 @@ def smooth_robustness(
     identity ρ(φ T ψ, t) = max_{s ≥ t} min(φ(s), max_{t' > s} ψ(t')) in O(T) instead of
     the prescribed O(T²) nesting (same limit as β → ∞, same Lemma 1 bracket).
     """
-    smoother, prepared = _smoother(formula, trace, beta, rho_max, form)
-    torch = smoother.torch
-    use_torch = any(is_torch(trace[k]) for k in prepared.signals)
-    with torch.set_grad_enabled(use_torch and torch.is_grad_enabled()):
-        rho = _to_rho(smoother(formula, first_only=True)[:, 0], beta)
-    if use_torch:
-        return rho if prepared.batched else rho[0]
-    values = rho.detach().cpu().numpy()
-    return values.copy() if prepared.batched else float(values[0])
+    return _smooth(formula, trace, beta, rho_max, form, first_only=True)
+
+
+def smooth_over_time(
+    formula: Formula, trace: Trace, beta: float, rho_max: float = math.inf, form: str = "nested"
+) -> Any:
+    """Smoothed robustness at every position: ``(T,)`` or ``(N, T)`` (numpy, or torch for torch input)."""
+    return _smooth(formula, trace, beta, rho_max, form, first_only=False)

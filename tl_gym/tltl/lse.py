@@ -1,0 +1,60 @@
+"""Log-sum-exp primitives with hand-derived gradients, in numpy.
+
+These are the only operations the smoothed robustness needs. Inputs are finite
+(±1e300 stands for ±∞, see `tl_gym.tltl.smooth`), so every exponent below is of a
+difference that is ≤ 0 or bounded by the log of the upstream gradient: values and
+gradients stay finite for any β.
+
+Scans run along axis 0 (time, in the smoother's time-major layout).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def reduce_forward(z: np.ndarray, axis: int) -> np.ndarray:
+    """``log Σ exp(z)`` along ``axis`` (the axis is removed)."""
+    peak = z.max(axis=axis, keepdims=True)
+    return (peak + np.log(np.exp(z - peak).sum(axis=axis, keepdims=True))).squeeze(axis)
+
+
+def reduce_backward(z: np.ndarray, out: np.ndarray, grad: np.ndarray, axis: int) -> np.ndarray:
+    """Gradient of `reduce_forward` wrt ``z``: the softmax weights times the upstream gradient."""
+    return np.expand_dims(grad, axis) * np.exp(z - np.expand_dims(out, axis))
+
+
+def logaddexp_backward(
+    a: np.ndarray, b: np.ndarray, out: np.ndarray, grad: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Gradients of ``out = logaddexp(a, b)`` wrt ``a`` and ``b``."""
+    return grad * np.exp(a - out), grad * np.exp(b - out)
+
+
+def prefix_forward(z: np.ndarray) -> np.ndarray:
+    """``out[t] = log Σ_{s ≤ t} exp(z[s])`` along axis 0."""
+    return np.logaddexp.accumulate(z, axis=0)
+
+
+def prefix_backward(z: np.ndarray, out: np.ndarray, grad: np.ndarray) -> np.ndarray:
+    """Gradient of `prefix_forward`: ``gz[s] = Σ_{t ≥ s} grad[t] · exp(z[s] − out[t])``.
+
+    The sum over t is a suffix sum of ``grad[t]·exp(−out[t])``, done in log space with
+    the positive and negative parts of ``grad`` apart, so nothing overflows.
+    """
+    with np.errstate(divide="ignore"):
+        log_pos = np.log(np.maximum(grad, 0.0)) - out
+        log_neg = np.log(np.maximum(-grad, 0.0)) - out
+    suffix_pos = np.logaddexp.accumulate(log_pos[::-1], axis=0)[::-1]
+    suffix_neg = np.logaddexp.accumulate(log_neg[::-1], axis=0)[::-1]
+    return np.exp(z + suffix_pos) - np.exp(z + suffix_neg)
+
+
+def suffix_forward(z: np.ndarray) -> np.ndarray:
+    """``out[t] = log Σ_{s ≥ t} exp(z[s])`` along axis 0."""
+    return np.ascontiguousarray(prefix_forward(z[::-1])[::-1])
+
+
+def suffix_backward(z: np.ndarray, out: np.ndarray, grad: np.ndarray) -> np.ndarray:
+    """Gradient of `suffix_forward` (the mirror image of `prefix_backward`)."""
+    return np.ascontiguousarray(prefix_backward(z[::-1], out[::-1], grad[::-1])[::-1])
