@@ -541,5 +541,13 @@ def _cached_hash(self: Any) -> int:
         return value
 
 
+def _state_without_hash(self: Any) -> dict[str, Any]:
+    """Pickle state without the cached hash: string hashes differ between processes."""
+    state = dict(self.__dict__)
+    state.pop("_hash", None)
+    return state
+
+
 for _cls in (*FORMULA_NODES, Var, Num, Neg, BinOp, Call):
     _cls.__hash__ = _cached_hash  # type: ignore[method-assign]
+    _cls.__getstate__ = _state_without_hash  # type: ignore[attr-defined]
