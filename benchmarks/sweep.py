@@ -4,7 +4,8 @@ Usage::
 
     python -m benchmarks.sweep benchmarks/configs/paper.toml              # all CPUs of this machine
     python -m benchmarks.sweep benchmarks/configs/paper.toml --workers 1
-    python -m benchmarks.sweep benchmarks/configs/quick.toml --quick      # CI-sized
+    python -m benchmarks.sweep benchmarks/configs/paper.toml --quick      # CI-sized (variant "quick")
+    python -m benchmarks.sweep benchmarks/configs/paper.toml --variant session
     python -m benchmarks.sweep benchmarks/configs/paper.toml --ray auto   # on a Ray cluster
 
 A config (TOML) names the env, the tasks, the seeds and the iterations, and lists agents
@@ -26,6 +27,7 @@ from __future__ import annotations
 import argparse
 import concurrent.futures as futures
 import dataclasses
+import fnmatch
 import itertools
 import json
 import multiprocessing
@@ -54,15 +56,16 @@ from benchmarks.sweep_run import (
     write_atomic,
 )
 
-#: Keys of a config's top level (each may be overridden in its ``[quick]`` table).
+#: Keys of a config's top level (all but name, agents and variants may be overridden in a variant).
 TOP_KEYS = {
     "name", "description", "env", "tasks", "seeds", "iterations", "evaluate_episodes",
-    "trajectory_iterations", "trajectory_episodes", "save_agent", "agents", "quick", "env_kwargs",
+    "trajectory_iterations", "trajectory_episodes", "save_agent", "agents", "variants", "env_kwargs",
 }
-#: Keys of an ``[[agents]]`` entry; ``quick`` holds overrides for ``--quick``.
+#: Keys of an ``[[agents]]`` entry; ``variants.<name>`` holds its overrides in that variant
+#: (``skip = true`` leaves the agent out of it).
 AGENT_KEYS = {
     "label", "agent", "hyperparameters", "grid", "env_kwargs", "tasks", "seeds", "iterations",
-    "evaluate_episodes", "trajectory_iterations", "trajectory_episodes", "save_agent", "note", "quick",
+    "evaluate_episodes", "trajectory_iterations", "trajectory_episodes", "save_agent", "note", "variants", "skip",
 }
 #: Keys an agent entry inherits from the top level when it does not set them.
 INHERITED = ("tasks", "seeds", "iterations", "evaluate_episodes", "trajectory_iterations",
@@ -84,12 +87,14 @@ class Sweep:
     runs: tuple[RunSpec, ...]
 
 
-def load_config(path: str | Path, quick: bool = False) -> Sweep:
+def load_config(path: str | Path, variant: str | None = None) -> Sweep:
     """Read a TOML sweep config and expand it into runs.
 
     Args:
         path: the config file.
-        quick: apply the ``[quick]`` overrides (top level and per agent) for a CI-sized run.
+        variant: apply the overrides of ``[variants.<variant>]`` (top level) and of each agent's
+            ``variants.<variant>`` table, e.g. ``"quick"`` for a CI-sized run; the sweep's name
+            gets ``-<variant>`` appended, so its results go to their own directory.
 
     Raises:
         ConfigError: unknown keys, bad types or values, an agent name of no known form.
@@ -99,10 +104,10 @@ def load_config(path: str | Path, quick: bool = False) -> Sweep:
         data = tomllib.loads(path.read_text())
     except (OSError, tomllib.TOMLDecodeError) as exc:
         raise ConfigError(f"cannot read sweep config {path}: {exc}") from exc
-    return expand_config(data, quick=quick, source=str(path))
+    return expand_config(data, variant=variant, source=str(path))
 
 
-def expand_config(data: Mapping[str, Any], quick: bool = False, source: str = "<config>") -> Sweep:
+def expand_config(data: Mapping[str, Any], variant: str | None = None, source: str = "<config>") -> Sweep:
     """Expand a parsed config (see `load_config`) into its runs, checking every field first."""
     def fail(message: str) -> ConfigError:
         return ConfigError(f"{source}: {message}")
@@ -111,8 +116,15 @@ def expand_config(data: Mapping[str, Any], quick: bool = False, source: str = "<
     if unknown:
         raise fail(f"unknown key(s) {unknown}; valid: {sorted(TOP_KEYS)}")
     top = {**DEFAULTS, **data}
-    if quick:
-        top.update(_table(top.get("quick", {}), "quick", fail))
+    variants = _table(top.get("variants", {}), "variants", fail)
+    for name, overrides in variants.items():  # all checked, not only the one asked for
+        bad = sorted(set(_table(overrides, f"variants.{name}", fail)) - (TOP_KEYS - {"name", "variants", "agents"}))
+        if bad:
+            raise fail(f"variants.{name}: unknown key(s) {bad}")
+    if variant is not None:
+        if variant not in variants:
+            raise fail(f"no variant {variant!r}; the config has {sorted(variants)}")
+        top.update(variants[variant])
     for key in ("name", "env"):
         if not isinstance(top.get(key), str) or not top[key]:
             raise fail(f"'{key}' must be a non-empty string, got {top.get(key)!r}")
@@ -126,17 +138,26 @@ def expand_config(data: Mapping[str, Any], quick: bool = False, source: str = "<
         bad = sorted(set(entry) - AGENT_KEYS)
         if bad:
             raise fail(f"{where}: unknown key(s) {bad}; valid: {sorted(AGENT_KEYS)}")
-        if quick and "quick" in entry:
-            overrides = _table(entry["quick"], f"{where}.quick", fail)
+        own = _table(entry.get("variants", {}), f"{where}.variants", fail)
+        if variant is not None and variant in own:
+            overrides = _table(own[variant], f"{where}.variants.{variant}", fail)
+            bad = sorted(set(overrides) - AGENT_KEYS)
+            if bad:
+                raise fail(f"{where}.variants.{variant}: unknown key(s) {bad}")
             hyper = {**_table(entry.get("hyperparameters", {}), f"{where}.hyperparameters", fail),
-                     **_table(overrides.get("hyperparameters", {}), f"{where}.quick.hyperparameters", fail)}
+                     **_table(overrides.get("hyperparameters", {}), f"{where}.variants.{variant}.hyperparameters",
+                              fail)}
             entry = {**entry, **overrides, "hyperparameters": hyper}
+        if entry.get("skip", False):
+            continue
         runs.extend(_expand_agent(entry, top, where, fail))
     ids = [run.run_id for run in runs]
     duplicates = sorted({i for i in ids if ids.count(i) > 1})
     if duplicates:
         raise fail(f"the same run appears twice: {duplicates} (two agents with one label and hyperparameters?)")
-    name = top["name"] + ("-quick" if quick else "")
+    if not runs:
+        raise fail(f"variant {variant!r} skips every agent")
+    name = top["name"] + (f"-{variant}" if variant else "")
     return Sweep(name=name, description=str(top.get("description", "")), runs=tuple(runs))
 
 
@@ -175,9 +196,11 @@ def _expand_agent(entry: dict[str, Any], top: Mapping[str, Any], where: str, fai
     if isinstance(seeds, int) and not isinstance(seeds, bool) and seeds >= 1:
         seeds = list(range(seeds))  # seeds = 5 means seeds 0..4
     seeds = _int_list(seeds, f"{where}.seeds", fail, 0)
-    iterations = settings["iterations"]
-    if not isinstance(iterations, int) or isinstance(iterations, bool) or iterations < 1:
-        raise fail(f"{where}.iterations must be an int >= 1, got {iterations!r}")
+    for key, value in (("iterations", settings["iterations"]), ("top-level iterations", top.get("iterations"))):
+        if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+            raise fail(f"{where}: {key} must be an int >= 1, got {value!r}")
+    # an agent's own budget can only lower the sweep's (e.g. SAC), so a variant's cap holds for all
+    iterations = min(settings["iterations"], top["iterations"])
     trajectory_iterations = settings["trajectory_iterations"] or []
     if trajectory_iterations:
         trajectory_iterations = _int_list(trajectory_iterations, f"{where}.trajectory_iterations", fail, 0)
@@ -217,6 +240,7 @@ def run_sweep(
     workers: int | None = None,
     ray_address: str | None = None,
     progress: bool = True,
+    only: Sequence[str] = (),
 ) -> SweepReport:
     """Run every unfinished run of ``sweep`` into ``out_dir/runs/<run_id>``.
 
@@ -228,6 +252,8 @@ def run_sweep(
         ray_address: run on Ray instead (``"auto"``, ``"ray://host:10001"``, ``"local"`` to start one
             here); if Ray is already initialised in this process, that instance is used.
         progress: show a tqdm bar over runs.
+        only: run only the runs whose label matches one of these shell patterns (``"TLPS*"``);
+            ``sweep.json`` still lists every run of the config.
 
     Returns:
         A `SweepReport`; a failed run leaves no ``done.json`` and is retried by the next sweep.
@@ -239,11 +265,12 @@ def run_sweep(
     write_atomic(out_dir / "sweep.json", json.dumps(manifest, indent=1).encode())
     report = SweepReport()
     pending = []
-    for run in sweep.runs:
+    selected = [run for run in sweep.runs if not only or any(fnmatch.fnmatchcase(run.label, p) for p in only)]
+    for run in selected:
         (report.skipped if is_done(out_dir / "runs" / run.run_id) else pending).append(run)
     report.skipped = [run.run_id for run in report.skipped]
     start = time.perf_counter()
-    with tqdm(total=len(sweep.runs), initial=len(report.skipped), disable=not progress, unit="run",
+    with tqdm(total=len(selected), initial=len(report.skipped), disable=not progress, unit="run",
               desc=sweep.name, dynamic_ncols=True) as bar:
         if ray_address is not None:
             _run_on_ray(pending, out_dir, ray_address, report, bar)
@@ -310,20 +337,25 @@ def default_out_dir(sweep: Sweep) -> Path:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Command line: ``python -m benchmarks.sweep CONFIG [--ray ADDRESS] [--workers K] [--quick]``."""
+    """Command line: ``python -m benchmarks.sweep CONFIG [--ray ADDRESS] [--workers K] [--quick | --variant V]``."""
     parser = argparse.ArgumentParser(prog="python -m benchmarks.sweep", description=__doc__.split("\n")[0])
     parser.add_argument("config", help="sweep config (TOML), e.g. benchmarks/configs/paper.toml")
-    parser.add_argument("--out", help="results directory (default runs/sweeps/<name>[-quick])")
+    parser.add_argument("--out", help="results directory (default runs/sweeps/<name>[-<variant>])")
     parser.add_argument("--workers", type=int, default=None,
                         help="local worker processes (default: CPU count; 0: serial, in this process)")
     parser.add_argument("--ray", metavar="ADDRESS", help='run on Ray: "auto", "ray://host:10001", or "local"')
-    parser.add_argument("--quick", action="store_true", help="apply the config's [quick] overrides (CI-sized)")
+    parser.add_argument("--quick", action="store_true", help="same as --variant quick (CI-sized)")
+    parser.add_argument("--variant", help="apply the config's [variants.VARIANT] overrides")
+    parser.add_argument("--only", action="append", default=[], metavar="PATTERN",
+                        help='run only labels matching this shell pattern, e.g. "TLPS*" (repeatable)')
     parser.add_argument("--list", action="store_true", help="list the runs and whether they are done, then exit")
     args = parser.parse_args(argv)
     if args.workers is not None and args.workers < 0:
         parser.error(f"--workers must be >= 0, got {args.workers}")
     try:
-        sweep = load_config(args.config, quick=args.quick)
+        if args.quick and args.variant not in (None, "quick"):
+            parser.error("--quick is --variant quick; give one of them")
+        sweep = load_config(args.config, variant="quick" if args.quick else args.variant)
     except ConfigError as exc:
         parser.error(str(exc))
     out_dir = Path(args.out) if args.out else default_out_dir(sweep)
@@ -331,7 +363,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         for run in sweep.runs:
             print(("done " if is_done(out_dir / "runs" / run.run_id) else "todo ") + run.run_id)
         return 0
-    report = run_sweep(sweep, out_dir, workers=args.workers, ray_address=args.ray)
+    report = run_sweep(sweep, out_dir, workers=args.workers, ray_address=args.ray, only=args.only)
     print(f"{sweep.name}: {len(report.finished)} run(s) finished, {len(report.skipped)} already done, "
           f"{len(report.failed)} failed, {report.wall_time:.1f} s; results in {out_dir}")
     for run_id, text in report.failed.items():

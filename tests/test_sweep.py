@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import tomllib
 
 from benchmarks import results
 from benchmarks.sweep import ConfigError, expand_config, load_config, run_sweep
@@ -72,17 +73,19 @@ def config(**overrides):
 
 
 def test_expansion_grid_labels_and_quick_overrides():
-    sweep = expand_config(config(quick={"seeds": [0], "iterations": 2}))
+    variants = {"quick": {"seeds": [0], "iterations": 2}}
+    sweep = expand_config(config(variants=variants))
     assert len(sweep.runs) == 2 * 2 * 2
     assert {r.label for r in sweep.runs} == {"stand-in r=0.5", "stand-in r=0.25"}
     assert {r.env_kwargs["task"] for r in sweep.runs} == {1, 2}
     assert len({r.run_id for r in sweep.runs}) == len(sweep.runs)
-    quick = expand_config(config(quick={"seeds": [0], "iterations": 2}), quick=True)
+    quick = expand_config(config(variants=variants), variant="quick")
     assert quick.name == "tiny-quick" and len(quick.runs) == 4
     assert all(r.iterations == 2 and r.seed == 0 for r in quick.runs)
     agent = {"label": "a", "agent": STAND_IN, "hyperparameters": {"rate": 1.0, "marker_dir": "x"},
-             "quick": {"hyperparameters": {"rate": 2.0}, "seeds": [3]}}
-    (run, *_), = [expand_config(config(agents=[agent], tasks=[1]), quick=True).runs]
+             "variants": {"quick": {"hyperparameters": {"rate": 2.0}, "seeds": [3]}}}
+    skipped = {"label": "b", "agent": STAND_IN, "variants": {"quick": {"skip": True}}}
+    (run,) = expand_config(config(agents=[agent, skipped], tasks=[1], variants=variants), variant="quick").runs
     assert dict(run.hyperparameters) == {"rate": 2.0, "marker_dir": "x"} and run.seed == 3
     assert expand_config(config(seeds=3)).runs[-1].seed == 2
 
@@ -98,6 +101,7 @@ def test_expansion_grid_labels_and_quick_overrides():
     ({"agents": [{"agent": "tlps", "label": "β={beta}"}]}, "beta"),
     ({"agents": [{"agent": "tlps", "grid": {"beta": 9}}]}, "grid.beta"),
     ({"agents": [{"agent": "tlps"}, {"agent": "tlps"}]}, "twice"),
+    ({"variants": {"quick": {"agents": []}}}, "variants.quick"),
 ])
 def test_bad_configs_name_the_culprit(change, culprit):
     with pytest.raises(ConfigError, match=culprit.replace("{", r"\{")):
@@ -106,8 +110,9 @@ def test_bad_configs_name_the_culprit(change, culprit):
 
 def test_shipped_configs_expand():
     for path in sorted((ROOT / "benchmarks" / "configs").glob("*.toml")):
-        for quick in (False, True):
-            assert load_config(path, quick=quick).runs, path
+        data = tomllib.loads(path.read_text())
+        for variant in (None, *data.get("variants", {})):
+            assert load_config(path, variant=variant).runs, (path, variant)
 
 
 def test_tiny_sweep_runs_in_parallel_resumes_and_aggregates(tmp_path):
