@@ -22,12 +22,12 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-
-import tl_gym  # noqa: F401  (registers TLCarNav-v0)
-from tl_gym import TLTLRewardWrapper
 from tl_gym.envs.car import CarNavEnv
 from tl_gym.envs.tasks import task_formula
 from tl_gym.envs.vector import CarNavVectorEnv
+
+import tl_gym  # noqa: F401  (registers TLCarNav-v0)
+from tl_gym import TLTLRewardWrapper
 
 NUM_ENVS = 40
 HORIZON = 200
@@ -175,9 +175,10 @@ def _report(rows: list[tuple[str, str]], quick: bool) -> None:
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     OUT.parent.mkdir(parents=True, exist_ok=True)
     table = ["| measurement | value |", "|---|---|"] + [f"| {name.strip()} | {value} |" for name, value in rows]
+    command = f"python -m benchmarks.bench_env{' --quick' if quick else ''}"
     OUT.write_text(
         "# TLCarNav-v0 and TLTLRewardWrapper speed\n\n"
-        f"`python -m benchmarks.bench_env{' --quick' if quick else ''}` on {platform.processor() or platform.machine()}, "
+        f"`{command}` on {platform.processor() or platform.machine()}, "
         f"{os.cpu_count()} cores, Python {platform.python_version()}, numpy {np.__version__}, "
         f"gymnasium {gym.__version__}; 1-minute load average {load:.1f} at the end. Best of several repeats; "
         "episodes of 200 steps with random actions, terminal robustness included.\n\n"

@@ -59,13 +59,14 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         >>> env = TLTLRewardWrapper(gym.make("Pendulum-v1", max_episode_steps=50),
         ...                         "F(cos_th > 0.95)", signals={"cos_th": 0})
         >>> _ = env.reset(seed=0)
-        >>> _, reward, *_ = env.step(env.action_space.sample())
+        >>> push = np.array([2.0], dtype=np.float32)
+        >>> _, reward, *_ = env.step(push)
         >>> reward
         0.0
         >>> for _ in range(49):
-        ...     _, reward, terminated, truncated, info = env.step(np.array([0.0], dtype=np.float32))
+        ...     _, reward, terminated, truncated, info = env.step(push)
         >>> truncated, round(reward, 4), info["satisfied"], len(info["trace"]["cos_th"])
-        (True, -1.1018, False, 51)
+        (True, 0.0498, True, 51)
 
     Change logs:
         * v0.1.0 - Initially added.
