@@ -273,3 +273,63 @@ def smooth_robustness(formula: Formula, trace: Mapping[str, Any], beta: float, r
 def satisfied(formula: Formula, trace: Mapping[str, Any]) -> Any:
     """Boolean semantics at position 0: a bool, or ``(N,)`` bools for a batch."""
     return satisfied_over_time(formula, trace)[..., 0]
+
+
+# --------------------------------------------------------------------------- Lemma 1 bracket
+
+
+def bracket(formula: Formula, horizon: int, beta: float) -> tuple[float, float]:
+    """Lemma 1, recursively: ``(below, above)`` with ρ − below ≤ ρ̂ ≤ ρ + above.
+
+    A smooth max of n terms overestimates by at most log(n)/β and never
+    underestimates; a smooth min the mirror image. Errors of the terms pass through
+    max/min unchanged, so each node keeps the worst of its operands' errors and adds
+    its own; negation swaps the two sides. Terms per node, for a trace of length
+    ``horizon``: n for an n-ary ``&``/``|``, 2 for ``->``, ``horizon`` for ``F``/``G`` and
+    for the max over t' of ``U``/``T``, 2 for the min combining ψ with the inner
+    reduction, and ``horizon - 1`` for the inner min (``U``) or max (``T``) over t''.
+    """
+    below, above = _bracket(formula, horizon)
+    return below / beta, above / beta
+
+
+def _worst(parts: list[tuple[float, float]]) -> tuple[float, float]:
+    return max(p[0] for p in parts), max(p[1] for p in parts)
+
+
+def _bracket(node: Formula, horizon: int) -> tuple[float, float]:
+    def log(n: int) -> float:
+        return math.log(max(n, 1))
+
+    if isinstance(node, (Constant, Predicate)):
+        return 0.0, 0.0
+    if isinstance(node, Not):
+        below, above = _bracket(node.child, horizon)
+        return above, below
+    if isinstance(node, Next):
+        return _bracket(node.child, horizon)
+    if isinstance(node, And):
+        below, above = _worst([_bracket(c, horizon) for c in node.operands])
+        return below + log(len(node.operands)), above
+    if isinstance(node, Or):
+        below, above = _worst([_bracket(c, horizon) for c in node.operands])
+        return below, above + log(len(node.operands))
+    if isinstance(node, Implies):
+        left_below, left_above = _bracket(node.left, horizon)
+        below, above = _worst([(left_above, left_below), _bracket(node.right, horizon)])
+        return below, above + log(2)
+    if isinstance(node, Eventually):
+        below, above = _bracket(node.child, horizon)
+        return below, above + log(horizon)
+    if isinstance(node, Always):
+        below, above = _bracket(node.child, horizon)
+        return below + log(horizon), above
+    if isinstance(node, (Until, Then)):
+        below, above = _bracket(node.left, horizon)
+        if isinstance(node, Until):
+            inner = (below + log(horizon - 1), above)
+        else:
+            inner = (below, above + log(horizon - 1))
+        below, above = _worst([inner, _bracket(node.right, horizon)])
+        return below + log(2), above + log(horizon)
+    raise TypeError(f"reference has no bracket rule for formula node {type(node).__name__}")

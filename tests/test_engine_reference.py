@@ -20,7 +20,6 @@ from hypothesis import strategies as st
 import tests.reference as ref
 from tests import strategies as S
 from tl_gym import TraceError, parse
-from tl_gym.tltl.smooth import smooth_over_time
 
 INF = math.inf
 
@@ -105,7 +104,7 @@ def test_smooth_matches_reference(formula, trace, beta, rho_max):
     got = formula.smooth_robustness(tensors, beta, rho_max)
     assert isinstance(got, torch.Tensor) and got.dtype == torch.float64
     assert_matches(np.asarray(got), expected[:, 0], what="torch batched")
-    assert_matches(np.asarray(smooth_over_time(formula, trace, beta, rho_max)), expected, what="over time")
+    assert_matches(np.asarray(formula.smooth_robustness_over_time(trace, beta, rho_max)), expected, what="over time")
     row = _row(trace, 0)
     value = formula.smooth_robustness(row, beta, rho_max)
     assert isinstance(value, float)
