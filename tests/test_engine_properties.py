@@ -248,7 +248,10 @@ SAMPLES = {
     ast.Until: ast.Until(signal("x") > 1, signal("y") < 2),
     ast.Then: ast.Then(signal("x") > 1, signal("y") < 2),
 }
-NODE_TRACE = {"x": np.array([[0.5, 2.0, 1.5, 3.5], [2.5, 0.0, 1.0, 1.2]]), "y": np.array([[3.0, 1.0, 2.5, 0.5], [1.0, 2.2, 1.9, 4.0]])}
+NODE_TRACE = {
+    "x": np.array([[0.5, 2.0, 1.5, 3.5], [2.5, 0.0, 1.0, 1.2]]),
+    "y": np.array([[3.0, 1.0, 2.5, 0.5], [1.0, 2.2, 1.9, 4.0]]),
+}
 
 
 def test_node_list_is_complete():
@@ -266,7 +269,8 @@ def test_every_node_is_handled_by_every_evaluator(node_class, rho_max):
     assert type(formula) is node_class
     # a node under F and under G, so that over-time values of the node are used too
     for f in (formula, F(formula), G(formula)):
-        np.testing.assert_array_equal(f.robustness_over_time(NODE_TRACE, rho_max), ref.robustness_over_time(f, NODE_TRACE, rho_max))
+        expected = ref.robustness_over_time(f, NODE_TRACE, rho_max)
+        np.testing.assert_array_equal(f.robustness_over_time(NODE_TRACE, rho_max), expected)
         np.testing.assert_array_equal(f.satisfied(NODE_TRACE), ref.satisfied(f, NODE_TRACE))
         for beta in (0.7, 5.0):
             got = np.asarray(f.smooth_robustness_over_time(NODE_TRACE, beta, rho_max))
