@@ -4,7 +4,9 @@ Measures car steps per second of the single env, of `SyncVectorEnv` over 40 of
 them and of the batched `CarNavVectorEnv` (40 cars), full 200-step episodes with
 their terminal robustness included; and the wrapper's per-step overhead over the
 bare car and over a do-nothing env, with the terminal evaluation timed apart.
-Each number is the best of several repeats (the least disturbed by other load).
+Each number is the best of several repeats, timed twice: CPU time of this
+process (``time.process_time``, what the code costs even when other jobs share
+the cores) and wall-clock time (``time.perf_counter``, what a user waits).
 
 Usage: ``python -m benchmarks.bench_env [--quick]``; prints a table and writes
 ``docs/results/env_speed.md``.
@@ -53,52 +55,77 @@ class Idle(gym.Env):
         return self._obs, 0.0, False, self._t >= HORIZON, {}
 
 
-def best_of(repeats: int, fn: Callable[[], float]) -> float:
-    """Smallest of ``repeats`` timings returned by ``fn`` (seconds)."""
-    return min(fn() for _ in range(repeats))
+class Clock:
+    """Accumulates wall-clock and CPU seconds over the timed sections."""
+
+    def __init__(self) -> None:
+        self.wall = 0.0
+        self.cpu = 0.0
+        self._start = (0.0, 0.0)
+
+    def __enter__(self) -> Clock:
+        self._start = (time.perf_counter(), time.process_time())
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.wall += time.perf_counter() - self._start[0]
+        self.cpu += time.process_time() - self._start[1]
 
 
-def time_episodes(env, actions: np.ndarray, episodes: int) -> float:
+Timing = tuple[float, float]  # (cpu seconds, wall seconds)
+
+
+def best_of(repeats: int, fn: Callable[[], Timing]) -> Timing:
+    """Smallest CPU and smallest wall time over ``repeats`` runs of ``fn``."""
+    runs = [fn() for _ in range(repeats)]
+    return min(r[0] for r in runs), min(r[1] for r in runs)
+
+
+def time_episodes(env, actions: np.ndarray, episodes: int) -> Timing:
     """Seconds for ``episodes`` full episodes (reset excluded), stepping ``actions[t]``."""
     env.reset(seed=0)
-    total = 0.0
+    clock = Clock()
     for _ in range(episodes):
-        start = time.perf_counter()
-        for t in range(HORIZON):
-            env.step(actions[t])
-        total += time.perf_counter() - start
+        with clock:
+            for t in range(HORIZON):
+                env.step(actions[t])
         env.reset()
-    return total
+    return clock.cpu, clock.wall
 
 
-def time_vector(envs, actions: np.ndarray, episodes: int) -> float:
+def time_vector(envs, actions: np.ndarray, episodes: int) -> Timing:
     """Seconds for ``episodes`` episodes of every sub-env, autoreset steps excluded."""
     envs.reset(seed=0)
-    total = 0.0
+    clock = Clock()
     for _ in range(episodes):
-        start = time.perf_counter()
-        for t in range(HORIZON):
-            envs.step(actions[t])
-        total += time.perf_counter() - start
+        with clock:
+            for t in range(HORIZON):
+                envs.step(actions[t])
         envs.step(actions[0])  # the NEXT_STEP autoreset step
-    return total
+    return clock.cpu, clock.wall
 
 
-def time_steps_split(env, actions: np.ndarray, episodes: int) -> tuple[float, float]:
+def time_steps_split(env, actions: np.ndarray, episodes: int) -> tuple[Timing, Timing]:
     """Per-step seconds of non-terminal steps, and seconds of the terminal step."""
-    body, last = 0.0, 0.0
+    body, last = Clock(), Clock()
     env.reset(seed=0)
     for _ in range(episodes):
-        start = time.perf_counter()
-        for t in range(HORIZON - 1):
-            env.step(actions[t])
-        middle = time.perf_counter()
-        env.step(actions[HORIZON - 1])
-        end = time.perf_counter()
-        body += middle - start
-        last += end - middle
+        with body:
+            for t in range(HORIZON - 1):
+                env.step(actions[t])
+        with last:
+            env.step(actions[HORIZON - 1])
         env.reset()
-    return body / (episodes * (HORIZON - 1)), last / episodes
+    steps = episodes * (HORIZON - 1)
+    return (body.cpu / steps, body.wall / steps), (last.cpu / episodes, last.wall / episodes)
+
+
+def _rate(count: float, timing: Timing) -> str:
+    return f"{count / timing[0]:,.0f} | {count / timing[1]:,.0f}"
+
+
+def _micro(timing: Timing, scale: float = 1.0) -> str:
+    return f"{timing[0] * scale * 1e6:.2f} us | {timing[1] * scale * 1e6:.2f} us"
 
 
 def main() -> None:
@@ -114,73 +141,79 @@ def main() -> None:
     # --- car steps per second ----------------------------------------------------------------
     single = gym.make("TLCarNav-v0", disable_env_checker=True)
     t_single = best_of(repeats, lambda: time_episodes(single, actions, episodes))
-    single_rate = episodes * HORIZON / t_single
     sync = gym.make_vec("TLCarNav-v0", num_envs=NUM_ENVS, vectorization_mode="sync")
-    t_sync = best_of(repeats, lambda: time_vector(sync, batch_actions, max(1, episodes // 2)))
-    sync_rate = max(1, episodes // 2) * HORIZON * NUM_ENVS / t_sync
-    rates = {}
+    sync_episodes = max(1, episodes // 2)
+    t_sync = best_of(repeats, lambda: time_vector(sync, batch_actions, sync_episodes))
+    t_batched = {}
     for task in (1, 2):
         batched = CarNavVectorEnv(num_envs=NUM_ENVS, task=task)
-        t_batched = best_of(repeats, lambda b=batched: time_vector(b, batch_actions, episodes))
-        rates[task] = episodes * HORIZON * NUM_ENVS / t_batched
-    batched = CarNavVectorEnv(num_envs=NUM_ENVS)
-    batched.reset(seed=0)
-    one_step = best_of(repeats, lambda: _time_calls(lambda: batched.step(batch_actions[0]), 150))
+        t_batched[task] = best_of(repeats, lambda b=batched: time_vector(b, batch_actions, episodes))
+    batched_steps = episodes * HORIZON * NUM_ENVS
+    sync_steps = sync_episodes * HORIZON * NUM_ENVS
+    speedup = [(batched_steps / t_batched[1][i]) / (sync_steps / t_sync[i]) for i in (0, 1)]
     rows += [
-        ("single env (gym.make, task 1), car steps/s", f"{single_rate:,.0f}"),
-        (f"SyncVectorEnv({NUM_ENVS}) (task 1), car steps/s", f"{sync_rate:,.0f}"),
-        (f"CarNavVectorEnv({NUM_ENVS}) task 1, car steps/s", f"{rates[1]:,.0f}"),
-        (f"CarNavVectorEnv({NUM_ENVS}) task 2, car steps/s", f"{rates[2]:,.0f}"),
-        (f"CarNavVectorEnv({NUM_ENVS}) / SyncVectorEnv({NUM_ENVS}) (task 1)", f"{rates[1] / sync_rate:.0f}x"),
-        (f"CarNavVectorEnv({NUM_ENVS}): one non-terminal step", f"{one_step * 1e6:.1f} us"),
+        ("single env (gym.make, task 1), car steps/s", _rate(episodes * HORIZON, t_single)),
+        (f"SyncVectorEnv({NUM_ENVS}) (task 1), car steps/s", _rate(sync_steps, t_sync)),
+        (f"CarNavVectorEnv({NUM_ENVS}) task 1, car steps/s", _rate(batched_steps, t_batched[1])),
+        (f"CarNavVectorEnv({NUM_ENVS}) task 2, car steps/s", _rate(batched_steps, t_batched[2])),
+        (f"CarNavVectorEnv({NUM_ENVS}) / SyncVectorEnv({NUM_ENVS}) (task 1)", f"{speedup[0]:.0f}x | {speedup[1]:.0f}x"),
+        (f"CarNavVectorEnv({NUM_ENVS}) task 1, one 200-step episode of {NUM_ENVS} cars",
+         f"{t_batched[1][0] / episodes * 1e3:.1f} ms | {t_batched[1][1] / episodes * 1e3:.1f} ms"),
     ]
 
     # --- wrapper overhead ----------------------------------------------------------------------
     for name, make_bare in (("do-nothing env", Idle), ("bare car", lambda: CarNavEnv(task=1))):
         bare_step, _ = _best_split(make_bare(), actions, repeats, episodes)
         wrapped = TLTLRewardWrapper(make_bare(), task_formula(1), signals={"x": 0, "y": 1})
-        wrapped_step, wrapped_last = _best_split(wrapped, actions, repeats, episodes)
-        rows.append((f"wrapper overhead per step on a {name}", f"{(wrapped_step - bare_step) * 1e6:.2f} us"))
-    rows.append(("  (bare car step)", f"{bare_step * 1e6:.2f} us"))
+        wrapped_step, _ = _best_split(wrapped, actions, repeats, episodes)
+        overhead = (wrapped_step[0] - bare_step[0], wrapped_step[1] - bare_step[1])
+        rows.append((f"wrapper overhead per step on a {name}", _micro(overhead)))
+    rows.append(("  (bare car step)", _micro(bare_step)))
     for task in (1, 2):
         trace = {"x": np.linspace(0, 300, HORIZON + 1), "y": np.linspace(0, 300, HORIZON + 1)}
         formula = task_formula(task)
         t_eval = best_of(repeats, lambda f=formula, tr=trace: _time_calls(lambda: f.robustness(tr), 20))
-        rows.append((f"terminal evaluation, task {task} (201 states)", f"{t_eval * 1e6:.0f} us"))
+        rows.append((f"terminal evaluation, task {task} (201 states)", _micro(t_eval)))
     for task in (1, 2):
         dense = TLTLRewardWrapper(Idle(), task_formula(task), signals={"x": 0, "y": 1}, reward_mode="dense")
         dense_step, _ = _best_split(dense, actions, max(1, repeats // 2), max(1, episodes // 2))
         kind = "incremental O(1)" if dense._monitor.incremental else "re-evaluated prefix O(t)"
-        rows.append((f"dense mode per step, task {task} ({kind})", f"{dense_step * 1e6:.1f} us"))
+        rows.append((f"dense mode per step, task {task} ({kind})", _micro(dense_step)))
 
     _report(rows, args.quick)
 
 
-def _time_calls(fn: Callable[[], object], n: int) -> float:
-    start = time.perf_counter()
-    for _ in range(n):
-        fn()
-    return (time.perf_counter() - start) / n
+def _time_calls(fn: Callable[[], object], n: int) -> Timing:
+    clock = Clock()
+    with clock:
+        for _ in range(n):
+            fn()
+    return clock.cpu / n, clock.wall / n
 
 
-def _best_split(env, actions: np.ndarray, repeats: int, episodes: int) -> tuple[float, float]:
+def _best_split(env, actions: np.ndarray, repeats: int, episodes: int) -> tuple[Timing, Timing]:
     results = [time_steps_split(env, actions, episodes) for _ in range(repeats)]
-    return min(r[0] for r in results), min(r[1] for r in results)
+    body = (min(r[0][0] for r in results), min(r[0][1] for r in results))
+    last = (min(r[1][0] for r in results), min(r[1][1] for r in results))
+    return body, last
 
 
 def _report(rows: list[tuple[str, str]], quick: bool) -> None:
     width = max(len(name) for name, _ in rows)
-    lines = [f"{name:<{width}}  {value}" for name, value in rows]
+    lines = [f"{'measurement':<{width}}  CPU time | wall clock"]
+    lines += [f"{name:<{width}}  {value}" for name, value in rows]
     print("\n".join(lines))
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     OUT.parent.mkdir(parents=True, exist_ok=True)
-    table = ["| measurement | value |", "|---|---|"] + [f"| {name.strip()} | {value} |" for name, value in rows]
+    table = ["| measurement | CPU time | wall clock |", "|---|---|---|"]
+    table += [f"| {name.strip()} | {value} |" for name, value in rows]
     command = f"python -m benchmarks.bench_env{' --quick' if quick else ''}"
     OUT.write_text(
         "# TLCarNav-v0 and TLTLRewardWrapper speed\n\n"
         f"`{command}` on {platform.processor() or platform.machine()}, "
         f"{os.cpu_count()} cores, Python {platform.python_version()}, numpy {np.__version__}, "
-        f"gymnasium {gym.__version__}; 1-minute load average {load:.1f} at the end. Best of several repeats; "
+        f"gymnasium {gym.__version__}; 1-minute load average {load:.1f} at the end (other jobs shared the cores "
+        "when it is above the core count: the CPU-time column is then the fair one). Best of several repeats; "
         "episodes of 200 steps with random actions, terminal robustness included.\n\n"
         + "\n".join(table) + "\n"
     )
