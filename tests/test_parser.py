@@ -1,0 +1,308 @@
+"""The parser: round trip, spellings, the precedence table of issue 3, errors with a caret, fuzzing."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import example, given
+from hypothesis import strategies as st
+
+from tests import strategies as S
+from tl_gym import SpecError, parse
+from tl_gym.logic import (
+    FALSE,
+    TRUE,
+    F,
+    G,
+    T,
+    U,
+    X,
+    all_of,
+    any_of,
+    exp,
+    implies,
+    log,
+    maximum,
+    minimum,
+    not_,
+    signal,
+    signals,
+    sqrt,
+)
+from tl_gym.tltl.ast import BinOp, Constant, Neg, Num, Predicate, Var
+
+x, y, z = signals("x y z")
+p, q, r = x > 1, y < 2, z >= 0
+
+# --------------------------------------------------------------------------- round trip
+
+
+def _round_trips(formula) -> None:
+    text = str(formula)
+    again = parse(text)
+    assert again == formula, f"{text!r} parsed to {again!r}"
+    assert str(again) == text
+
+
+@given(S.formulas(S.TRICKY_NAMES, max_depth=5, leaves=S.predicates(S.TRICKY_NAMES, S.expressions(S.TRICKY_NAMES))))
+def test_round_trip_hypothesis(formula):
+    _round_trips(formula)
+
+
+BUILT = [
+    F((x > 5) & (x < 10)),
+    G(abs(y) < 1),
+    F((x > 5) & (x < 10)) & G(abs(y) < 1),
+    U(~(p | q), r),
+    T(p, T(q, r)),
+    T(T(p, q), r),
+    U(U(p, q), r),
+    X(X(p)),
+    implies(p, implies(q, r)),
+    implies(implies(p, q), r),
+    p >> (q >> r),
+    not_(p & q),
+    ~~p,
+    ~F(p),
+    F(~p),
+    all_of(p, q, r) | all_of(q, r),
+    any_of(p, q) & any_of(q, r),
+    F(G(p)) & G(F(q)),
+    U(F(p), G(q)),
+    T(X(p), q | r),
+    TRUE & p,
+    FALSE | ~TRUE,
+    sqrt((x - 0.5) ** 2 + (y - 0.5) ** 2) > 0.2,
+    exp(-x) + log(1 + abs(y)) < minimum(x, y, 3) * maximum(z, -2),
+    x > -3,
+    -x > 3,
+    -(x - y) < z,
+    x * -2.5 <= y / -0.5,
+    2 - x >= 1e-300,
+    x ** -2 < 1.5e300,
+    x ** (y ** z) < 2,
+    (x ** y) ** z < 2,
+    x - (y - z) < 0,
+    (x - y) - z < 0,
+    x / (y * z) < 1,
+    Neg(Neg(x)) < 1,
+    Predicate(Neg(Num(3.0)), "<", x),
+    Predicate(Neg(Num(-3.0)), "<", x),
+    Predicate(BinOp("^", Num(-2.0), x), "<", Neg(BinOp("^", Num(2.0), x))),
+    Predicate(BinOp("^", x, BinOp("^", Num(-2.0), Num(3.0))), ">", Num(0.1)),
+]
+
+
+@pytest.mark.parametrize("formula", BUILT, ids=[str(f) for f in BUILT])
+def test_round_trip_builders(formula):
+    _round_trips(formula)
+
+
+def test_builders_make_what_the_parser_makes():
+    assert parse("F(x > 5 & x < 10)") == F((x > 5) & (x < 10))
+    assert parse("x > -3") == Predicate(Var("x"), ">", Num(-3.0))
+    assert parse("x ** 2 < 1") == Predicate(BinOp("^", Var("x"), Num(2.0)), "<", Num(1.0))
+    assert parse("true & false") == Constant(True) & Constant(False)
+    assert parse("x < 1 U (y < 2 T z < 3)") == U(x < 1, T(y < 2, z < 3))
+    assert signal("x") == Var("x")
+
+
+# --------------------------------------------------------------------------- spellings
+
+SPELLINGS = [
+    ("x > 1 & y < 2", ["x > 1 && y < 2", "x > 1 and y < 2", "(x > 1) & (y < 2)"]),
+    ("x > 1 | y < 2", ["x > 1 || y < 2", "x > 1 or y < 2"]),
+    ("x > 1 -> y < 2", ["x > 1 => y < 2", "x > 1 implies y < 2"]),
+    ("!(x > 1)", ["not x > 1", "! x > 1", "not (x > 1)"]),
+    ("F x > 1", ["eventually x > 1", "eventually(x > 1)", "F(x > 1)"]),
+    ("G x > 1", ["always x > 1", "always (x > 1)"]),
+    ("X x > 1", ["next x > 1", "next(x > 1)"]),
+    ("x > 1 U y < 2", ["x > 1 until y < 2"]),
+    ("x > 1 T y < 2", ["x > 1 then y < 2"]),
+    ("x ^ 2 < 1", ["x ** 2 < 1", "x**2<1", "(x)^(2) < (1)"]),
+    ("x >= 1e3", ["x >= 1000", "x >= 1000.0", "x >= 1E+3", "x>=1000."]),
+    ("x < 0.5", ["x < .5", "x < 5e-1", "x<0.50"]),
+    (
+        "always (x > 1 implies eventually y < 2) and not next z >= 0",
+        ["G (x > 1 -> F y < 2) & !X z >= 0", "G(x>1=>F y<2)&&!X z>=0"],
+    ),
+]
+
+
+@pytest.mark.parametrize(("canonical", "variants"), SPELLINGS, ids=[c for c, _ in SPELLINGS])
+def test_keyword_and_alias_spellings(canonical, variants):
+    expected = parse(canonical)
+    for text in variants:
+        assert parse(text) == expected, text
+
+
+# --------------------------------------------------------------------------- precedence
+
+PRECEDENCE = [
+    # arithmetic binds tighter than comparison
+    ("x + 1 < 2 * y", x + 1 < 2 * y),
+    ("x - y - z < 0", (x - y) - z < 0),
+    ("x / y * z < 0", (x / y) * z < 0),
+    ("x + y * z < 0", x + (y * z) < 0),
+    ("x ^ 2 ^ 3 < 0", x ** (Num(2.0) ** Num(3.0)) < 0),
+    ("- x ^ 2 < 1", Neg(x ** 2) < 1),
+    ("-x * y < 1", Neg(x) * y < 1),
+    ("-3 ^ 2 < x", Neg(Num(3.0) ** 2) < x),
+    # comparison binds tighter than the unary operators
+    ("! x > 1", ~(x > 1)),
+    ("F x > 1", F(x > 1)),
+    ("X X x > 1", X(X(x > 1))),
+    ("F G x > 1", F(G(x > 1))),
+    # unary binds tighter than U/T
+    ("F x > 1 U y < 2", U(F(x > 1), y < 2)),
+    ("! x > 1 T y < 2", T(~(x > 1), y < 2)),
+    ("x > 1 U G y < 2", U(x > 1, G(y < 2))),
+    # U/T are right-associative
+    ("x > 1 U y < 2 U z >= 0", U(p, U(q, r))),
+    ("x > 1 T y < 2 T z >= 0", T(p, T(q, r))),
+    ("x > 1 U y < 2 T z >= 0", U(p, T(q, r))),
+    ("x > 1 T y < 2 U z >= 0", T(p, U(q, r))),
+    # U/T bind tighter than &
+    ("x > 1 U y < 2 & z >= 0", U(p, q) & r),
+    ("x > 1 & y < 2 T z >= 0", p & T(q, r)),
+    # & binds tighter than |
+    ("x > 1 & y < 2 | z >= 0", (p & q) | r),
+    ("x > 1 | y < 2 & z >= 0", p | (q & r)),
+    # | binds tighter than ->
+    ("x > 1 | y < 2 -> z >= 0", implies(p | q, r)),
+    ("x > 1 -> y < 2 | z >= 0", implies(p, q | r)),
+    ("x > 1 & y < 2 -> z >= 0", implies(p & q, r)),
+    # -> is right-associative
+    ("x > 1 -> y < 2 -> z >= 0", implies(p, implies(q, r))),
+    # n-ary chains
+    ("x > 1 & y < 2 & z >= 0", all_of(p, q, r)),
+    ("x > 1 | y < 2 | z >= 0", any_of(p, q, r)),
+    # everything at once
+    ("! F x > 1 U y < 2 & z >= 0 | x > 1 -> y < 2", implies((U(~F(p), q) & r) | p, q)),
+]
+
+
+@pytest.mark.parametrize(("text", "expected"), PRECEDENCE, ids=[t for t, _ in PRECEDENCE])
+def test_precedence(text, expected):
+    assert parse(text) == expected
+
+
+def test_signal_names_may_start_like_keywords():
+    formula = parse("Fx > 1 & nota < 2 & Until >= 0 & always_ < 3 & X_ > 0 & trueish < 1")
+    assert formula.signals == ("Fx", "nota", "Until", "always_", "X_", "trueish")
+
+
+# --------------------------------------------------------------------------- errors
+
+MALFORMED = [
+    # text, 1-based column of the culprit
+    pytest.param("", 1, marks=pytest.mark.xfail(strict=True, reason="engine bug 4: no caret for empty text")),
+    ("   ", 4),
+    ("x <", 4),
+    ("x < 1 &", 8),
+    ("x < 1 & & y > 2", 9),
+    ("(x < 1", 7),
+    ("x < 1)", 6),
+    ("(x < 1))", 8),
+    ("x < (1", 7),
+    ("F(x < 1", 8),
+    ("x < 1 < 2", 7),
+    ("x", 2),
+    ("x + < 1", 5),
+    ("x ^ < 2", 5),
+    ("F", 2),
+    ("!", 2),
+    ("not", 4),
+    ("always", 7),
+    ("G)", 2),
+    ("x < 1 U", 8),
+    ("U x < 1", 1),
+    ("x < 1 U U y > 1", 9),
+    ("x < 1 $ y", 7),
+    ("x < 1 # comment", 7),
+    ("x ≤ 1", 3),
+    ("x <= = 1", 6),
+    ("x + F < 1", 5),
+    ("x < until", 5),
+    ("sqrt(x, y) < 1", 1),
+    ("foo(x) < 1", 4),
+    ("abs x < 1", 5),
+    ("min() < 1", 5),
+    ("x < 1e999", 5),
+    ("x < 1 -> ", 10),
+    ("x < 1 =>", 9),
+    ("x < 1 && || y > 1", 10),
+    ("x < 1 and or y > 2", 11),
+    ("1.2.3 < x", 4),
+    ("2x < 1", 2),
+    ("x < 1 y > 2", 7),
+    ("x < 1 & (y > 2 | z < 3", 23),
+]
+
+
+def _malformed_id(case) -> str:
+    return repr(case.values[0] if hasattr(case, "values") else case[0])
+
+
+@pytest.mark.parametrize(("text", "column"), MALFORMED, ids=[_malformed_id(m) for m in MALFORMED])
+def test_malformed_input_raises_spec_error_with_caret(text, column):
+    with pytest.raises(SpecError) as info:
+        parse(text)
+    error = info.value
+    assert isinstance(error, ValueError)
+    assert error.column == column, f"column {error.column}, expected {column}: {error}"
+    lines = str(error).split("\n")
+    assert f"(column {column})" in lines[0]
+    assert lines[1] == "    " + text
+    assert lines[2] == "    " + " " * (column - 1) + "^"
+
+
+def test_malformed_messages_name_the_problem():
+    def message(text: str) -> str:
+        with pytest.raises(SpecError) as info:
+            parse(text)
+        return str(info.value).split("\n")[0]
+
+    assert "empty" in message("")
+    assert "'$'" in message("x < 1 $ y")
+    assert "chain" in message("x < 1 < 2")
+    assert "')'" in message("(x < 1")
+    assert "reserved" in message("x < until") or "until" in message("x < until")
+    assert "sqrt" in message("sqrt(x, y) < 1")
+
+
+def test_parse_takes_text_only():
+    with pytest.raises(TypeError, match="string"):
+        parse(3)  # type: ignore[arg-type]
+    formula = parse("x < 1")
+    assert parse(formula) is formula  # a Formula passes through
+
+
+# --------------------------------------------------------------------------- fuzzing
+
+ALPHABET = "xyz01.5e FGXUT!&|-><=()+*/^,a_ \tnotdlwsqrbpm"
+TOKENS = [
+    "x", "y", "1", "2.5", "-", "+", "*", "/", "^", "**", "(", ")", ",", "<", "<=", ">", ">=", "!", "&", "&&",
+    "|", "||", "->", "=>", "F", "G", "X", "U", "T", "true", "false", "not", "and", "or", "implies", "eventually",
+    "always", "next", "until", "then", "abs", "sqrt", "exp", "log", "min", "max",
+]
+
+
+def _parse_or_spec_error(text: str) -> None:
+    try:
+        formula = parse(text)
+    except SpecError as error:
+        assert 1 <= error.column <= len(text) + 1
+        return
+    _round_trips(formula)
+
+
+@given(st.text(alphabet=ALPHABET, max_size=40))
+@example("((((((((((x < 1))))))))))")
+@example("x<1U!y>2TF(z<3)")
+def test_fuzz_characters(text):
+    _parse_or_spec_error(text)
+
+
+@given(st.lists(st.sampled_from(TOKENS), max_size=15))
+def test_fuzz_tokens(tokens):
+    _parse_or_spec_error(" ".join(tokens))
