@@ -87,8 +87,8 @@ class CarNavEnv(gym.Env):
     >>> import gymnasium as gym
     >>> import tl_gym
     >>> env = gym.make("TLCarNav-v0", task=2)
-    >>> env.unwrapped
-    <CarNavEnv instance>
+    >>> print(env.unwrapped)
+    <CarNavEnv<TLCarNav-v0>>
     >>> env.unwrapped.params.horizon
     200
 
@@ -150,9 +150,6 @@ class CarNavEnv(gym.Env):
         self._path = np.zeros((self.params.horizon + 1, 2))
         self._t = -1  # -1: never reset
         self._viewer: Any = None
-
-    def __repr__(self) -> str:
-        return "<CarNavEnv instance>"
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
         super().reset(seed=seed)
