@@ -356,3 +356,19 @@ def test_draw_layout_on_an_axes():
     ax = Figure().add_subplot()
     draw_layout(ax, TASK1_LAYOUT)
     assert len(ax.patches) == 2 and ax.get_xlim() == (0.0, 300.0)
+
+
+def test_vector_env_scores_all_cars_in_one_engine_call(monkeypatch):
+    envs = CarNavVectorEnv(num_envs=6, task=2, horizon=4)
+    calls = []
+    original = type(envs.formula).robustness
+
+    def counting(self, trace, rho_max=math.inf):
+        calls.append(np.shape(trace["x"]))
+        return original(self, trace, rho_max)
+
+    monkeypatch.setattr(type(envs.formula), "robustness", counting)
+    envs.reset(seed=0)
+    for _ in range(4):
+        envs.step(np.zeros((6, 2)))
+    assert calls == [(6, 5)]

@@ -303,3 +303,11 @@ def test_sb3_vec_env_across_autoreset():
             else:
                 assert reward == 0
     assert ends == 4
+
+
+def test_observation_space_an_index_cannot_address():
+    with pytest.raises(TypeError, match="'state'.*Discrete space"):
+        TLTLRewardWrapper(gym.make("FrozenLake-v1"), "F(state > 14)", signals={"state": 0})
+    # a callable can still read it
+    env = TLTLRewardWrapper(gym.make("FrozenLake-v1"), "F(state > 14)", signals={"state": lambda obs: float(obs)})
+    assert env.reset(seed=0)[0] == 0 and env.trace["state"].tolist() == [0.0]
