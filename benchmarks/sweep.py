@@ -87,7 +87,7 @@ class Sweep:
     runs: tuple[RunSpec, ...]
 
 
-def load_config(path: str | Path, variant: str | None = None) -> Sweep:
+def load_config(path: str | Path, variant: str | None = None, overrides: Mapping[str, Any] | None = None) -> Sweep:
     """Read a TOML sweep config and expand it into runs.
 
     Args:
@@ -95,6 +95,7 @@ def load_config(path: str | Path, variant: str | None = None) -> Sweep:
         variant: apply the overrides of ``[variants.<variant>]`` (top level) and of each agent's
             ``variants.<variant>`` table, e.g. ``"quick"`` for a CI-sized run; the sweep's name
             gets ``-<variant>`` appended, so its results go to their own directory.
+        overrides: top-level keys set after the variant (e.g. ``{"seeds": 3, "iterations": 20}``).
 
     Raises:
         ConfigError: unknown keys, bad types or values, an agent name of no known form.
@@ -104,10 +105,15 @@ def load_config(path: str | Path, variant: str | None = None) -> Sweep:
         data = tomllib.loads(path.read_text())
     except (OSError, tomllib.TOMLDecodeError) as exc:
         raise ConfigError(f"cannot read sweep config {path}: {exc}") from exc
-    return expand_config(data, variant=variant, source=str(path))
+    return expand_config(data, variant=variant, source=str(path), overrides=overrides)
 
 
-def expand_config(data: Mapping[str, Any], variant: str | None = None, source: str = "<config>") -> Sweep:
+def expand_config(
+    data: Mapping[str, Any],
+    variant: str | None = None,
+    source: str = "<config>",
+    overrides: Mapping[str, Any] | None = None,
+) -> Sweep:
     """Expand a parsed config (see `load_config`) into its runs, checking every field first."""
     def fail(message: str) -> ConfigError:
         return ConfigError(f"{source}: {message}")
@@ -117,14 +123,18 @@ def expand_config(data: Mapping[str, Any], variant: str | None = None, source: s
         raise fail(f"unknown key(s) {unknown}; valid: {sorted(TOP_KEYS)}")
     top = {**DEFAULTS, **data}
     variants = _table(top.get("variants", {}), "variants", fail)
-    for name, overrides in variants.items():  # all checked, not only the one asked for
-        bad = sorted(set(_table(overrides, f"variants.{name}", fail)) - (TOP_KEYS - {"name", "variants", "agents"}))
+    for name, table in variants.items():  # all checked, not only the one asked for
+        bad = sorted(set(_table(table, f"variants.{name}", fail)) - (TOP_KEYS - {"name", "variants", "agents"}))
         if bad:
             raise fail(f"variants.{name}: unknown key(s) {bad}")
     if variant is not None:
         if variant not in variants:
             raise fail(f"no variant {variant!r}; the config has {sorted(variants)}")
         top.update(variants[variant])
+    bad = sorted(set(overrides or {}) - (TOP_KEYS - {"name", "variants", "agents"}))
+    if bad:
+        raise fail(f"overrides: unknown key(s) {bad}")
+    top.update(overrides or {})
     for key in ("name", "env"):
         if not isinstance(top.get(key), str) or not top[key]:
             raise fail(f"'{key}' must be a non-empty string, got {top.get(key)!r}")

@@ -88,6 +88,11 @@ def test_expansion_grid_labels_and_quick_overrides():
     (run,) = expand_config(config(agents=[agent, skipped], tasks=[1], variants=variants), variant="quick").runs
     assert dict(run.hyperparameters) == {"rate": 2.0, "marker_dir": "x"} and run.seed == 3
     assert expand_config(config(seeds=3)).runs[-1].seed == 2
+    # an unused variant does not leak into the chosen one; overrides apply last
+    two = {"quick": {"seeds": [0]}, "other": {"seeds": 4}}
+    assert {r.seed for r in expand_config(config(variants=two), variant="quick").runs} == {0}
+    capped = expand_config(config(variants=two), variant="quick", overrides={"seeds": [5], "iterations": 1})
+    assert {(r.seed, r.iterations) for r in capped.runs} == {(5, 1)}
 
 
 @pytest.mark.parametrize("change, culprit", [

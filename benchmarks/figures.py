@@ -1,0 +1,115 @@
+"""Figures of a sweep: Figure-3-style learning curves with 95% bands, Figure-2-style trajectories.
+
+Learning curves aggregate seeds (`benchmarks.results.mean_band`), one column per task,
+mean exact robustness on top and success rate below. Trajectory plots reuse the agents'
+`tl_gym.agents.plotting.plot_trajectories` over the env's layout drawn by
+`tl_gym.envs.rendering.draw_layout`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib import colormaps
+from matplotlib.figure import Figure
+
+from benchmarks.results import RunResult, group_runs, mean_band, stack
+
+
+def plot_learning_curves(
+    runs: Sequence[RunResult],
+    path: str | Path | None = None,
+    labels: Sequence[str] | None = None,
+    title: str | None = None,
+) -> Figure:
+    """Mean exact robustness (top row) and success rate (bottom row) per iteration, one column per task.
+
+    Every curve is the mean over seeds with a 95% Student-t band; the exact robustness of the
+    sampled episodes is plotted (as in the paper), so agents and β values are comparable.
+
+    Args:
+        runs: finished runs (`benchmarks.results.load_runs`).
+        path: where to save the PNG (optional).
+        labels: which labels to draw, in this order (default: all, in config order).
+        title: figure title.
+    """
+    groups = group_runs(runs)
+    tasks = list(dict.fromkeys(task for task, _ in groups))
+    order = list(labels) if labels is not None else list(dict.fromkeys(label for _, label in groups))
+    colors = {label: colormaps["tab10"](i % 10) for i, label in enumerate(order)}
+    fig = Figure(figsize=(5.2 * len(tasks), 7), constrained_layout=True)
+    axes = np.asarray(fig.subplots(2, len(tasks), sharex="col", squeeze=False))
+    for column, task in enumerate(tasks):
+        top, bottom = axes[0, column], axes[1, column]
+        for label in order:
+            members = groups.get((task, label))
+            if not members:
+                continue
+            for ax, key in ((top, "mean_robustness"), (bottom, "success_rate")):
+                iterations, values = stack(members, key)
+                mean, low, high = mean_band(values)
+                ax.plot(iterations, mean, color=colors[label], lw=1.5, label=f"{label} ({len(members)})")
+                ax.fill_between(iterations, low, high, color=colors[label], alpha=0.2, lw=0)
+        top.axhline(0.0, color="0.4", lw=0.8, ls="--")
+        top.set_title(f"task {task}" if task is not None else "")
+        top.set_ylabel("mean exact robustness")
+        bottom.set_ylabel("success rate (ρ > 0)")
+        bottom.set_ylim(-0.02, 1.02)
+        bottom.set_xlabel("iteration (8,000 env steps each)")
+        top.legend(fontsize="x-small", loc="lower right")
+    if title:
+        fig.suptitle(title)
+    return _saved(fig, path)
+
+
+def plot_trajectory_distribution(run: RunResult, path: str | Path | None = None, title: str | None = None) -> Figure:
+    """The sampled x-y paths of one run at its recorded iterations, mean ± 2σ, lighter = earlier.
+
+    Raises:
+        ValueError: the run recorded no trajectories (its config has no ``trajectory_iterations``).
+    """
+    from tl_gym.agents.plotting import plot_trajectories
+
+    traces = run.traces()
+    iterations = sorted({int(key[2:].split("_", 1)[0]) for key in traces})
+    if not iterations:
+        raise ValueError(f"run {run.path.name} recorded no trajectories")
+    snapshots = [(it, {"x": traces[f"it{it}_x"], "y": traces[f"it{it}_y"]}) for it in iterations]
+    layout = env_layout(run.spec.env, dict(run.spec.env_kwargs))
+
+    def background(ax: Any) -> None:
+        from tl_gym.envs.rendering import draw_layout
+
+        draw_layout(ax, layout)
+
+    fig = plot_trajectories(snapshots, background=background, title=title)
+    ax = fig.axes[0]
+    ax.set_aspect("equal", adjustable="box")  # the whole arena, whatever the paths' extent
+    ax.set_xlim(0.0, layout.arena[0])
+    ax.set_ylim(0.0, layout.arena[1])
+    legend = ax.get_legend()
+    for text, it in zip(legend.get_texts() if legend else (), iterations):
+        success = float(np.mean(traces[f"it{it}_robustness"] > 0))
+        text.set_text(f"iteration {it}" + (" (initial)" if it == 0 else "") + f": success {success:.0%}")
+    return _saved(fig, path)
+
+
+def env_layout(env: str, env_kwargs: dict[str, Any]) -> Any:
+    """The task layout of an env (its ``layout`` attribute), built once to draw it."""
+    import gymnasium as gym
+
+    instance = gym.make(env, **env_kwargs)
+    try:
+        return instance.unwrapped.layout
+    finally:
+        instance.close()
+
+
+def _saved(fig: Figure, path: str | Path | None) -> Figure:
+    if path is not None:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, dpi=110)
+    return fig
