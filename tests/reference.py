@@ -96,6 +96,20 @@ def margin(pred: Predicate, state: Mapping[str, float]) -> float:
     return b - a if pred.op in ("<", "<=") else a - b
 
 
+def checked_margin(pred: Predicate, state: Mapping[str, float]) -> float:
+    """`margin`, raising `UndefinedPredicate` where the arithmetic is NaN or infinite."""
+    value = margin(pred, state)
+    if not math.isfinite(value):
+        raise UndefinedPredicate(f"{pred} is undefined on {state}")
+    return value
+
+
+def checked_holds(pred: Predicate, state: Mapping[str, float]) -> bool:
+    """`holds`, raising `UndefinedPredicate` where the arithmetic is NaN or infinite."""
+    checked_margin(pred, state)
+    return holds(pred, state)
+
+
 def holds(pred: Predicate, state: Mapping[str, float]) -> bool:
     """Boolean value of a predicate on one state (``<`` strict, ``<=`` not)."""
     a, b = expr_value(pred.lhs, state), expr_value(pred.rhs, state)
@@ -152,7 +166,7 @@ def exact_semantics(rho_max: float = INF) -> Semantics:
     return Semantics(
         top=rho_max, bottom=-rho_max,
         maximum=lambda xs: max(xs, default=-INF), minimum=lambda xs: min(xs, default=INF),
-        negate=lambda x: -x, predicate=margin,
+        negate=lambda x: -x, predicate=checked_margin,
     )
 
 
@@ -161,12 +175,12 @@ def smooth_semantics(beta: float, rho_max: float = INF) -> Semantics:
     return Semantics(
         top=rho_max, bottom=-rho_max,
         maximum=lambda xs: smooth_max(xs, beta), minimum=lambda xs: smooth_min(xs, beta),
-        negate=lambda x: -x, predicate=margin,
+        negate=lambda x: -x, predicate=checked_margin,
     )
 
 
 BOOLEAN = Semantics(
-    top=True, bottom=False, maximum=any, minimum=all, negate=lambda x: not x, predicate=holds,
+    top=True, bottom=False, maximum=any, minimum=all, negate=lambda x: not x, predicate=checked_holds,
 )
 
 
@@ -229,50 +243,61 @@ def _rows(trace: Mapping[str, Any]) -> tuple[list[dict[str, list[float]]], bool]
     return [{k: a[i].tolist() for k, a in arrays.items()} for i in range(n)], True
 
 
-def _evaluate(formula: Formula, trace: Mapping[str, Any], sem: Semantics, check: bool) -> np.ndarray:
-    """Values at every position, shape ``(N, T)`` (N = 1 for an unbatched trace)."""
+def _evaluate(formula: Formula, trace: Mapping[str, Any], sem: Semantics, eager: bool, first_only: bool) -> np.ndarray:
+    """Values at every position (or position 0), shape ``(N, T)`` or ``(N, 1)``.
+
+    A predicate whose arithmetic is undefined raises `UndefinedPredicate` when its
+    value is needed (``eager=False``), or when it is undefined at any position of the
+    trace, needed or not (``eager=True``).
+    """
     rows, _ = _rows(trace)
     out = []
     for row in rows:
-        if check:
+        if eager:
             check_defined(formula, row)
         ref = _Reference(sem, row)
         length = len(ref.states)
-        out.append([ref.value(formula, length, t) for t in range(length)])
+        out.append([ref.value(formula, length, t) for t in range(1 if first_only else length)])
     return np.array(out, dtype=object)
 
 
-def robustness_over_time(formula: Formula, trace: Mapping[str, Any], rho_max: float = INF) -> np.ndarray:
+def _shaped(values: np.ndarray, trace: Mapping[str, Any], dtype: Any) -> np.ndarray:
+    values = values.astype(dtype)
+    return values if _rows(trace)[1] else values[0]
+
+
+def robustness_over_time(formula: Formula, trace: Mapping[str, Any], rho_max: float = INF,
+                         eager: bool = True) -> np.ndarray:
     """Exact robustness at every position: ``(T,)`` or ``(N, T)`` like the trace."""
-    values = _evaluate(formula, trace, exact_semantics(rho_max), check=True).astype(np.float64)
-    return values if _rows(trace)[1] else values[0]
+    return _shaped(_evaluate(formula, trace, exact_semantics(rho_max), eager, False), trace, np.float64)
 
 
-def smooth_over_time(formula: Formula, trace: Mapping[str, Any], beta: float, rho_max: float = INF) -> np.ndarray:
+def smooth_over_time(formula: Formula, trace: Mapping[str, Any], beta: float, rho_max: float = INF,
+                     eager: bool = True) -> np.ndarray:
     """Smoothed robustness at every position: ``(T,)`` or ``(N, T)`` like the trace."""
-    values = _evaluate(formula, trace, smooth_semantics(beta, rho_max), check=True).astype(np.float64)
-    return values if _rows(trace)[1] else values[0]
+    return _shaped(_evaluate(formula, trace, smooth_semantics(beta, rho_max), eager, False), trace, np.float64)
 
 
-def satisfied_over_time(formula: Formula, trace: Mapping[str, Any]) -> np.ndarray:
+def satisfied_over_time(formula: Formula, trace: Mapping[str, Any], eager: bool = True) -> np.ndarray:
     """Boolean semantics at every position: ``(T,)`` or ``(N, T)`` bools like the trace."""
-    values = _evaluate(formula, trace, BOOLEAN, check=False).astype(bool)
-    return values if _rows(trace)[1] else values[0]
+    return _shaped(_evaluate(formula, trace, BOOLEAN, eager, False), trace, bool)
 
 
-def robustness(formula: Formula, trace: Mapping[str, Any], rho_max: float = INF) -> Any:
+def robustness(formula: Formula, trace: Mapping[str, Any], rho_max: float = INF, eager: bool = True) -> Any:
     """Exact robustness at position 0: a float, or ``(N,)`` for a batch."""
-    return robustness_over_time(formula, trace, rho_max)[..., 0]
+    return _shaped(_evaluate(formula, trace, exact_semantics(rho_max), eager, True), trace, np.float64)[..., 0]
 
 
-def smooth_robustness(formula: Formula, trace: Mapping[str, Any], beta: float, rho_max: float = INF) -> Any:
+def smooth_robustness(formula: Formula, trace: Mapping[str, Any], beta: float, rho_max: float = INF,
+                      eager: bool = True) -> Any:
     """Smoothed robustness at position 0: a float, or ``(N,)`` for a batch."""
-    return smooth_over_time(formula, trace, beta, rho_max)[..., 0]
+    values = _evaluate(formula, trace, smooth_semantics(beta, rho_max), eager, True)
+    return _shaped(values, trace, np.float64)[..., 0]
 
 
-def satisfied(formula: Formula, trace: Mapping[str, Any]) -> Any:
+def satisfied(formula: Formula, trace: Mapping[str, Any], eager: bool = True) -> Any:
     """Boolean semantics at position 0: a bool, or ``(N,)`` bools for a batch."""
-    return satisfied_over_time(formula, trace)[..., 0]
+    return _shaped(_evaluate(formula, trace, BOOLEAN, eager, True), trace, bool)[..., 0]
 
 
 # --------------------------------------------------------------------------- Lemma 1 bracket

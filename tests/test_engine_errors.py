@@ -1,0 +1,183 @@
+"""Bad input gets a clear error naming the culprit, raised before any evaluation."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from tl_gym import TraceError, UnknownSignalError, parse
+from tl_gym.logic import F, signal
+
+PHI = parse("F(x > 1) & G(y < 2)")
+
+
+def _evaluators(formula):
+    """Every public evaluation of a formula, as callables of a trace."""
+    return {
+        "robustness": lambda tr: formula.robustness(tr),
+        "robustness_over_time": lambda tr: formula.robustness_over_time(tr),
+        "satisfied": lambda tr: formula.satisfied(tr),
+        "smooth_robustness": lambda tr: formula.smooth_robustness(tr, 2.0),
+        "smooth_robustness_over_time": lambda tr: formula.smooth_robustness_over_time(tr, 2.0),
+    }
+
+
+EVALUATORS = list(_evaluators(PHI))
+
+
+@pytest.mark.parametrize("method", EVALUATORS)
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_non_finite_trace_names_signal_and_first_position(method, bad):
+    y = [0.0, 1.0, bad, 0.5, bad]
+    with pytest.raises(TraceError, match=r"'y'.*position 2") as info:
+        _evaluators(PHI)[method]({"x": [0.0, 1.0, 2.0, 3.0, 4.0], "y": y})
+    assert isinstance(info.value, ValueError)
+
+
+@pytest.mark.parametrize("method", EVALUATORS)
+def test_non_finite_batched_trace_names_trajectory_and_position(method):
+    y = np.zeros((3, 4))
+    y[2, 3] = math.nan
+    y[1, 1] = math.inf  # the first bad entry in row-major order
+    with pytest.raises(TraceError, match=r"'y'.*trajectory 1, position 1"):
+        _evaluators(PHI)[method]({"x": np.ones((3, 4)), "y": y})
+
+
+def test_non_finite_torch_trace_is_refused():
+    y = torch.tensor([0.0, float("nan"), 1.0], requires_grad=True)
+    with pytest.raises(TraceError, match=r"'y'.*position 1"):
+        PHI.smooth_robustness({"x": torch.zeros(3), "y": y}, 1.0)
+
+
+def test_nan_in_an_unread_signal_is_ignored():
+    trace = {"x": [2.0, 0.0], "y": [0.0, 0.0], "unused": [math.nan, 1.0]}
+    assert PHI.robustness(trace) == 1.0
+
+
+@pytest.mark.parametrize("method", EVALUATORS)
+def test_missing_signal_is_named(method):
+    with pytest.raises(UnknownSignalError, match="'y'") as info:
+        _evaluators(PHI)[method]({"x": [1.0, 2.0], "speed": [0.0, 0.0]})
+    assert isinstance(info.value, KeyError)
+    assert "speed" in str(info.value)  # and the names it has, to spot a typo
+
+
+@pytest.mark.parametrize("method", EVALUATORS)
+@pytest.mark.parametrize(
+    "trace",
+    [
+        {"x": [1.0, 2.0, 3.0], "y": [1.0, 2.0]},  # lengths differ
+        {"x": np.ones((2, 3)), "y": np.ones((3, 3))},  # batch sizes differ
+        {"x": np.ones((2, 3)), "y": np.ones(3)},  # batched and not
+        {"x": np.ones((2, 2, 2)), "y": np.ones((2, 2, 2))},  # 3-D
+        {"x": [], "y": []},  # empty
+        {"x": 1.0, "y": 2.0},  # scalars
+    ],
+    ids=["lengths", "batch", "mixed", "3d", "empty", "scalar"],
+)
+def test_inconsistent_shapes(method, trace):
+    with pytest.raises(TraceError, match="shape"):
+        _evaluators(PHI)[method](trace)
+
+
+def test_non_numeric_signal():
+    with pytest.raises(TraceError, match="'x'"):
+        PHI.robustness({"x": ["a", "b"], "y": [0.0, 0.0]})
+
+
+def test_trace_must_be_a_mapping():
+    with pytest.raises(TypeError, match="maps signal names"):
+        PHI.robustness([[1.0, 2.0]])  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("beta", [0.0, -1.0, math.nan, math.inf, -math.inf])
+def test_bad_beta(beta):
+    trace = {"x": [1.0], "y": [1.0]}
+    with pytest.raises(ValueError, match="beta"):
+        PHI.smooth_robustness(trace, beta)
+    with pytest.raises(ValueError, match="beta"):
+        PHI.smooth_robustness_over_time(trace, beta)
+    with pytest.raises(ValueError, match="beta"):
+        PHI.smoothing_bracket(5, beta)
+
+
+@pytest.mark.parametrize("horizon", [0, -3, 2.5])
+def test_bad_horizon(horizon):
+    with pytest.raises(ValueError, match="horizon"):
+        PHI.smoothing_bracket(horizon, 1.0)
+
+
+BAD_RHO_MAX = [0.0, -1.0, math.nan]
+
+
+@pytest.mark.parametrize("rho_max", BAD_RHO_MAX)
+def test_bad_rho_max_smooth(rho_max):
+    with pytest.raises(ValueError, match="rho_max"):
+        PHI.smooth_robustness({"x": [1.0], "y": [1.0]}, 1.0, rho_max)
+
+
+@pytest.mark.xfail(strict=True, reason="engine bug 5 in /work/briefs/engine_bugs.md: exact path accepts any rho_max")
+@pytest.mark.parametrize("rho_max", BAD_RHO_MAX)
+def test_bad_rho_max_exact(rho_max):
+    with pytest.raises(ValueError, match="rho_max"):
+        PHI.robustness({"x": [1.0], "y": [1.0]}, rho_max)
+
+
+def test_bad_form():
+    with pytest.raises(ValueError, match="form"):
+        PHI.smooth_robustness({"x": [1.0], "y": [1.0]}, 1.0, form="fast")
+
+
+def test_signal_free_formula_needs_a_length():
+    with pytest.raises(TraceError):
+        parse("F true").robustness({})
+    assert parse("F true").robustness({"anything": [0.0, 0.0]}) == math.inf
+
+
+# --------------------------------------------------------------------------- predicate arithmetic
+
+
+@pytest.mark.parametrize("method", EVALUATORS)
+@pytest.mark.parametrize(
+    ("text", "values"),
+    [("sqrt(x) > 0", [1.0, -1.0]), ("log(x) > 0", [1.0, 0.0]), ("1 / x > 0", [1.0, 0.0]), ("x ^ 0.5 > 0", [4.0, -4.0])],
+)
+def test_undefined_arithmetic_raises_trace_error(method, text, values):
+    """NaN/inf from a predicate's arithmetic where it is read: TraceError naming it and the position."""
+    with pytest.raises(TraceError, match=r"(?s)" + text.split()[0][:3] + r".*position 1"):
+        _evaluators(parse(f"G({text})"))[method]({"x": values})
+
+
+@pytest.mark.parametrize("method", EVALUATORS)
+def test_arithmetic_overflow_raises_trace_error(method):
+    """Finite signals whose product overflows: TraceError, not an infinite robustness (engine bug 3)."""
+    with pytest.raises(TraceError, match="position 0"):
+        _evaluators(parse("F(x * x > 0)"))[method]({"x": [1e200, 1.0]})
+
+
+# --------------------------------------------------------------------------- builders
+
+
+@pytest.mark.parametrize("name", ["F", "until", "true", "sqrt", "1x", "x-y", ""])
+def test_reserved_or_invalid_signal_names(name):
+    with pytest.raises(ValueError, match="signal"):
+        signal(name)
+
+
+def test_formulas_have_no_truth_value():
+    with pytest.raises(TypeError, match="&"):
+        bool(signal("x") > 1)
+    with pytest.raises(TypeError, match="&"):
+        (signal("x") > 1) and (signal("y") > 1)  # noqa: B015 - the point is that `and` refuses
+
+
+def test_builders_reject_non_formulas_and_non_numbers():
+    with pytest.raises(TypeError):
+        F(signal("x") > 1) & "y > 1"  # type: ignore[operator]  # noqa: B015
+    with pytest.raises(TypeError):
+        signal("x") < "3"  # type: ignore[operator]  # noqa: B015
+    with pytest.raises(ValueError, match="finite"):
+        signal("x") < math.inf  # noqa: B015
