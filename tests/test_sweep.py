@@ -224,3 +224,17 @@ def test_sweep_on_a_local_ray(tmp_path):
     runs = results.load_runs(tmp_path)
     assert sorted(r.spec.seed for r in runs) == [0, 0, 1, 1]
     assert all(len(r.history["iteration"]) == 4 for r in runs)
+
+
+def test_run_all_runs_what_exists_and_reports_the_rest(tmp_path):
+    from benchmarks.run_all import run_all
+
+    package = tmp_path / "fakebench"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    (package / "good.py").write_text('import sys\nassert sys.argv[1:] == ["--quick"]  # "--quick" passed\n')
+    (package / "bad.py").write_text('import sys\nsys.exit(3)  # accepts "--quick"\n')
+    (package / "slow.py").write_text("raise SystemExit(0)\n")
+    scripts = [("good", False), ("bad", False), ("slow", True), ("absent", False)]
+    outcomes = run_all(True, scripts, package)
+    assert [o.status for o in outcomes] == ["ok", "failed (exit 3)", "skipped: no --quick mode", "missing"]
