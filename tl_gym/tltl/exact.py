@@ -4,8 +4,9 @@ One evaluator serves both semantics through an `_Algebra`: robustness uses
 (max, min, negation, ±ρ_max), the Boolean semantics (or, and, not, true/false).
 Each node maps the ``(N, T)`` values of its children to its own ``(N, T)``
 values, entry ``[i, t]`` judging trajectory ``i`` from position ``t`` on
-(the paper's ρ(s_{t:T}, φ)). Every operator costs O(N·T), except ``U``/``T`` whose
-left operand is temporal: that operand must be judged on every truncated segment
+(the paper's ρ(s_{t:T}, φ)), or to its value at position 0 only when that is all
+its parent needs. Every operator costs O(N·T), except ``U``/``T`` whose left
+operand is temporal: that operand must be judged on every truncated segment
 s_{t''..t'-1}, which costs O(N·T²) time (and O(N·T) memory).
 """
 
@@ -77,13 +78,26 @@ BOOLEAN = _Algebra(
 )
 
 
-class _Evaluator:
-    """Evaluates every node of one formula on one batch of signals.
+def _suffix(ufunc: np.ufunc, values: np.ndarray) -> np.ndarray:
+    """``out[:, t] = ufunc`` over ``values[:, t:]``: a suffix scan along time."""
+    return ufunc.accumulate(values[:, ::-1], axis=1)[:, ::-1]
 
-    Arrays are laid out time-major and time-reversed, shape ``(T, N)`` with row
-    ``j`` holding position ``T-1-j``: suffix reductions over time (F, G, U, T) then
-    become forward ``ufunc.accumulate`` passes over contiguous rows, which numpy
-    vectorises across the N trajectories.
+
+def _exclusive_prefix(ufunc: np.ufunc, values: np.ndarray, empty: Any) -> np.ndarray:
+    """``out[:, t] = ufunc`` over ``values[:, :t]`` (``empty`` at t = 0)."""
+    out = np.empty_like(values)
+    out[:, 0] = empty
+    ufunc.accumulate(values[:, :-1], axis=1, out=out[:, 1:])
+    return out
+
+
+class _Evaluator:
+    """Evaluates every node of one formula on one batch of ``(N, T)`` signals.
+
+    A node is evaluated either at every position, shape ``(N, T)`` (entry ``[i, t]``
+    judges s_t … s_{T-1}), or, when only position 0 is needed (``first_only``), shape
+    ``(N, 1)``: Boolean connectives pass the request down, and a top-level F, G, U or T
+    becomes one reduction over time instead of a scan.
     """
 
     def __init__(self, alg: _Algebra, signals: dict[str, np.ndarray], n: int, length: int):
@@ -91,140 +105,150 @@ class _Evaluator:
         self.signals = signals
         self.n = n
         self.length = length
-        self.cache: dict[Formula, np.ndarray] = {}  # a sub-formula repeated in the formula is evaluated once
+        self.cache: dict[tuple[Formula, bool], np.ndarray] = {}  # a repeated sub-formula is evaluated once
 
     def full(self, value: Any, length: int | None = None) -> np.ndarray:
-        return np.full((self.length if length is None else length, self.n), value, dtype=self.alg.dtype)
+        return np.full((self.n, self.length if length is None else length), value, dtype=self.alg.dtype)
 
-    def __call__(self, node: Formula) -> np.ndarray:
+    def __call__(self, node: Formula, first_only: bool = False) -> np.ndarray:
         """Values of ``node``; callers must not modify them in place (they are shared)."""
-        cached = self.cache.get(node)
+        key = (node, first_only)
+        cached = self.cache.get(key)
         if cached is not None:
             return cached
         try:
             rule = _RULES[type(node)]
         except KeyError:
             raise TypeError(f"no evaluation rule for formula node {type(node).__name__}") from None
-        values = self.cache[node] = rule(self, node)
+        values = self.cache[key] = rule(self, node, first_only)
         return values
 
     def on_prefix(self, node: Formula, length: int) -> np.ndarray:
-        """Values of ``node`` judged on the truncated trace s_0 … s_{length-1} (reversed layout)."""
-        first_row = self.length - length  # reversed rows of positions length-1 … 0
-        sub = _Evaluator(self.alg, {k: v[first_row:] for k, v in self.signals.items()}, self.n, length)
+        """Values of ``node`` at every position of the truncated trace s_0 … s_{length-1}."""
+        sub = _Evaluator(self.alg, {k: v[:, :length] for k, v in self.signals.items()}, self.n, length)
         return sub(node)
 
     # rules ----------------------------------------------------------------------------
-    def constant(self, node: Constant) -> np.ndarray:
-        return self.full(self.alg.top if node.value else self.alg.bottom)
+    def constant(self, node: Constant, first_only: bool) -> np.ndarray:
+        return self.full(self.alg.top if node.value else self.alg.bottom, 1 if first_only else None)
 
-    def predicate(self, node: Predicate) -> np.ndarray:
-        sample = next(iter(self.signals.values()), np.zeros(1))
+    def predicate(self, node: Predicate, first_only: bool) -> np.ndarray:
+        signals = {k: v[:, :1] for k, v in self.signals.items()} if first_only else self.signals
+        shape = (self.n, 1 if first_only else self.length)
         with np.errstate(all="ignore"):
-            lhs = evaluate_expression(node.lhs, self.signals, sample)
-            rhs = evaluate_expression(node.rhs, self.signals, sample)
+            lhs = evaluate_expression(node.lhs, signals, None)
+            rhs = evaluate_expression(node.rhs, signals, None)
             margin = rhs - lhs if node.op in ("<", "<=") else lhs - rhs
-        margin = np.broadcast_to(margin, (self.length, self.n))
-        finite = np.isfinite(margin)
-        if not finite.all():  # undefined arithmetic (log of a negative, overflow...): refuse in both semantics
-            j, i = np.argwhere(~finite)[-1]  # the last row is the earliest position
+        margin = np.broadcast_to(margin, shape)
+        # Undefined arithmetic (log of a negative, overflow...) is refused. A NaN or inf makes the
+        # sum non-finite, so one cheap pass clears almost every call; only then look closer.
+        if not np.isfinite(np.sum(margin)) and not np.isfinite(margin).all():
+            i, t = np.argwhere(~np.isfinite(margin))[0]
             raise TraceError(
-                f"predicate {str(node)!r} is NaN or infinite at trajectory {i}, position "
-                f"{self.length - 1 - j} (its arithmetic is undefined there)"
+                f"predicate {str(node)!r} is NaN or infinite at trajectory {i}, position {t} "
+                "(its arithmetic is undefined there)"
             )
         return np.asarray(self.alg.predicate(margin, node.op), dtype=self.alg.dtype)
 
-    def not_(self, node: Not) -> np.ndarray:
-        return self.alg.negate(self(node.child))
+    def not_(self, node: Not, first_only: bool) -> np.ndarray:
+        return self.alg.negate(self(node.child, first_only))
 
-    def and_(self, node: And) -> np.ndarray:
-        out = self.alg.minimum(self(node.operands[0]), self(node.operands[1]))
+    def and_(self, node: And, first_only: bool) -> np.ndarray:
+        out = self.alg.minimum(self(node.operands[0], first_only), self(node.operands[1], first_only))
         for child in node.operands[2:]:
-            self.alg.minimum(out, self(child), out=out)
+            self.alg.minimum(out, self(child, first_only), out=out)
         return out
 
-    def or_(self, node: Or) -> np.ndarray:
-        out = self.alg.maximum(self(node.operands[0]), self(node.operands[1]))
+    def or_(self, node: Or, first_only: bool) -> np.ndarray:
+        out = self.alg.maximum(self(node.operands[0], first_only), self(node.operands[1], first_only))
         for child in node.operands[2:]:
-            self.alg.maximum(out, self(child), out=out)
+            self.alg.maximum(out, self(child, first_only), out=out)
         return out
 
-    def implies(self, node: Implies) -> np.ndarray:
-        return self.alg.maximum(self.alg.negate(self(node.left)), self(node.right))
+    def implies(self, node: Implies, first_only: bool) -> np.ndarray:
+        return self.alg.maximum(self.alg.negate(self(node.left, first_only)), self(node.right, first_only))
 
-    def next_(self, node: Next) -> np.ndarray:
+    def next_(self, node: Next, first_only: bool) -> np.ndarray:
+        if first_only:
+            if self.length == 1:
+                return self.full(self.alg.bottom, 1)
+            return self(node.child)[:, 1:2]
         child = self(node.child)
         out = np.empty_like(child)
-        out[1:] = child[:-1]
-        out[0] = self.alg.bottom  # no next state: the paper's "k > 0" fails
+        out[:, :-1] = child[:, 1:]
+        out[:, -1] = self.alg.bottom  # no next state: the paper's "k > 0" fails
         return out
 
-    def eventually(self, node: Eventually) -> np.ndarray:
-        return self.alg.maximum.accumulate(self(node.child), axis=0)
+    def eventually(self, node: Eventually, first_only: bool) -> np.ndarray:
+        child = self(node.child)
+        return self.alg.maximum.reduce(child, axis=1, keepdims=True) if first_only else _suffix(self.alg.maximum, child)
 
-    def always(self, node: Always) -> np.ndarray:
-        return self.alg.minimum.accumulate(self(node.child), axis=0)
+    def always(self, node: Always, first_only: bool) -> np.ndarray:
+        child = self(node.child)
+        return self.alg.minimum.reduce(child, axis=1, keepdims=True) if first_only else _suffix(self.alg.minimum, child)
 
-    def until(self, node: Until) -> np.ndarray:
-        right = self(node.right)
+    def until(self, node: Until, first_only: bool) -> np.ndarray:
+        alg = self.alg
         if node.left.is_temporal:
-            return self._binary_on_segments(node, right, self.alg.minimum, self.alg.empty_min)
-        return _until_scan(self.alg, self(node.left), right)
+            out = self._binary_on_segments(node, alg.minimum, alg.empty_min)
+        elif first_only:  # max_t' min(ψ(t'), min_{t'' < t'} φ(t'')): one prefix scan
+            before = _exclusive_prefix(alg.minimum, self(node.left), alg.empty_min)
+            return alg.maximum.reduce(alg.minimum(self(node.right), before), axis=1, keepdims=True)
+        else:
+            out = _until_scan(alg, self(node.left), self(node.right))
+        return out[:, :1] if first_only else out
 
-    def then(self, node: Then) -> np.ndarray:
-        right = self(node.right)
+    def then(self, node: Then, first_only: bool) -> np.ndarray:
+        alg = self.alg
         if node.left.is_temporal:
-            return self._binary_on_segments(node, right, self.alg.maximum, self.alg.empty_max)
-        # ρ(φ T ψ, t) = max_{s ≥ t} min(φ(s), max_{t' > s} ψ(t')): two scans.
+            out = self._binary_on_segments(node, alg.maximum, alg.empty_max)
+            return out[:, :1] if first_only else out
+        left, right = self(node.left), self(node.right)
+        if first_only:  # max_t' min(ψ(t'), max_{t'' < t'} φ(t'')): one prefix scan
+            before = _exclusive_prefix(alg.maximum, left, alg.empty_max)
+            return alg.maximum.reduce(alg.minimum(right, before), axis=1, keepdims=True)
+        # ρ(φ T ψ, t) = max_{s ≥ t} min(φ(s), max_{t' > s} ψ(t')): two suffix scans.
         later_right = np.empty_like(right)
-        later_right[0] = self.alg.empty_max
-        self.alg.maximum.accumulate(right[:-1], axis=0, out=later_right[1:])
-        return self.alg.maximum.accumulate(self.alg.minimum(self(node.left), later_right), axis=0)
+        later_right[:, -1] = alg.empty_max
+        later_right[:, :-1] = _suffix(alg.maximum, right)[:, 1:]
+        return _suffix(alg.maximum, alg.minimum(left, later_right))
 
-    def _binary_on_segments(
-        self, node: Until | Then, right: np.ndarray, inner: np.ufunc, inner_empty: Any
-    ) -> np.ndarray:
-        """U/T with a temporal left operand, judged on each segment s_{t''..t'-1}: O(N·T²).
-
-        Works in natural time order (row = position) and returns the reversed layout.
-        """
-        right_natural = right[::-1]
+    def _binary_on_segments(self, node: Until | Then, inner: np.ufunc, inner_empty: Any) -> np.ndarray:
+        """U/T with a temporal left operand, judged on each segment s_{t''..t'-1}: O(N·T²) time."""
+        right = self(node.right)
         out = self.full(self.alg.empty_max)
         for t_prime in range(self.length):
             # reduced[t] = inner reduction of φ(s_{t''..t'-1}) over t'' in [t, t'); empty at t = t'
             reduced = self.full(inner_empty, t_prime + 1)
             if t_prime > 0:
-                left = self.on_prefix(node.left, t_prime)  # reversed: row k is t'' = t'-1-k
-                reduced[:t_prime] = inner.accumulate(left, axis=0)[::-1]
-            term = self.alg.minimum(right_natural[t_prime], reduced)
-            out[: t_prime + 1] = self.alg.maximum(out[: t_prime + 1], term)
-        return np.ascontiguousarray(out[::-1])
+                reduced[:, :t_prime] = _suffix(inner, self.on_prefix(node.left, t_prime))
+            term = self.alg.minimum(right[:, t_prime : t_prime + 1], reduced)
+            out[:, : t_prime + 1] = self.alg.maximum(out[:, : t_prime + 1], term)
+        return out
 
 
 def _until_scan(alg: _Algebra, left: np.ndarray, right: np.ndarray) -> np.ndarray:
-    """``U(t) = max(ψ(t), min(φ(t), U(t+1)))`` with a temporal-free φ, in vectorised steps.
+    """``U(t) = max(ψ(t), min(φ(t), U(t+1)))`` at every position, temporal-free φ.
 
-    In the reversed layout row ``j`` applies the map ``x ↦ max(A, min(B, x))`` with
-    ``(A, B) = (ψ, φ)`` to row ``j-1``'s value. Such maps compose associatively,
-    ``(A1, B1)∘(A2, B2) = (max(A1, min(B1, A2)), min(B1, B2))``, so a doubling scan needs
-    log2(T) whole-array steps; with many short trajectories a plain loop over rows
-    (each vectorised over N) is cheaper, so pick by a cost estimate.
+    Each position is the map ``x ↦ max(A, min(B, x))`` with ``(A, B) = (ψ(t), φ(t))``;
+    such maps compose associatively, ``(A1, B1)∘(A2, B2) = (max(A1, min(B1, A2)), min(B1, B2))``,
+    so a doubling suffix scan needs log2(T) whole-array steps. With many short
+    trajectories a backward loop over time (each step vectorised over N) is cheaper.
     """
-    length, n = right.shape
+    n, length = right.shape
     if length <= 1:
         return right.copy()
-    steps = math.ceil(math.log2(length))
-    if n * steps > 2 * n + 3000:  # the row loop's per-call overhead is worth ~3000 elements
+    if n * math.ceil(math.log2(length)) > 2 * n + 3000:  # the loop's per-step overhead is worth ~3000 elements
         out = right.copy()
-        for j in range(1, length):
-            alg.maximum(out[j], alg.minimum(left[j], out[j - 1]), out=out[j])
+        for t in range(length - 2, -1, -1):
+            out[:, t] = alg.maximum(right[:, t], alg.minimum(left[:, t], out[:, t + 1]))
         return out
     a, b = right.copy(), left.copy()
     shift = 1
     while shift < length:
-        new_a = alg.maximum(a[shift:], alg.minimum(b[shift:], a[:-shift]))
-        b[shift:] = alg.minimum(b[shift:], b[:-shift])
-        a[shift:] = new_a
+        new_a = alg.maximum(a[:, :-shift], alg.minimum(b[:, :-shift], a[:, shift:]))
+        b[:, :-shift] = alg.minimum(b[:, :-shift], b[:, shift:])
+        a[:, :-shift] = new_a
         shift *= 2
     return a
 
@@ -244,28 +268,25 @@ _RULES: dict[type, Callable[[_Evaluator, Any], np.ndarray]] = {
 }
 
 
-def _evaluate(formula: Formula, trace: Trace, alg: _Algebra) -> tuple[np.ndarray, bool]:
-    """Values in the evaluator's reversed ``(T, N)`` layout, and whether the input was batched."""
+def _evaluate(formula: Formula, trace: Trace, alg: _Algebra, first_only: bool) -> tuple[np.ndarray, bool]:
     prepared = prepare(formula.signals, trace)
-    reversed_signals = {k: np.ascontiguousarray(v.T[::-1]) for k, v in prepared.signals.items()}
-    values = _Evaluator(alg, reversed_signals, prepared.n, prepared.length)(formula)
+    values = _Evaluator(alg, prepared.signals, prepared.n, prepared.length)(formula, first_only)
     return values, prepared.batched
 
 
 def robustness_over_time(formula: Formula, trace: Trace, rho_max: float = math.inf) -> np.ndarray:
     """Robustness at every position: shape ``(T,)`` or ``(N, T)`` like the signals."""
-    values, batched = _evaluate(formula, trace, numeric_algebra(rho_max))
-    natural = np.ascontiguousarray(values[::-1].T)
-    return natural if batched else natural[0]
+    values, batched = _evaluate(formula, trace, numeric_algebra(rho_max), first_only=False)
+    return np.array(values if batched else values[0])
 
 
 def robustness(formula: Formula, trace: Trace, rho_max: float = math.inf) -> float | np.ndarray:
     """Robustness at position 0: a float, or an ``(N,)`` array for batched signals."""
-    values, batched = _evaluate(formula, trace, numeric_algebra(rho_max))
-    return values[-1].copy() if batched else float(values[-1, 0])
+    values, batched = _evaluate(formula, trace, numeric_algebra(rho_max), first_only=True)
+    return values[:, 0].copy() if batched else float(values[0, 0])
 
 
 def satisfied(formula: Formula, trace: Trace) -> bool | np.ndarray:
     """Boolean semantics at position 0: a bool, or an ``(N,)`` bool array."""
-    values, batched = _evaluate(formula, trace, BOOLEAN)
-    return values[-1].copy() if batched else bool(values[-1, 0])
+    values, batched = _evaluate(formula, trace, BOOLEAN, first_only=True)
+    return values[:, 0].copy() if batched else bool(values[0, 0])
