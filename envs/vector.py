@@ -142,7 +142,8 @@ class CarNavVectorEnv(VectorEnv):
             seeds = list(seed)
             if len(seeds) != self.num_envs:
                 raise ValueError(f"seed must be an int or {self.num_envs} seeds, got {len(seeds)}")
-        self._rngs = [seeding.np_random(s)[0] for s in seeds]
+        # as Env.reset: a seed re-creates a car's generator, None continues it
+        self._rngs = [rng if s is None else seeding.np_random(s)[0] for rng, s in zip(self._rngs, seeds)]
         self._start_episodes()
         return self._state.copy(), {}
 

@@ -316,6 +316,11 @@ def test_vector_env_seeds_car_i_with_seed_plus_i():
     single = gym.make("TLCarNav-v0", task=2)
     for i in range(4):
         np.testing.assert_array_equal(single.reset(seed=100 + i)[0], obs[i])
+    # reset(seed=None) continues each car's generator, as SyncVectorEnv's sub-envs do
+    sync = gym.make_vec("TLCarNav-v0", num_envs=4, vectorization_mode="sync", task=2)
+    sync.reset(seed=100)
+    np.testing.assert_array_equal(envs.reset()[0], sync.reset()[0])
+    np.testing.assert_array_equal(envs.reset(seed=[None, 7, None, 8])[0], sync.reset(seed=[None, 7, None, 8])[0])
 
 
 # --------------------------------------------------------------------------- rendering
