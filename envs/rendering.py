@@ -121,8 +121,7 @@ class HumanViewer:
                 '(or use render_mode="rgb_array")'
             ) from exc
         self._pygame = pygame
-        pygame.init()
-        pygame.display.init()
+        pygame.display.init()  # the display only: no audio device is needed
         self._screen = pygame.display.set_mode(size)
         pygame.display.set_caption("TLCarNav-v0")
         self._clock = pygame.time.Clock()
@@ -140,4 +139,3 @@ class HumanViewer:
     def close(self) -> None:
         """Close the window."""
         self._pygame.display.quit()
-        self._pygame.quit()
