@@ -87,6 +87,15 @@ def plot_trajectory_distribution(run: RunResult, path: str | Path | None = None,
 
     fig = plot_trajectories(snapshots, background=background, title=title)
     ax = fig.axes[0]
+    # early iterations spread over the whole arena: fainter bands, and the layout drawn again on top
+    for patch in ax.patches[len(_layout_patches(layout)):]:
+        patch.set_alpha(0.15)
+    from tl_gym.envs.rendering import draw_layout
+
+    before = len(ax.patches)
+    draw_layout(ax, layout, labels=False, alpha=0.45)
+    for patch in ax.patches[before:]:
+        patch.set_zorder(5)
     ax.set_aspect("equal", adjustable="box")  # the whole arena, whatever the paths' extent
     ax.set_xlim(0.0, layout.arena[0])
     ax.set_ylim(0.0, layout.arena[1])
@@ -95,6 +104,15 @@ def plot_trajectory_distribution(run: RunResult, path: str | Path | None = None,
         success = float(np.mean(traces[f"it{it}_robustness"] > 0))
         text.set_text(f"iteration {it}" + (" (initial)" if it == 0 else "") + f": success {success:.0%}")
     return _saved(fig, path)
+
+
+def _layout_patches(layout: Any) -> list[Any]:
+    """The patches `draw_layout` adds for ``layout`` (counted on a scratch Axes)."""
+    from tl_gym.envs.rendering import draw_layout
+
+    ax = Figure().add_subplot()
+    draw_layout(ax, layout)
+    return list(ax.patches)
 
 
 def env_layout(env: str, env_kwargs: dict[str, Any]) -> Any:
