@@ -1,0 +1,504 @@
+"""Speed of tl_gym's robustness against hand-written numpy and peer libraries (issues 3 and 10).
+
+For the paper's φ1 (Eq. 16) and φ2 (Eq. 19, default and strict no-revisit) on
+seeded random trajectories of every size in the grid, the script measures
+trajectories per second of
+
+* tl_gym, exact (numpy) and smoothed with gradient (value + backward of the sum, torch float64);
+* hand-written vectorised numpy functions of the same formulas (`benchmarks.handwritten`),
+  the practical speed limit;
+* every peer library that imports (`benchmarks.peers`): rtamt, argus, STLRom, stlcg++, stljax.
+
+Every library runs in this one process, so the machine's drift cancels in the
+ratios. Before any time is reported a library's values are checked against
+tl_gym's (1e-6 relative, exact against exact and smoothed against smoothed); one
+that disagrees is reported as such, with the largest difference, and not timed.
+Libraries whose cost is per trajectory are timed on a prefix of the batch sized
+by ``--budget`` seconds. The table goes to stdout and, with the machine's
+description and the issue's targets, to ``docs/results/speed.md``.
+
+Run from the repository root, in the benchmark's virtualenv::
+
+    .venv-bench/bin/python -m benchmarks.bench_robustness           # full grid (about half an hour)
+    .venv-bench/bin/python -m benchmarks.bench_robustness --quick   # tiny grid, seconds
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import platform
+import sys
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks import handwritten, peers
+from benchmarks.formulas import ARENA, TASKS, Task, task_formula
+from benchmarks.peers import Evaluator, Unsupported
+
+RTOL = 1e-6  # relative tolerance of the value check (absolute below |ρ| = 1)
+TL_GYM = "tl_gym"
+HANDWRITTEN = "numpy (hand-written)"
+SMOOTH_LINEAR = "smooth+grad, linear form"
+RESULTS = Path("docs/results/speed.md")
+
+
+# --------------------------------------------------------------------------- trajectories
+
+
+def trajectories(n: int, length: int, seed: int, tasks: Iterable[Task] = ()) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` seeded random smooth paths of ``length`` steps in the arena, as ``(x, y)`` of shape ``(n, length)``.
+
+    Half are random walks of the velocity (double cumulative sums of Gaussian
+    noise, scaled so a path spans about half the arena whatever its length); the
+    other half run through three goal centres of ``tasks`` in random order (a
+    quarter of those in φ2's order), plus a smaller such walk, so that goals are
+    visited, left and revisited and every clause of φ2 is exercised.
+    """
+    rng = np.random.default_rng(seed)
+    scale = ARENA * math.sqrt(3) / 2 / length**1.5
+    walk = np.cumsum(np.cumsum(rng.standard_normal((2, n, length)), axis=2), axis=2) * scale
+    start = rng.uniform(0, ARENA, (n, 2))
+    centres = [((b.x_low + b.x_high) / 2, (b.y_low + b.y_high) / 2) for t in tasks for b in t.goals]
+    centres = list(dict.fromkeys(centres)) or [(ARENA / 2, ARENA / 2)]
+    routed = rng.random(n) < 0.5
+    picks = rng.integers(0, len(centres), (n, 3))
+    in_order = rng.random(n) < 0.25
+    picks[in_order] = np.arange(3) % len(centres) + (len(centres) > 3)  # φ2's goals come after φ1's
+    waypoints = np.concatenate([start[:, None, :], np.asarray(centres)[picks]], axis=1)  # (n, 4, 2)
+    s = np.linspace(0, 3, length)
+    seg = np.minimum(s.astype(int), 2)
+    frac = (s - seg)[None, :, None]
+    route = waypoints[:, seg] + frac * (waypoints[:, seg + 1] - waypoints[:, seg])  # (n, length, 2)
+    base = np.where(routed[:, None, None], route, start[:, None, :])
+    noise = np.where(routed[None, :, None], 0.1, 1.0) * walk
+    x = np.clip(base[..., 0] + noise[0], 0, ARENA)
+    y = np.clip(base[..., 1] + noise[1], 0, ARENA)
+    return x, y
+
+
+# --------------------------------------------------------------------------- evaluators
+
+
+def tl_gym_evaluators(task: Task, beta: float) -> list[Evaluator]:
+    """tl_gym's exact (numpy) and smoothed-with-gradient (torch float64) evaluators.
+
+    The smoothed one is the paper's nesting (``form="nested"``, the default); φ2,
+    whose ``T`` nests under ``T``, also gets ``form="linear"``, the O(T) smoothing
+    with the same limit that TLPS uses.
+    """
+    import torch
+
+    formula = task.formula
+
+    def exact(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return np.asarray(formula.robustness({"x": x, "y": y}))
+
+    def smooth(form: str) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+        def run(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+            xt = torch.from_numpy(x).requires_grad_(True)
+            yt = torch.from_numpy(y).requires_grad_(True)
+            values = formula.smooth_robustness({"x": xt, "y": yt}, beta, form=form)
+            values.sum().backward()
+            return values.detach().numpy()
+
+        return run
+
+    out = [
+        Evaluator(TL_GYM, "exact", exact, per_trajectory=False),
+        Evaluator(TL_GYM, "smooth+grad", smooth("nested"), per_trajectory=False),
+    ]
+    if task.key != "phi1":
+        out.append(Evaluator(TL_GYM, SMOOTH_LINEAR, smooth("linear"), per_trajectory=False))
+    return out
+
+
+def handwritten_evaluator(task: Task) -> Evaluator:
+    """The hand-written numpy function of ``task``."""
+    return Evaluator(HANDWRITTEN, "exact", lambda x, y: handwritten.robustness(task, x, y), per_trajectory=False)
+
+
+def peer_evaluators(names: Iterable[str], task: Task, beta: float, log: Callable[[str], None]) -> list:
+    """Evaluators (and `Unsupported` notes) of every peer in ``names`` that imports."""
+    out: list[Evaluator | Unsupported] = []
+    for name in names:
+        adapter = peers.load(name)
+        try:
+            out.extend(adapter.evaluators(task, beta))
+        except ImportError as exc:
+            log(f"{adapter.NAME}: not installed ({exc.name}); skipped")
+    return out
+
+
+# --------------------------------------------------------------------------- measuring
+
+
+@dataclass
+class Row:
+    """One line of the table."""
+
+    task: str
+    n: int
+    length: int
+    library: str
+    mode: str
+    per_second: float | None = None  # trajectories per second
+    timed_on: int = 0  # trajectories the time was taken on
+    note: str = ""
+    ratio: float | None = None  # tl_gym's throughput / this library's (same mode)
+    extra: dict = field(default_factory=dict)
+
+
+def _time(run: Callable[[], np.ndarray], repeats: int, budget: float, warm: bool) -> tuple[float, np.ndarray]:
+    """Best wall time of ``run`` over a few repeats, and its values.
+
+    Unless ``warm``, the first call is a warm-up (imports, JIT compilation,
+    allocator) that only gives the values; it counts when it alone is so slow
+    that repeating is unaffordable.
+    """
+    values = None
+    if not warm:
+        start = time.perf_counter()
+        values = run()
+        first = time.perf_counter() - start
+        if first > 3 * budget:
+            return first, values
+    best, spent = math.inf, 0.0
+    for _ in range(max(1, repeats)):
+        start = time.perf_counter()
+        out = run()
+        elapsed = time.perf_counter() - start
+        values = out if values is None else values
+        best, spent = min(best, elapsed), spent + elapsed
+        if spent > 3 * budget:
+            break
+    return best, values
+
+
+def _mismatch(values: np.ndarray, reference: np.ndarray) -> str:
+    """Empty when ``values`` equal ``reference`` to `RTOL`, else what differs."""
+    values = np.asarray(values, dtype=np.float64).reshape(-1)
+    if values.shape != reference.shape:
+        return f"returned shape {values.shape}, expected {reference.shape}"
+    bad = ~(np.abs(values - reference) <= RTOL * np.maximum(1.0, np.abs(reference)))
+    if not bad.any():
+        return ""
+    worst = float(np.nanmax(np.abs(values - reference)))
+    return f"disagrees with tl_gym on {int(bad.sum())}/{bad.size} trajectories (max |Δ| = {worst:.3g})"
+
+
+@dataclass
+class Settings:
+    """How long to spend on each measurement."""
+
+    repeats: int = 3
+    budget: float = 1.0  # seconds of timed work per library and cell (per-trajectory libraries)
+    max_seconds: float = 60.0  # a batched library predicted slower than this is timed on a prefix
+    max_elements: float = 2e7  # N·T above which a cell is skipped (memory)
+
+
+def measure(
+    evaluator: Evaluator, row: Row, x: np.ndarray, y: np.ndarray, reference: np.ndarray | None, settings: Settings
+) -> np.ndarray | None:
+    """Check ``evaluator`` against ``reference`` (on the trajectories both cover) and time it.
+
+    Fills ``row`` and returns the values it computed (on ``row.timed_on`` trajectories),
+    or None when it was skipped, crashed or disagreed.
+    """
+    n, length = x.shape
+    if evaluator.max_length is not None and length > evaluator.max_length:
+        row.note = f"skipped: T > {evaluator.max_length:,} (memory grows as T²)"
+        return None
+    k, probe = n, 0
+    if evaluator.per_trajectory or n > 16:
+        probe = min(n, 1 if evaluator.per_trajectory else 16)
+        start = time.perf_counter()
+        evaluator.run(x[:probe], y[:probe])
+        per_one = (time.perf_counter() - start) / probe
+        if evaluator.per_trajectory:
+            k = int(min(n, max(1, settings.budget // max(per_one, 1e-9))))
+        elif per_one * n > settings.max_seconds:
+            k = int(min(n, max(1, settings.max_seconds // max(per_one, 1e-9))))
+    try:
+        seconds, values = _time(lambda: evaluator.run(x[:k], y[:k]), settings.repeats, settings.budget, k == probe)
+    except Exception as exc:  # a peer crashing on valid input is a result, not a benchmark failure
+        row.note = f"error: {type(exc).__name__}: {exc}"[:120]
+        return None
+    values = np.asarray(values, dtype=np.float64).reshape(-1)
+    if reference is not None:
+        both = min(k, len(reference))
+        problem = _mismatch(values[:both], reference[:both])
+        if problem:
+            row.note = problem
+            return None
+    row.per_second, row.timed_on = k / seconds, k
+    notes = [evaluator.expressed] if evaluator.expressed else []
+    if k < n:
+        notes.append(f"timed on {k:,} of {n:,}")
+    row.note = "; ".join(notes)
+    return values
+
+
+def run_cell(
+    task: Task, x: np.ndarray, y: np.ndarray, evaluators: list, settings: Settings, log: Callable[[str], None]
+) -> list[Row]:
+    """All libraries on one (task, N, T) batch; tl_gym first, as every other is checked against it."""
+    n, length = x.shape
+    rows: list[Row] = []
+    references: dict[str, np.ndarray | None] = {}
+    for ev in evaluators:
+        row = Row(task.key, n, length, ev.library, ev.mode)
+        if isinstance(ev, Unsupported):
+            row.note = f"not comparable: {ev.reason}"
+            rows.append(row)
+            continue
+        is_reference = ev.library == TL_GYM
+        reference = None if is_reference else references.get(ev.mode)
+        if not is_reference and reference is None:
+            row.note = "not checked: tl_gym did not run at this size"
+            rows.append(row)
+            continue
+        values = measure(ev, row, x, y, reference, settings)
+        if is_reference and values is not None:
+            references[ev.mode] = values
+        rows.append(row)
+        log(_format_row(row))
+    base = {r.mode: r.per_second for r in rows if r.library == TL_GYM}
+    for r in rows:
+        if r.per_second and base.get(r.mode):
+            r.ratio = base[r.mode] / r.per_second
+    return rows
+
+
+# --------------------------------------------------------------------------- reporting
+
+
+def _format_rate(value: float | None) -> str:
+    if value is None:
+        return "—"
+    return f"{value:,.0f}" if value >= 100 else f"{value:,.3g}"
+
+
+def _format_row(r: Row) -> str:
+    ratio = "" if r.ratio is None else f"{r.ratio:,.3g}"
+    return (
+        f"| {r.task} | {r.n:,} | {r.length:,} | {r.library} | {r.mode} | {_format_rate(r.per_second)} "
+        f"| {ratio} | {r.note} |"
+    )
+
+
+HEADER = (
+    "| formula | N | T | library | mode | traj/s | tl_gym × | note |\n"
+    "|---|---:|---:|---|---|---:|---:|---|"
+)
+
+
+def table(rows: list[Row]) -> str:
+    """The results as one markdown table (``tl_gym ×``: how many times tl_gym's throughput is this row's)."""
+    return "\n".join([HEADER, *(_format_row(r) for r in rows)])
+
+
+def machine() -> str:
+    """A one-paragraph description of this machine and the library versions."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), cpu)
+    except OSError:
+        pass
+    versions = []
+    for dist in ("tl_gym", "numpy", "torch", "rtamt", "argus-temporal-logic", "stlrom", "stlcgpp", "stljax", "jax"):
+        try:
+            versions.append(f"{dist} {metadata.version(dist)}")
+        except metadata.PackageNotFoundError:
+            pass
+    load = ", ".join(f"{v:.1f}" for v in os.getloadavg())
+    return (
+        f"{cpu}, {os.cpu_count()} logical cores, {platform.system()} {platform.release()}, "
+        f"Python {platform.python_version()}; load average at the end {load}; " + ", ".join(versions)
+    )
+
+
+def _find(rows: list[Row], task: str, n: int, length: int, library: str, mode: str) -> Row | None:
+    return next(
+        (r for r in rows if (r.task, r.n, r.length, r.library, r.mode) == (task, n, length, library, mode)), None
+    )
+
+
+def targets(rows: list[Row]) -> list[str]:
+    """The issue's speed targets, each with the measured numbers and whether it is met."""
+    lines = []
+
+    def rate(task: str, n: int, length: int, library: str, mode: str) -> float | None:
+        r = _find(rows, task, n, length, library, mode)
+        return None if r is None else r.per_second
+
+    n_big = max((r.n for r in rows if r.length == 200), default=0)
+    for task in ("phi1", "phi2"):
+        ours, hand = rate(task, n_big, 200, TL_GYM, "exact"), rate(task, n_big, 200, HANDWRITTEN, "exact")
+        if ours and hand:
+            slow = hand / ours
+            lines.append(
+                f"- exact {task}, N = {n_big:,}, T = 200: tl_gym {n_big / ours:.3f} s, hand-written numpy "
+                f"{n_big / hand:.3f} s: **{slow:.2f}×** the hand-written time (target ≤ 1.5×: "
+                f"{'met' if slow <= 1.5 else 'not met'})."
+            )
+        peer = rate(task, n_big, 200, "rtamt", "exact")
+        if ours and peer:
+            lines.append(
+                f"- exact {task}, T = 200: tl_gym {ours:,.0f} traj/s vs rtamt {peer:,.1f} traj/s: "
+                f"**{ours / peer:,.0f}×** (target ≥ 1,000×: {'met' if ours / peer >= 1000 else 'not met'})."
+            )
+        smooth = rate(task, n_big, 200, TL_GYM, "smooth+grad")
+        if ours and smooth:
+            slow = ours / smooth
+            verdict = f" (target ≤ 5×: {'met' if slow <= 5 else 'not met'})" if task == "phi1" else " (reported)"
+            lines.append(
+                f"- smoothed {task} with gradient, N = {n_big:,}, T = 200: {smooth:,.0f} traj/s, "
+                f"**{slow:.2f}×** the exact time{verdict}."
+            )
+        linear = rate(task, n_big, 200, TL_GYM, SMOOTH_LINEAR)
+        if ours and linear:
+            lines.append(
+                f"- smoothed {task} with gradient, linear form (TLPS's), N = {n_big:,}, T = 200: {linear:,.0f} "
+                f"traj/s, **{ours / linear:.2f}×** the exact time (reported)."
+            )
+        stlcg = rate(task, n_big, 200, "stlcg++", "smooth+grad")
+        if smooth and stlcg:
+            lines.append(
+                f"- smoothed {task} with gradient vs stlcg++: {smooth:,.0f} vs {stlcg:,.1f} traj/s: "
+                f"**{smooth / stlcg:,.0f}×** (target ≥ 100×: {'met' if smooth / stlcg >= 100 else 'not met'})."
+            )
+    lines.extend(linearity(rows))
+    return lines
+
+
+def linearity(rows: list[Row]) -> list[str]:
+    """Time per trajectory step of tl_gym across T at the largest N measured at every T."""
+    lines = []
+    lengths = sorted({r.length for r in rows})
+    if len(lengths) < 2:
+        return lines
+    for mode in ("exact", "smooth+grad", SMOOTH_LINEAR):
+        for task in sorted({r.task for r in rows}):
+            done = [r for r in rows if r.task == task and r.library == TL_GYM and r.mode == mode and r.per_second]
+            common = [n for n in sorted({r.n for r in done}) if all(_find(done, task, n, t, TL_GYM, mode)
+                                                                     for t in lengths)]
+            if not common:
+                continue
+            n = common[-1]
+            ns = [1e9 / (_find(done, task, n, t, TL_GYM, mode).per_second * t) for t in lengths]
+            growth = ns[-1] / ns[0]
+            steps = ", ".join(f"T = {t:,}: {v:.1f}" for t, v in zip(lengths, ns))
+            verdict = "linear" if growth <= 2.0 else "not linear"
+            lines.append(
+                f"- {mode} {task}, N = {n:,}, ns per trajectory step: {steps} "
+                f"(×{growth:.2f} over ×{lengths[-1] // lengths[0]} in T: **{verdict}**)."
+            )
+    return lines
+
+
+def write_results(rows: list[Row], path: Path, command: str, skipped: list[str]) -> None:
+    """Write the table, the targets and the machine to ``path`` (markdown)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    parts = [
+        "# Robustness speed: tl_gym vs hand-written numpy and peer libraries",
+        "",
+        f"Written by `{command}` on {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.",
+        f"Machine: {machine()}.",
+        "",
+        "`traj/s`: trajectories per second (best of a few repeats); `tl_gym ×`: tl_gym's throughput in the same",
+        "mode divided by this row's (above 1: tl_gym is faster). How to read it: `docs/speed.md`.",
+        "",
+        "## Targets (issue 3)",
+        "",
+        *(targets(rows) or ["- (the grid run does not include the targets' sizes)"]),
+        "",
+        "## Table",
+        "",
+        table(rows),
+        "",
+    ]
+    if skipped:
+        parts += ["## Skipped sizes", "", *(f"- {s}" for s in skipped), ""]
+    path.write_text("\n".join(parts))
+
+
+# --------------------------------------------------------------------------- main
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="tiny grid for CI (N = 1, 40; T = 200; seconds)")
+    parser.add_argument("--tasks", nargs="+", default=list(TASKS), choices=TASKS)
+    parser.add_argument("--n", nargs="+", type=int, default=[1, 40, 1_000, 10_000], help="batch sizes")
+    parser.add_argument("--t", nargs="+", type=int, default=[200, 2_000, 20_000], help="trajectory lengths")
+    parser.add_argument("--peers", nargs="*", default=list(peers.PEER_MODULES), choices=peers.PEER_MODULES)
+    parser.add_argument("--no-handwritten", action="store_true", help="leave out the hand-written numpy functions")
+    parser.add_argument("--beta", type=float, default=9.0, help="smoothing sharpness β (the paper's 9)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--budget", type=float, default=1.0, help="seconds per per-trajectory library and cell")
+    parser.add_argument("--max-seconds", type=float, default=60.0, help="cap on one batched run (else a prefix)")
+    parser.add_argument("--max-elements", type=float, default=2e7, help="skip cells with N·T above this")
+    parser.add_argument("--out", type=Path, default=RESULTS, help="markdown results file ('-' for none)")
+    args = parser.parse_args(argv)
+    if args.quick:  # seconds, not minutes: the smallest sizes, one timed repeat, small budgets
+        args.n, args.t, args.repeats, args.budget, args.max_seconds = [1, 40], [200], 1, 0.05, 1.0
+    for name in ("n", "t"):
+        bad = [v for v in getattr(args, name) if v < 1]
+        if bad:
+            parser.error(f"--{name} values must be >= 1, got {bad}")
+    if args.beta <= 0:
+        parser.error(f"--beta must be > 0, got {args.beta}")
+    return args
+
+
+def main(argv: list[str] | None = None) -> list[Row]:
+    args = parse_args(argv)
+
+    def log(text: str) -> None:
+        print(text, file=sys.stderr, flush=True)
+
+    settings = Settings(args.repeats, args.budget, args.max_seconds, args.max_elements)
+    tasks = [task_formula(k) for k in args.tasks]
+    rows: list[Row] = []
+    skipped: list[str] = []
+    log(HEADER)
+    for length in sorted(args.t):
+        sizes = sorted(n for n in args.n if n * length <= settings.max_elements)
+        skipped += [
+            f"N = {n:,}, T = {length:,}: N·T = {n * length:.0e} > {settings.max_elements:.0e} elements (memory)"
+            for n in sorted(args.n) if n * length > settings.max_elements
+        ]
+        if not sizes:
+            continue
+        x_all, y_all = trajectories(sizes[-1], length, args.seed + length, tasks)
+        for task in tasks:
+            evaluators = tl_gym_evaluators(task, args.beta)
+            if not args.no_handwritten:
+                evaluators.append(handwritten_evaluator(task))
+            evaluators += peer_evaluators(args.peers, task, args.beta, log if length == min(args.t) else lambda _: None)
+            for n in sizes:
+                rows += run_cell(task, x_all[:n], y_all[:n], evaluators, settings, log)
+    print(table(rows))
+    lines = targets(rows)
+    if lines:
+        print("\n" + "\n".join(lines))
+    for s in skipped:
+        print(f"skipped {s}")
+    if str(args.out) != "-":
+        command = "python -m benchmarks.bench_robustness" + (" --quick" if args.quick else "")
+        write_results(rows, args.out, command, skipped)
+        print(f"\nwritten to {args.out}")
+    return rows
+
+
+if __name__ == "__main__":
+    main()
