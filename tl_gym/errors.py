@@ -21,10 +21,10 @@ class SpecError(TLGymError, ValueError):
         column: 1-based column of the offending token.
     """
 
-    def __init__(self, message: str, text: str = "", column: int = 0):
+    def __init__(self, message: str, text: str | None = None, column: int = 0):
         self.text = text
         self.column = column
-        if text:
+        if text is not None:
             caret = " " * max(column - 1, 0) + "^"
             message = f"{message} (column {column})\n    {text}\n    {caret}"
         super().__init__(message)

@@ -90,6 +90,7 @@ class _Parser:
         self.text = text
         self.tokens = _tokenize(text)
         self.pos = 0
+        self.last_primary: Formula | None = None
 
     # helpers -------------------------------------------------------------------------
     @property
@@ -125,7 +126,7 @@ class _Parser:
             raise self.error("empty formula")
         formula = self.implies()
         if self.tok.kind != "end":
-            if self.tok.text in COMPARISONS:
+            if self.tok.text in COMPARISONS and isinstance(self.last_primary, Predicate):
                 raise self.error("comparisons do not chain; join them with '&'")
             raise self.error(f"unexpected {self.describe(self.tok)} after a complete formula")
         return formula
@@ -166,7 +167,8 @@ class _Parser:
         token = self.tok
         if token.kind == "ident" and token.text in ("true", "false"):
             self.pos += 1
-            return Constant(token.text == "true")
+            self.last_primary = Constant(token.text == "true")
+            return self.last_primary
         if token.kind == "op" and token.text == "(":
             # '(' opens either a parenthesised formula or an arithmetic group of a
             # predicate; try the predicate first and keep the error that got furthest.
@@ -197,7 +199,8 @@ class _Parser:
                 f"found {self.describe(token)}"
             )
         self.pos += 1
-        return Predicate(lhs, token.text, self.expression())
+        self.last_primary = Predicate(lhs, token.text, self.expression())
+        return self.last_primary
 
     # arithmetic -------------------------------------------------------------------------
     def expression(self) -> Expr:
@@ -243,6 +246,9 @@ class _Parser:
                 return self.call(token)
             if token.text in RESERVED:
                 raise self.error(f"{token.raw!r} is reserved and cannot name a signal", token)
+            if self.tok.kind == "op" and self.tok.text == "(":
+                known = " ".join(FUNCTIONS)
+                raise self.error(f"unknown function {token.raw!r} (functions: {known})", token)
             return Var(token.text)
         if self.accept("("):
             inner = self.expression()
