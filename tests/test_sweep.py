@@ -238,3 +238,10 @@ def test_run_all_runs_what_exists_and_reports_the_rest(tmp_path):
     scripts = [("good", False), ("bad", False), ("slow", True), ("absent", False)]
     outcomes = run_all(True, scripts, package)
     assert [o.status for o in outcomes] == ["ok", "failed (exit 3)", "skipped: no --quick mode", "missing"]
+
+
+def test_ray_missing_names_the_extra(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray -> ImportError
+    sweep = expand_config(config(tasks=[1], seeds=[0]))
+    with pytest.raises(ImportError, match=r"tl_gym\[ray\]"):
+        run_sweep(sweep, tmp_path, ray_address="auto", progress=False)
