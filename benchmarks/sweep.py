@@ -150,14 +150,14 @@ def expand_config(
             raise fail(f"{where}: unknown key(s) {bad}; valid: {sorted(AGENT_KEYS)}")
         own = _table(entry.get("variants", {}), f"{where}.variants", fail)
         if variant is not None and variant in own:
-            overrides = _table(own[variant], f"{where}.variants.{variant}", fail)
-            bad = sorted(set(overrides) - AGENT_KEYS)
+            changes = _table(own[variant], f"{where}.variants.{variant}", fail)
+            bad = sorted(set(changes) - AGENT_KEYS)
             if bad:
                 raise fail(f"{where}.variants.{variant}: unknown key(s) {bad}")
             hyper = {**_table(entry.get("hyperparameters", {}), f"{where}.hyperparameters", fail),
-                     **_table(overrides.get("hyperparameters", {}), f"{where}.variants.{variant}.hyperparameters",
+                     **_table(changes.get("hyperparameters", {}), f"{where}.variants.{variant}.hyperparameters",
                               fail)}
-            entry = {**entry, **overrides, "hyperparameters": hyper}
+            entry = {**entry, **changes, "hyperparameters": hyper}
         if entry.get("skip", False):
             continue
         runs.extend(_expand_agent(entry, top, where, fail))
