@@ -57,7 +57,17 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "reg_90": ("TLPS", {"regularization": 90.0}),
     "reg_9000": ("TLPS", {"regularization": 9000.0}),
     "nested": ("TLPS", {"smoothing": "nested"}),
+    "no_floor_mix_1.0": ("TLPS", {"exploration_floor": 0.0, "hybrid_mix": 1.0}),
+    "no_floor_beta_30": ("TLPS", {"exploration_floor": 0.0, "beta": 30.0}),
+    "no_floor_eps_0.45": ("TLPS", {"exploration_floor": 0.0, "epsilon": 0.45}),
+    "no_floor_importance": ("TLPS", {"exploration_floor": 0.0, "weights": "importance"}),
+    "no_floor_mix_1.0_eps_45": ("TLPS", {"exploration_floor": 0.0, "hybrid_mix": 1.0, "epsilon": 45.0}),
+    "no_floor_mix_1.0_eps_450": ("TLPS", {"exploration_floor": 0.0, "hybrid_mix": 1.0, "epsilon": 450.0}),
+    "no_floor_mix_1.0_beta_30": ("TLPS", {"exploration_floor": 0.0, "hybrid_mix": 1.0, "beta": 30.0}),
+    "no_floor_mix_1.0_kl_3": ("TLPS", {"exploration_floor": 0.0, "hybrid_mix": 1.0, "kl_bound": 3.0}),
+    "floor_0.05_mix_1.0": ("TLPS", {"exploration_floor": 0.05, "hybrid_mix": 1.0}),
     "reps": ("REPS", {"epsilon": 2.0}),
+    "reps_3": ("REPS", {"epsilon": 3.0}),
     "reps_floor": ("REPS", {"epsilon": 2.0}),  # REPS with TLPS's exploration floor (see _floor_callback)
 }
 

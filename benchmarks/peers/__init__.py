@@ -35,6 +35,8 @@ class Evaluator:
             the benchmark times it on a prefix of the batch sized by a time budget; throughput
             per trajectory is what is compared.
         max_length: the longest T the library can take here (memory), or None.
+        compiles: the first call on a new batch shape compiles (JIT), so the benchmark
+            always makes one untimed call on the timed batch first, however slow.
     """
 
     library: str
@@ -43,6 +45,7 @@ class Evaluator:
     expressed: str = ""
     per_trajectory: bool = True
     max_length: int | None = None
+    compiles: bool = False
 
 
 @dataclass(frozen=True)

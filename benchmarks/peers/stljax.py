@@ -85,6 +85,6 @@ def evaluators(task: Task, beta: float) -> list[Evaluator | Unsupported]:
         return _chunked(smooth_step, x.shape[1])(np.stack([x, y], axis=-1))
 
     return [
-        Evaluator(NAME, "exact", run_exact, max_length=MAX_LENGTH),
-        Evaluator(NAME, "smooth+grad", run_smooth, max_length=MAX_LENGTH),
+        Evaluator(NAME, "exact", run_exact, max_length=MAX_LENGTH, compiles=True),
+        Evaluator(NAME, "smooth+grad", run_smooth, max_length=MAX_LENGTH, compiles=True),
     ]
