@@ -357,8 +357,8 @@ def targets(rows: list[Row]) -> list[str]:
         if ours and hand:
             slow = hand / ours
             lines.append(
-                f"- exact {task}, N = {n_big:,}, T = 200: tl_gym {n_big / ours:.3f} s, hand-written numpy "
-                f"{n_big / hand:.3f} s: **{slow:.2f}×** the hand-written time (target ≤ 1.5×: "
+                f"- exact {task}, N = {n_big:,}, T = 200: tl_gym {n_big / ours:.3g} s, hand-written numpy "
+                f"{n_big / hand:.3g} s: **{slow:.2f}×** the hand-written time (target ≤ 1.5×: "
                 f"{'met' if slow <= 1.5 else 'not met'})."
             )
         peer = rate(task, n_big, 200, "rtamt", "exact")
@@ -459,6 +459,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--budget", type=float, default=1.0, help="seconds per per-trajectory library and cell")
     parser.add_argument("--max-seconds", type=float, default=20.0, help="cap on one batched run (else a prefix)")
     parser.add_argument("--max-elements", type=float, default=2e7, help="skip cells with N·T above this")
+    parser.add_argument(
+        "--threads", type=int, default=1,
+        help="torch intra-op threads (1: on a loaded 2-core machine more threads spin-wait on every small op)",
+    )
     parser.add_argument("--out", type=Path, default=RESULTS, help="markdown results file ('-' for none)")
     args = parser.parse_args(argv)
     if args.quick:  # seconds, not minutes: the smallest sizes, one timed repeat, small budgets
@@ -469,6 +473,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
             parser.error(f"--{name} values must be >= 1, got {bad}")
     if args.beta <= 0:
         parser.error(f"--beta must be > 0, got {args.beta}")
+    if args.threads < 1:
+        parser.error(f"--threads must be >= 1, got {args.threads}")
     return args
 
 
@@ -478,6 +484,9 @@ def main(argv: list[str] | None = None) -> list[Row]:
     def log(text: str) -> None:
         print(text, file=sys.stderr, flush=True)
 
+    import torch
+
+    torch.set_num_threads(args.threads)
     settings = Settings(args.repeats, args.budget, args.max_seconds, args.max_elements)
     tasks = [task_formula(k) for k in args.tasks]
     rows: list[Row] = []
@@ -507,6 +516,7 @@ def main(argv: list[str] | None = None) -> list[Row]:
         print(f"skipped {s}")
     if str(args.out) != "-":
         command = "python -m benchmarks.bench_robustness" + (" --quick" if args.quick else "")
+        command += f" (torch threads: {args.threads})"
         write_results(rows, args.out, command, skipped)
         print(f"\nwritten to {args.out}")
     return rows
