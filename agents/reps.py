@@ -86,7 +86,7 @@ def reps_weights(returns: np.ndarray, epsilon: float) -> tuple[np.ndarray, float
 
     Returns:
         ``(weights, eta, kl)``: normalised weights ``(N,)``, the temperature in the units of
-        ``returns``, and ``KL(w ‖ uniform)``, which is ``≤ ε`` up to the solver's tolerance.
+        ``returns``, and ``KL(w ‖ uniform) ≤ ε`` (a bisection on ``η`` repairs a solver stop on the wrong side).
 
     Example:
         >>> w, eta, kl = reps_weights(np.array([0.0, 1.0, 2.0, 3.0]), epsilon=0.5)
@@ -112,11 +112,27 @@ def reps_weights(returns: np.ndarray, epsilon: float) -> tuple[np.ndarray, float
     result = minimize(dual, x0=np.array([1.0]), jac=True, method="L-BFGS-B", bounds=[(ETA_MIN, None)],
                       options={"ftol": 1e-12, "gtol": 1e-10, "maxiter": 500})
     eta = float(result.x[0])
-    log_w = r / eta
-    log_w -= logsumexp(log_w)
+    log_w, kl = _log_weights(r, eta)
+    if kl > epsilon:
+        # the solver stopped a hair inside the infeasible side: KL falls as eta grows, so
+        # bisect (geometrically) to the smallest eta that keeps the bound exactly
+        low, high = eta, 2.0 * eta
+        while _log_weights(r, high)[1] > epsilon:
+            low, high = high, 2.0 * high
+        for _ in range(60):
+            mid = np.sqrt(low * high)
+            low, high = (mid, high) if _log_weights(r, mid)[1] > epsilon else (low, mid)
+        eta = high
+        log_w, kl = _log_weights(r, eta)
     weights = np.exp(log_w)
-    kl = float(weights @ (log_w + np.log(n)))
-    return weights, eta * spread, kl
+    return weights, float(eta * spread), kl
+
+
+def _log_weights(r: np.ndarray, eta: float) -> tuple[np.ndarray, float]:
+    """Normalised log weights ``r / η - logsumexp(r / η)`` and their ``KL(w ‖ uniform)``."""
+    log_w = r / eta
+    log_w = log_w - logsumexp(log_w)
+    return log_w, float(np.exp(log_w) @ (log_w + np.log(r.shape[0])))
 
 
 class REPS(Agent):

@@ -1,0 +1,400 @@
+"""The agent framework: construction checks, learn loop, history, callbacks, predict, evaluate, save/load.
+
+Most tests run REPS (the simplest final agent) on a tiny stand-in env: a point that must
+reach a square within 20 steps, which exercises the `SyncVectorEnv` path and episodes
+that end early; a few check the car's batched env.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from tl_gym.agents import REPS, Agent, CallbackList, CheckpointCallback, LinearGaussianPolicy, StopOnSuccessRate
+from tl_gym.agents.evaluation import evaluate_policy
+from tl_gym.agents.sampling import rollout
+
+import tl_gym
+from tl_gym.errors import IncompatibleSaveError
+
+POINT_ID = "tests/PointStandIn-v0"
+HORIZON = 20
+
+
+class PointEnv(gym.Env):
+    """A point moved by its velocity action that must reach the square [1, 1.5]^2.
+
+    Reports the wrapper's terminal info (``robustness``, ``satisfied``, ``trace``) itself, so that the
+    framework's tests do not depend on the reward wrapper.
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, horizon: int = HORIZON, terminate_in_goal: bool = False, goal: float = 1.0):
+        self.horizon = horizon
+        self.terminate_in_goal = terminate_in_goal
+        self.goal = goal
+        self.formula = tl_gym.parse(f"F(x > {goal} & x < {goal + 0.5} & y > {goal} & y < {goal + 0.5})")
+        self.observation_space = gym.spaces.Box(-10, 10, (2,), np.float64)
+        self.action_space = gym.spaces.Box(-1, 1, (2,), np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.pos = self.np_random.normal(0, 0.05, 2)
+        self.path = [self.pos.copy()]
+        return self.pos.copy(), {}
+
+    def step(self, action):
+        self.pos = self.pos + 0.1 * np.clip(action, -1, 1) + self.np_random.normal(0, 0.01, 2)
+        self.path.append(self.pos.copy())
+        inside = self.goal < self.pos[0] < self.goal + 0.5 and self.goal < self.pos[1] < self.goal + 0.5
+        terminated = bool(self.terminate_in_goal and inside)
+        truncated = not terminated and len(self.path) - 1 >= self.horizon
+        info, reward = {}, 0.0
+        if terminated or truncated:
+            path = np.array(self.path)
+            trace = {"x": path[:, 0], "y": path[:, 1]}
+            reward = float(self.formula.robustness(trace))
+            info = {"robustness": reward, "satisfied": reward > 0, "trace": trace}
+        return self.pos.copy(), reward, terminated, truncated, info
+
+
+if POINT_ID not in gym.registry:
+    gym.register(POINT_ID, entry_point=PointEnv)
+
+
+def make_agent(seed: int = 0, **kwargs) -> REPS:
+    kwargs.setdefault("n_episodes", 8)
+    return REPS(POINT_ID, seed=seed, **kwargs)
+
+
+def strip_time(history):
+    return [{k: v for k, v in row.items() if k != "wall_time"} for row in history]
+
+
+# construction --------------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("kwargs", "error", "match"),
+    [
+        ({"n_episodes": 1}, ValueError, "n_episodes"),
+        ({"horizon": 0}, ValueError, "horizon"),
+        ({"epsilon": 0.0}, ValueError, "epsilon"),
+        ({"epsilon": -1.0}, ValueError, "epsilon"),
+        ({"init_std": 0.0}, ValueError, "init_std"),
+        ({"min_std": -1.0}, ValueError, "min_std"),
+        ({"covariance": "banded"}, ValueError, "covariance"),
+        ({"horizon": 5}, ValueError, "horizon=20"),  # disagrees with the env's 20 steps
+        ({"learning_rate": 0.1}, TypeError, "learning_rate"),
+    ],
+)
+def test_bad_hyperparameters_fail_at_construction(kwargs, error, match):
+    with pytest.raises(error, match=match):
+        make_agent(**kwargs)
+
+
+def test_env_without_formula_is_rejected():
+    with pytest.raises(TypeError, match="TLTLRewardWrapper"):
+        REPS("Pendulum-v1", n_episodes=2)
+
+
+def test_seed_must_be_an_int():
+    with pytest.raises(TypeError, match="seed"):
+        make_agent(seed=1.5)
+
+
+@pytest.mark.parametrize("form", ["id", "env", "vector"])
+def test_accepts_an_id_an_env_or_a_vector_env(form):
+    env = {
+        "id": POINT_ID,
+        "env": gym.make(POINT_ID),
+        "vector": gym.make_vec(POINT_ID, num_envs=4, vectorization_mode="sync"),
+    }[form]
+    agent = REPS(env, seed=0, n_episodes=8).learn(1)
+    assert agent.history[0]["env_steps"] == 8 * HORIZON
+    assert agent.horizon == HORIZON
+
+
+def test_car_uses_its_batched_simulator():
+    agent = REPS("TLCarNav-v0", n_episodes=4, env_kwargs={"task": 1})
+    assert type(agent.env).__name__ == "CarNavVectorEnv"
+    assert agent.horizon == 200 and str(agent.formula) == str(gym.make("TLCarNav-v0").get_wrapper_attr("formula"))
+
+
+# learn, history, callbacks --------------------------------------------------------------------------
+def test_history_rows():
+    agent = make_agent().learn(3)
+    assert [row["iteration"] for row in agent.history] == [1, 2, 3]
+    assert [row["env_steps"] for row in agent.history] == [160, 320, 480]
+    for row in agent.history:
+        assert list(row)[:5] == ["iteration", "env_steps", "mean_robustness", "success_rate", "wall_time"]
+        assert 0.0 <= row["success_rate"] <= 1.0 and np.isfinite(row["mean_robustness"])
+        assert {"eta", "kl", "policy_std"} <= set(row)
+    assert agent.history[0]["wall_time"] < agent.history[-1]["wall_time"]
+
+
+def test_learn_continues_and_chains():
+    agent = make_agent()
+    assert agent.learn(2) is agent
+    agent.learn(1)
+    assert [row["iteration"] for row in agent.history] == [1, 2, 3]
+    assert agent.num_iterations == 3 and agent.env_steps == 3 * 8 * HORIZON
+
+
+def test_iterations_must_be_non_negative():
+    with pytest.raises(ValueError, match="iterations"):
+        make_agent().learn(-1)
+
+
+def test_callbacks_see_rows_and_stop_training(tmp_path):
+    seen = []
+
+    def stop_after_two(agent, row):
+        seen.append(row["iteration"])
+        return row["iteration"] < 2
+
+    agent = make_agent().learn(5, callback=stop_after_two)
+    assert seen == [1, 2] and len(agent.history) == 2
+
+    agent = make_agent().learn(5, callback=[CheckpointCallback(1, tmp_path), StopOnSuccessRate(0.0)])
+    assert len(agent.history) == 1
+    assert (tmp_path / "agent_1.zip").exists()
+    assert CallbackList([lambda a, r: None]).on_iteration(agent, agent.history[0]) is True
+
+
+def test_progress_bar_shows_robustness_and_success(capsys):
+    make_agent().learn(2, progress_bar=True)
+    err = capsys.readouterr().err
+    assert "rho=" in err and "success=" in err and "2/2" in err
+
+
+def test_same_seed_same_results():
+    a, b, c = make_agent(seed=3).learn(3), make_agent(seed=3).learn(3), make_agent(seed=4).learn(3)
+    assert strip_time(a.history) == strip_time(b.history)
+    np.testing.assert_array_equal(a.policy.mean, b.policy.mean)
+    assert strip_time(a.history) != strip_time(c.history)
+
+
+# predict, evaluate, sampling ------------------------------------------------------------------------
+def test_predict_keeps_the_time_index_in_state():
+    agent = make_agent()
+    agent.policy.mean = np.linspace(-0.5, 0.5, 2 * HORIZON).reshape(HORIZON, 2)
+    obs = np.zeros(2)
+    action, state = agent.predict(obs)
+    np.testing.assert_allclose(action, agent.policy.mean[0])
+    assert state == 1
+    action, state = agent.predict(obs, state=state)
+    np.testing.assert_allclose(action, agent.policy.mean[1])
+    batch, states = agent.predict(np.zeros((3, 2)), state=np.array([0, 5, 7]), episode_start=[False, True, False])
+    np.testing.assert_allclose(batch, agent.policy.mean[[0, 0, 7]])
+    np.testing.assert_array_equal(states, [1, 1, 8])
+    noisy, _ = agent.predict(np.zeros((3, 2)), deterministic=False)
+    assert not np.allclose(noisy, agent.policy.mean[[0, 0, 0]])
+
+
+def test_predict_clips_to_the_action_space():
+    agent = make_agent(init_mean=3.0)
+    action, _ = agent.predict(np.zeros(2))
+    np.testing.assert_array_equal(action, [1.0, 1.0])
+
+
+def test_evaluate_matches_a_rollout_of_the_mean_actions():
+    agent = make_agent().learn(2)
+    result = agent.evaluate(n_episodes=10, seed=7)
+    assert set(result) == {"mean_robustness", "success_rate", "robustness"}
+    assert result["robustness"].shape == (10,)
+    assert result["success_rate"] == np.mean(result["robustness"] > 0)
+    means = np.repeat(agent.policy.mean[None], 10, axis=0)
+    batch = rollout(agent.env, means, seed=7)
+    np.testing.assert_allclose(result["robustness"], batch.robustness)
+    assert agent.evaluate(n_episodes=10, seed=7)["mean_robustness"] == result["mean_robustness"]
+
+
+def test_evaluate_policy_on_a_single_env():
+    agent = make_agent()
+    on_vector = evaluate_policy(agent, agent.env, n_episodes=3, seed=1)
+    on_single = evaluate_policy(agent, gym.make(POINT_ID), n_episodes=3, seed=1)
+    np.testing.assert_allclose(on_single["robustness"], on_vector["robustness"])
+    with pytest.raises(ValueError, match="n_episodes"):
+        evaluate_policy(agent, agent.env, n_episodes=0)
+
+
+def test_rollout_records_traces_and_robustness():
+    agent = make_agent()
+    k = agent.policy.sample_feedforward(12, np.random.default_rng(0))  # 12 episodes on 8 envs: two chunks
+    batch = rollout(agent.env, k, seed=0)
+    assert batch.traces["x"].shape == (12, HORIZON + 1) and batch.observations.shape == (12, HORIZON + 1, 2)
+    np.testing.assert_allclose(batch.traces["x"], batch.observations[:, :, 0])
+    np.testing.assert_allclose(batch.robustness, agent.formula.robustness(batch.traces))
+    np.testing.assert_array_equal(batch.satisfied, batch.robustness > 0)
+    assert batch.env_steps == 12 * HORIZON
+    np.testing.assert_array_equal(batch.actions, np.clip(k, -1, 1))
+    again = rollout(agent.env, k, seed=0)
+    np.testing.assert_array_equal(again.robustness, batch.robustness)
+
+
+def test_rollout_pads_episodes_that_end_early():
+    env = gym.make_vec(POINT_ID, num_envs=3, vectorization_mode="sync", terminate_in_goal=True, goal=0.3)
+    speeds = np.array([1.0, 0.5, 0.0])  # the first two reach the goal square early, the last never
+    feedforward = np.repeat(speeds[:, None, None], HORIZON, axis=1).repeat(2, axis=2)
+    batch = rollout(env, feedforward, seed=0)
+    assert batch.lengths[0] < batch.lengths[1] < batch.lengths[2] == HORIZON
+    assert batch.env_steps == batch.lengths.sum()
+    first = batch.lengths[0]
+    assert np.all(batch.traces["x"][0, first:] == batch.traces["x"][0, first])
+    assert np.all(batch.actions[0, first:] == 0)
+    assert batch.satisfied.tolist() == [True, True, False]
+
+
+def test_rollout_fails_when_episodes_outlast_the_horizon():
+    env = gym.make_vec(POINT_ID, num_envs=2, vectorization_mode="sync")
+    with pytest.raises(RuntimeError, match="did not end within the horizon"):
+        rollout(env, np.zeros((2, 5, 2)), seed=0)
+
+
+# save / load -----------------------------------------------------------------------------------------
+def test_saved_agent_acts_evaluates_and_continues_like_the_original(tmp_path):
+    agent = make_agent(seed=5).learn(2)
+    path = agent.save(tmp_path / "agent.zip")
+    loaded = Agent.load(path)
+    assert type(loaded) is REPS and loaded.config == agent.config
+    assert loaded.history == agent.history and loaded.env_steps == agent.env_steps
+    obs = np.random.default_rng(0).normal(size=(4, 2))
+    np.testing.assert_array_equal(loaded.predict(obs, state=np.arange(4))[0], agent.predict(obs, state=np.arange(4))[0])
+    assert loaded.evaluate(5, seed=2)["robustness"].tolist() == agent.evaluate(5, seed=2)["robustness"].tolist()
+    uninterrupted = make_agent(seed=5).learn(4)
+    loaded.learn(2)
+    assert strip_time(loaded.history) == strip_time(uninterrupted.history)
+    np.testing.assert_array_equal(loaded.policy.cov, uninterrupted.policy.cov)
+
+
+def test_save_writes_json_and_npz_only(tmp_path):
+    path = make_agent().learn(1).save(tmp_path / "agent.zip")
+    with zipfile.ZipFile(path) as archive:
+        assert sorted(archive.namelist()) == ["arrays.npz", "meta.json"]
+        meta = json.loads(archive.read("meta.json"))
+        with np.load(io.BytesIO(archive.read("arrays.npz")), allow_pickle=False) as npz:
+            assert sorted(npz.files) == ["policy_cov", "policy_gains", "policy_mean"]
+    assert meta["class"] == "REPS" and meta["format_version"] == 1
+    assert meta["env"]["id"] == POINT_ID and tl_gym.parse(meta["formula"]) == make_agent().formula
+    assert meta["config"]["n_episodes"] == 8 and meta["observation_space"]["type"] == "Box"
+
+
+def test_a_crash_mid_save_leaves_the_old_file(tmp_path, monkeypatch):
+    agent = make_agent().learn(1)
+    path = agent.save(tmp_path / "agent.zip")
+    before = path.read_bytes()
+    agent.learn(1)
+    original = zipfile.ZipFile.writestr
+
+    def crash(self, name, data, *args, **kwargs):
+        if name == "arrays.npz":
+            raise OSError("disk full")
+        return original(self, name, data, *args, **kwargs)
+
+    monkeypatch.setattr(zipfile.ZipFile, "writestr", crash)
+    with pytest.raises(OSError, match="disk full"):
+        agent.save(path)
+    assert path.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["agent.zip"]  # no temporary file left behind
+    monkeypatch.undo()
+    assert len(Agent.load(path).history) == 1
+
+
+def _rewrite(path, meta_change=None, arrays_change=None):
+    with zipfile.ZipFile(path) as archive:
+        meta = json.loads(archive.read("meta.json"))
+        with np.load(io.BytesIO(archive.read("arrays.npz"))) as npz:
+            arrays = {k: npz[k] for k in npz.files}
+    if meta_change:
+        meta_change(meta)
+    if arrays_change:
+        arrays_change(arrays)
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)
+    with zipfile.ZipFile(path, "w") as archive:
+        archive.writestr("meta.json", json.dumps(meta))
+        archive.writestr("arrays.npz", buffer.getvalue())
+
+
+def test_load_rejects_incompatible_files(tmp_path):
+    path = make_agent().learn(1).save(tmp_path / "agent.zip")
+
+    _rewrite(path, arrays_change=lambda a: a.update(policy_mean=np.zeros((3, 2))))
+    with pytest.raises(IncompatibleSaveError, match="'policy_mean' has shape"):
+        REPS.load(path)
+
+    path = make_agent().save(tmp_path / "agent2.zip")
+    _rewrite(path, meta_change=lambda m: m.update(format_version=99))
+    with pytest.raises(IncompatibleSaveError, match="format_version 99"):
+        REPS.load(path)
+
+    not_zip = tmp_path / "junk.zip"
+    not_zip.write_text("hello")
+    with pytest.raises(IncompatibleSaveError, match="not a tl_gym agent file"):
+        Agent.load(not_zip)
+
+
+def test_load_rejects_an_env_with_another_formula(tmp_path):
+    path = make_agent().save(tmp_path / "agent.zip")
+    other = gym.make(POINT_ID, goal=2.0)
+    with pytest.raises(IncompatibleSaveError, match="formula"):
+        REPS.load(path, env=other)
+
+
+# the policy ------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("covariance", ["diag", "full"])
+def test_weighted_maximum_likelihood_update(covariance):
+    rng = np.random.default_rng(0)
+    policy = LinearGaussianPolicy(horizon=4, obs_dim=3, act_dim=2, covariance=covariance, min_std=1e-6)
+    k = rng.normal(size=(6, 4, 2))
+    w = rng.uniform(size=6)
+    policy.update(k, w)
+    wn = w / w.sum()
+    mean = (wn[:, None, None] * k).sum(axis=0)
+    np.testing.assert_allclose(policy.mean, mean)
+    for t in range(4):
+        dev = k[:, t] - mean[t]
+        cov = (wn[:, None, None] * dev[:, :, None] * dev[:, None, :]).sum(axis=0)
+        expected = cov if covariance == "full" else np.diag(np.diag(cov))
+        np.testing.assert_allclose(policy.cov[t], expected, atol=1e-12)
+
+
+@pytest.mark.parametrize("covariance", ["diag", "full"])
+def test_covariance_floor(covariance):
+    policy = LinearGaussianPolicy(horizon=3, obs_dim=1, act_dim=2, covariance=covariance, min_std=0.1)
+    k = np.zeros((5, 3, 2))
+    policy.update(k, np.ones(5))
+    np.testing.assert_allclose(np.linalg.eigvalsh(policy.cov), 0.01)
+    policy.update(k, np.ones(5), min_std=0.3)
+    np.testing.assert_allclose(policy.std, 0.3)
+
+
+def test_feedforward_samples_follow_the_policy():
+    policy = LinearGaussianPolicy(horizon=2, obs_dim=1, act_dim=2, covariance="full")
+    policy.mean = np.array([[0.5, -0.5], [0.0, 1.0]])
+    policy.cov = np.array([[[0.04, 0.03], [0.03, 0.09]], [[0.01, 0.0], [0.0, 0.25]]])
+    k = policy.sample_feedforward(20000, np.random.default_rng(1))
+    np.testing.assert_allclose(k.mean(axis=0), policy.mean, atol=0.01)
+    for t in range(2):
+        np.testing.assert_allclose(np.cov(k[:, t].T), policy.cov[t], atol=0.01)
+
+
+def test_feedback_gains_act_on_the_state():
+    gains = np.array([[1.0, 0.0], [0.0, -2.0]])
+    policy = LinearGaussianPolicy(horizon=3, obs_dim=2, act_dim=2, gains=gains)
+    action, _ = policy.predict(np.array([0.5, 0.25]), None, None, True, np.random.default_rng(0))
+    np.testing.assert_allclose(action, [0.5, -0.5])
+    with pytest.raises(ValueError, match="gains must have shape"):
+        LinearGaussianPolicy(horizon=3, obs_dim=2, act_dim=2, gains=np.zeros((3, 3)))
+
+
+def test_policy_update_rejects_bad_weights():
+    policy = LinearGaussianPolicy(horizon=2, obs_dim=1, act_dim=1)
+    with pytest.raises(ValueError, match="weights"):
+        policy.update(np.zeros((3, 2, 1)), np.array([0.0, 0.0, 0.0]))
+    with pytest.raises(ValueError, match="feedforward"):
+        policy.update(np.zeros((3, 5, 1)), np.ones(3))

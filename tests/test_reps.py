@@ -1,0 +1,69 @@
+"""Episodic REPS: the dual's solution and learning on the car's task 1."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from tl_gym.agents import REPS
+from tl_gym.agents.reps import reps_weights
+
+returns_strategy = st.lists(st.floats(-1e6, 1e6, allow_nan=False), min_size=2, max_size=60).map(np.array)
+
+
+@settings(max_examples=40, deadline=None)
+@given(returns=returns_strategy, epsilon=st.floats(0.05, 3.0))
+def test_dual_solution_respects_the_kl_bound(returns, epsilon):
+    weights, eta, kl = reps_weights(returns, epsilon)
+    assert np.all(np.isfinite(weights)) and np.isclose(weights.sum(), 1.0)
+    assert kl <= epsilon + 1e-9
+    uniform_kl = np.sum(weights * np.log(weights * len(returns) + 1e-300))
+    assert np.isclose(kl, uniform_kl, atol=1e-9)
+    order = np.argsort(returns, kind="stable")
+    assert np.all(np.diff(weights[order]) >= -1e-12)  # better episodes never weigh less
+
+
+def test_kl_bound_is_active_when_it_can_be():
+    returns = np.random.default_rng(0).normal(size=40)
+    for epsilon in (0.1, 0.5, 1.0, 2.0):
+        _, _, kl = reps_weights(returns, epsilon)
+        assert kl == pytest.approx(epsilon, abs=1e-4)  # epsilon < log(40): the optimum sits on the bound
+
+
+def test_dual_is_invariant_to_the_scale_and_offset_of_returns():
+    returns = np.random.default_rng(1).normal(size=20)
+    w, eta, _ = reps_weights(returns, 1.0)
+    w2, eta2, _ = reps_weights(1000.0 * returns - 5e4, 1.0)
+    np.testing.assert_allclose(w, w2, rtol=1e-6)
+    assert eta2 == pytest.approx(1000.0 * eta, rel=1e-6)
+
+
+def test_equal_returns_give_uniform_weights():
+    weights, eta, kl = reps_weights(np.full(5, -3.0), 2.0)
+    np.testing.assert_allclose(weights, 0.2)
+    assert kl == 0.0
+
+
+def test_dual_solution_is_the_minimum():
+    returns = np.random.default_rng(2).normal(size=30)
+    epsilon = 0.7
+    _, eta, _ = reps_weights(returns, epsilon)
+
+    def dual(e):
+        z = returns / e
+        return e * epsilon + e * (np.log(np.mean(np.exp(z - z.max()))) + z.max())
+
+    assert dual(eta) <= min(dual(eta * 0.9), dual(eta * 1.1))
+
+
+def test_reps_improves_task_1_within_a_few_iterations():
+    agent = REPS("TLCarNav-v0", seed=0, env_kwargs={"task": 1})
+    before = agent.evaluate(n_episodes=40, seed=100)["mean_robustness"]
+    agent.learn(8)
+    after = agent.evaluate(n_episodes=40, seed=100)["mean_robustness"]
+    rho = [row["mean_robustness"] for row in agent.history]
+    assert after > before + 20.0  # robustness is in arena units (300 x 300)
+    assert np.mean(rho[-2:]) > rho[0] + 20.0
+    assert all(row["kl"] <= agent.config.epsilon + 1e-6 for row in agent.history)
+    assert agent.history[-1]["policy_std"] < agent.config.init_std  # exploration narrows as it learns
