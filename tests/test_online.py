@@ -1,6 +1,7 @@
 """PrefixMonitor against the offline engine on every prefix."""
 
 import math
+import os
 
 import numpy as np
 import pytest
@@ -35,10 +36,35 @@ def _state_formulas() -> st.SearchStrategy[Formula]:
 
 
 state_formulas = _state_formulas()
+# Bounded lookahead: Boolean combinations of X^d over temporal-free formulas.
+windowed = st.recursive(
+    state_formulas,
+    lambda inner: st.one_of(
+        inner.map(X),
+        inner.map(lambda f: ~f),
+        st.tuples(inner, inner).map(lambda p: p[0] & p[1]),
+        st.tuples(inner, inner).map(lambda p: p[0] | p[1]),
+        st.tuples(inner, inner).map(lambda p: p[0] >> p[1]),
+    ),
+    max_leaves=4,
+)
+
+
+def _chain(fs):
+    out = fs[-1]
+    for f in reversed(fs[:-1]):
+        out = T(f, out)
+    return out
+
+
+then_chains = st.lists(state_formulas, min_size=2, max_size=4).map(_chain)
+never_again = st.one_of(
+    st.tuples(windowed, state_formulas).map(lambda p: G(p[0] >> X(G(p[1])))),
+    st.tuples(windowed, state_formulas).map(lambda p: G(p[0] | X(G(p[1])))),
+)
 temporal_atoms = st.one_of(
-    state_formulas.map(F), state_formulas.map(G), state_formulas.map(X),
+    windowed, windowed.map(F), windowed.map(G), then_chains, never_again,
     st.tuples(state_formulas, state_formulas).map(lambda p: U(p[0], p[1])),
-    st.tuples(state_formulas, state_formulas).map(lambda p: T(p[0], p[1])),
 )
 fragment = st.recursive(
     temporal_atoms | state_formulas,
@@ -51,10 +77,13 @@ fragment = st.recursive(
     max_leaves=4,
 )
 # Outside the fragment: a temporal operator over a temporal operand.
+unbounded = st.one_of(then_chains, never_again, windowed.map(F), windowed.map(G))
 nested = st.one_of(
-    temporal_atoms.map(F), temporal_atoms.map(G), temporal_atoms.map(X),
-    st.tuples(temporal_atoms, fragment).map(lambda p: U(p[0], p[1])),
-    st.tuples(fragment, temporal_atoms).map(lambda p: T(p[0], p[1])),
+    unbounded.map(F), unbounded.map(G), unbounded.map(X),
+    st.tuples(unbounded, fragment).map(lambda p: U(p[0], p[1])),
+    st.tuples(fragment, unbounded).map(lambda p: U(p[0], p[1])),
+    st.tuples(unbounded, fragment).map(lambda p: T(p[0], p[1])),
+    st.tuples(windowed.filter(lambda f: f.is_temporal), fragment).map(lambda p: T(p[0], p[1])),
 )
 values = st.floats(-3, 3, allow_nan=False, width=32)
 traces = st.integers(1, 9).flatmap(lambda n: st.tuples(st.lists(values, min_size=n, max_size=n),
@@ -73,7 +102,7 @@ def _check_every_prefix(formula: Formula, trace: tuple, rho_max: float) -> Prefi
     return monitor
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=int(os.environ.get("TL_GYM_HYPOTHESIS_EXAMPLES", 300)), deadline=None)
 @given(fragment, traces, rho_maxes)
 def test_incremental_fragment_matches_engine_on_every_prefix(formula, trace, rho_max):
     monitor = _check_every_prefix(formula, trace, rho_max)
@@ -101,16 +130,26 @@ def test_reset_forgets_the_previous_trace(formula, first, second):
 
 def test_fragment_membership():
     assert is_incremental(parse("F(a > 1) & G(b < 2) | !X(a < 0) -> (a < 1 U b > 0)"))
-    assert is_incremental(parse("a > 1 & (b < 0 T a > 2)"))
+    assert is_incremental(parse("a > 1 & (b < 0 T a > 2 T b > 3)"))
+    assert is_incremental(parse("G((a > 1 & X a < 1) -> X G a < 1) & F(X X b > 0)"))
     assert not is_incremental(parse("G(a > 1 -> F b > 0)"))
     assert not is_incremental(parse("F G a > 1"))
+    assert not is_incremental(parse("(F a > 1) T b > 0"))
 
 
-def test_car_task_one_is_incremental_and_task_two_is_not():
+@pytest.mark.parametrize(("task", "no_revisit"), [(1, "leave"), (2, "leave"), (2, "strict")])
+def test_both_car_tasks_are_incremental(task, no_revisit):
     from tl_gym.envs.tasks import task_formula
 
-    assert PrefixMonitor(task_formula(1)).incremental
-    assert not PrefixMonitor(task_formula(2)).incremental
+    formula = task_formula(task, no_revisit)
+    monitor = PrefixMonitor(formula)
+    assert monitor.incremental
+    rng = np.random.default_rng(task)
+    xy = np.cumsum(rng.normal(0, 25, size=(120, 2)), axis=0) + 150  # a car wandering through the goals
+    for t in range(len(xy)):
+        got = monitor.update({"x": xy[t, 0], "y": xy[t, 1]})
+        expected = formula.robustness({"x": xy[: t + 1, 0], "y": xy[: t + 1, 1]})
+        assert got == pytest.approx(expected, rel=1e-12, abs=1e-12), t
 
 
 def test_nan_signal_and_undefined_arithmetic_raise():

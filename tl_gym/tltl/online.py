@@ -5,18 +5,25 @@ prefix ``s_0 … s_t`` at position 0, the value ``formula.robustness`` gives on 
 prefix. Differences of consecutive values make dense rewards that sum to the
 terminal robustness.
 
-Cost. For the *incremental fragment* the update is O(1) per state (O(size of the
-formula)): Boolean combinations (``! & | ->``) of
+Cost. For the *incremental fragment* an update costs O(size of the formula),
+independent of the trace length: Boolean combinations (``! & | ->``) of
 
-* temporal-free sub-formulas (judged at position 0, so fixed by ``s_0``),
-* ``F φ``, ``G φ``, ``X φ``, ``φ U ψ``, ``φ T ψ`` whose operands are temporal-free
-  (running max/min: ``φ U ψ`` keeps the min of φ so far and the best
-  ``min(ψ(t'), min φ(<t'))``; ``φ T ψ`` the same with the max of φ).
+* formulas with bounded lookahead, where ``X`` is the only temporal operator
+  (temporal-free ones are judged at s_0; ``X^d`` ones at s_0 … s_d),
+* ``F φ`` and ``G φ`` of such formulas (running max/min over the final positions,
+  the last d positions judged on their truncated windows),
+* ``φ U ψ`` with temporal-free operands (running min of φ, best
+  ``min(ψ(t'), min φ(<t'))``),
+* chains ``φ1 T (φ2 T (… T φm))`` of temporal-free operands (best value of every
+  leading sub-chain),
+* ``G(A | X G B)`` and ``G(L -> X G B)`` ("never again"), with A, L of bounded
+  lookahead and B temporal-free (two running values, see `_NeverAgain`).
 
-Task 1 of the car, ``F goal & G avoid``, is in the fragment. Any other formula
-(nested temporal operators, such as the car's task 2) falls back to re-evaluating
-the whole prefix at every update: O(t) for state ``t``, O(T²) per episode (about
-``T/2`` full evaluations). The monitor says which one it uses in ``incremental``.
+Both car tasks are in it (task 2 with either reading of its no-revisit clause).
+Any other formula (``F G φ``, ``G(φ -> F ψ)``, ``U`` over a temporal operand, …)
+falls back to re-evaluating the whole prefix at every update: O(t) for state
+``t``, O(T²) per episode (about ``T/2`` full evaluations). The monitor says which
+one it uses in ``incremental``.
 
 Pure numpy and the standard library: no Gymnasium here.
 
@@ -32,6 +39,7 @@ Example:
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -137,6 +145,53 @@ def compile_state_formula(formula: Formula, rho_max: float) -> _Scalar:
     raise TypeError(f"{type(formula).__name__} is temporal; compile_state_formula takes temporal-free formulas")
 
 
+# --------------------------------------------------------------------------- windowed formulas
+
+
+def lookahead(formula: Formula) -> int | None:
+    """How many states after position k decide ``formula`` at k, if only ``X`` occurs in it.
+
+    0 for a temporal-free formula, the nesting depth of ``X`` for a Boolean
+    combination of ``X``'s over temporal-free formulas; None when ``F G U T`` occur.
+    """
+    if not formula.is_temporal:
+        return 0
+    if isinstance(formula, Next):
+        depth = lookahead(formula.child)
+        return None if depth is None else depth + 1
+    if isinstance(formula, (Not, And, Or, Implies)):
+        depths = [lookahead(c) for c in formula.children]
+        return None if any(d is None for d in depths) else max(depths)  # type: ignore[type-var]
+    return None
+
+
+_Window = Callable[[list, int], float]  # (states s_k … s_{k+d} (fewer at the trace's end), index) -> value
+
+
+def compile_window_formula(formula: Formula, rho_max: float) -> _Window:
+    """Robustness at ``window[i]`` of a formula with bounded lookahead (see `lookahead`).
+
+    ``X φ`` beyond the end of the window is −ρ_max, the value of ``X`` at the last state.
+    """
+    if not formula.is_temporal:
+        fn = compile_state_formula(formula, rho_max)
+        return lambda w, i: fn(w[i])
+    if isinstance(formula, Next):
+        inner = compile_window_formula(formula.child, rho_max)
+        bottom = -float(rho_max)
+        return lambda w, i: inner(w, i + 1) if i + 1 < len(w) else bottom
+    parts = [compile_window_formula(c, rho_max) for c in formula.children]
+    if isinstance(formula, Not):
+        return lambda w, i: -parts[0](w, i)
+    if isinstance(formula, And):
+        return lambda w, i: min(p(w, i) for p in parts)
+    if isinstance(formula, Or):
+        return lambda w, i: max(p(w, i) for p in parts)
+    if isinstance(formula, Implies):
+        return lambda w, i: max(-parts[0](w, i), parts[1](w, i))
+    raise TypeError(f"{type(formula).__name__} has no bounded lookahead")
+
+
 # --------------------------------------------------------------------------- incremental nodes
 
 
@@ -151,69 +206,100 @@ class _Node:
 
 
 class _AtStart(_Node):
-    """A temporal-free formula: judged at s_0 and fixed afterwards."""
+    """A formula with lookahead d: judged on s_0 … s_d (truncated while the trace is shorter)."""
 
-    def __init__(self, fn: _Scalar):
+    def __init__(self, fn: _Window, depth: int):
         self.fn = fn
-        self.value: float | None = None
+        self.depth = depth
+        self.states: list[State] = []
+        self.value = 0.0
 
     def reset(self) -> None:
-        self.value = None
+        self.states = []
 
     def update(self, s: State) -> float:
-        if self.value is None:
-            self.value = self.fn(s)
+        if len(self.states) <= self.depth:
+            self.states.append(s)
+            self.value = self.fn(self.states, 0)
         return self.value
 
 
-class _Eventually(_Node):
-    def __init__(self, fn: _Scalar):
+class _Extremum(_Node):
+    """``F φ`` (running max) or ``G φ`` (running min) of a formula with lookahead d.
+
+    Positions k ≤ t − d are final and folded into one running value; the last d
+    positions are judged on their truncated windows at every update (O(d²)).
+    """
+
+    def __init__(self, fn: _Window, depth: int, is_max: bool):
         self.fn = fn
-        self.best = -math.inf
+        self.depth = depth
+        self.pick = max if is_max else min
+        self.empty = -math.inf if is_max else math.inf
+        self.reset()
 
     def reset(self) -> None:
-        self.best = -math.inf
-
-    def update(self, s: State) -> float:
-        v = self.fn(s)
-        if v > self.best:
-            self.best = v
-        return self.best
-
-
-class _Always(_Node):
-    def __init__(self, fn: _Scalar):
-        self.fn = fn
-        self.worst = math.inf
-
-    def reset(self) -> None:
-        self.worst = math.inf
-
-    def update(self, s: State) -> float:
-        v = self.fn(s)
-        if v < self.worst:
-            self.worst = v
-        return self.worst
-
-
-class _Next(_Node):
-    """``X φ``: −ρ_max on a one-state prefix, φ(s_1) from then on."""
-
-    def __init__(self, fn: _Scalar, rho_max: float):
-        self.fn = fn
-        self.bottom = -float(rho_max)
+        self.window: deque[State] = deque(maxlen=self.depth + 1)
+        self.final = self.empty
         self.count = 0
-        self.value = self.bottom
-
-    def reset(self) -> None:
-        self.count = 0
-        self.value = self.bottom
 
     def update(self, s: State) -> float:
-        if self.count == 1:
-            self.value = self.fn(s)
+        self.window.append(s)
         self.count += 1
-        return self.value
+        states = list(self.window)
+        start = 0
+        if self.count > self.depth:  # the window's first position is now final
+            self.final = self.pick(self.final, self.fn(states, 0))
+            start = 1
+        value = self.final
+        for i in range(start, len(states)):
+            value = self.pick(value, self.fn(states, i))
+        return value
+
+
+class _NeverAgain(_Node):
+    """``G(A | X G B)`` (so also ``G(¬L -> X G B)``): A with lookahead d, B temporal-free.
+
+    At prefix length n the value is min over k of max(A_k, M_k) with M_k the min of
+    B over (k, n) (−ρ_max for k = n − 1, the last state). A new state lowers every
+    M_k by the same ``c = B(s_t)``, and ``min_k max(A_k, min(M_k, c))`` equals
+    ``min(min_k max(A_k, M_k), max(min_k A_k, c))``: two running values carry the
+    final positions, and the last ``max(d, 1)`` positions are judged directly.
+    """
+
+    def __init__(self, a: _Window, depth: int, b: _Scalar, rho_max: float):
+        self.a, self.b = a, b
+        self.depth = max(depth, 1)  # X G B at the last state is −ρ_max: that position is never final
+        self.bottom = -float(rho_max)
+        self.reset()
+
+    def reset(self) -> None:
+        self.window: deque[State] = deque(maxlen=self.depth + 1)
+        self.b_values: deque[float] = deque(maxlen=self.depth + 1)
+        self.final = math.inf  # min over final k of max(A_k, M_k)
+        self.min_a = math.inf  # min over final k of A_k
+        self.count = 0
+
+    def update(self, s: State) -> float:
+        c = self.b(s)
+        self.window.append(s)
+        self.b_values.append(c)
+        self.count += 1
+        if self.min_a < math.inf:
+            self.final = min(self.final, max(self.min_a, c))
+        states, bs = list(self.window), list(self.b_values)
+        start = 0
+        if self.count > self.depth:  # position t − depth becomes final
+            a_value = self.a(states, 0)
+            self.final = min(self.final, max(a_value, min(bs[1:])))
+            self.min_a = min(self.min_a, a_value)
+            start = 1
+        value = self.final
+        last = len(states) - 1
+        for i in range(start, last + 1):
+            later = min(bs[i + 1 :]) if i < last else self.bottom
+            value = min(value, max(self.a(states, i), later))
+        return value
 
 
 class _Until(_Node):
@@ -235,23 +321,29 @@ class _Until(_Node):
         return self.best
 
 
-class _Then(_Node):
-    """``φ T ψ`` = max over t' of min(ψ(t'), max of φ before t')."""
+class _ThenChain(_Node):
+    """``φ1 T (φ2 T (… T φm))`` = max over s1 < … < sm of min(φ1(s1), …, φm(sm)).
 
-    def __init__(self, left: _Scalar, right: _Scalar):
-        self.left, self.right = left, right
+    ``best[i]`` is that max for the first i operands; a new state updates them from
+    the last to the first, each from the previous one's value before this state.
+    """
+
+    def __init__(self, fns: list[_Scalar]):
+        self.fns = fns
         self.reset()
 
     def reset(self) -> None:
-        self.left_so_far = -math.inf
-        self.best = -math.inf
+        self.best = [-math.inf] * len(self.fns)
 
     def update(self, s: State) -> float:
-        candidate = min(self.right(s), self.left_so_far)
-        if candidate > self.best:
-            self.best = candidate
-        self.left_so_far = max(self.left_so_far, self.left(s))
-        return self.best
+        best = self.best
+        for i in range(len(self.fns) - 1, 0, -1):
+            if best[i - 1] > -math.inf:
+                candidate = min(best[i - 1], self.fns[i](s))
+                if candidate > best[i]:
+                    best[i] = candidate
+        best[0] = max(best[0], self.fns[0](s))
+        return best[-1]
 
 
 class _Combine(_Node):
@@ -276,29 +368,68 @@ class _Combine(_Node):
         return max(-values[0], values[1])  # Implies
 
 
+def _then_chain(formula: Formula) -> list[Formula] | None:
+    """The operands of ``φ1 T (φ2 T …)`` when all are temporal-free, else None."""
+    operands: list[Formula] = []
+    node = formula
+    while isinstance(node, Then):
+        if node.left.is_temporal:
+            return None
+        operands.append(node.left)
+        node = node.right
+    if node.is_temporal:
+        return None
+    return [*operands, node]
+
+
+def _never_again_parts(child: Formula) -> tuple[Formula, Formula] | None:
+    """``(A, B)`` when ``child`` is ``A | X G B`` or ``L -> X G B`` (A = !L), B temporal-free."""
+
+    def is_next_always(f: Formula) -> bool:
+        return isinstance(f, Next) and isinstance(f.child, Always) and not f.child.child.is_temporal
+
+    if isinstance(child, Implies) and is_next_always(child.right) and lookahead(child.left) is not None:
+        return Not(child.left), child.right.child.child  # type: ignore[attr-defined]
+    if isinstance(child, Or):
+        tails = [c for c in child.operands if is_next_always(c)]
+        rest = [c for c in child.operands if not is_next_always(c)]
+        if len(tails) == 1 and rest and all(lookahead(c) is not None for c in rest):
+            a = rest[0] if len(rest) == 1 else Or(tuple(rest))
+            return a, tails[0].child.child  # type: ignore[attr-defined]
+    return None
+
+
 def _compile_incremental(formula: Formula, rho_max: float) -> _Node | None:
     """The incremental monitor of ``formula``, or None outside the fragment."""
-    if not formula.is_temporal:
-        return _AtStart(compile_state_formula(formula, rho_max))
+    depth = lookahead(formula)
+    if depth is not None:
+        return _AtStart(compile_window_formula(formula, rho_max), depth)
     if isinstance(formula, (Not, And, Or, Implies)):
         children = [_compile_incremental(c, rho_max) for c in formula.children]
         if any(c is None for c in children):
             return None
         return _Combine(type(formula), children)  # type: ignore[arg-type]
-    if any(child.is_temporal for child in formula.children):
+    if isinstance(formula, (Eventually, Always)):
+        depth = lookahead(formula.child)
+        if depth is not None:
+            return _Extremum(compile_window_formula(formula.child, rho_max), depth, isinstance(formula, Eventually))
+        parts = _never_again_parts(formula.child) if isinstance(formula, Always) else None
+        if parts is not None:
+            a, b = parts
+            return _NeverAgain(
+                compile_window_formula(a, rho_max), lookahead(a) or 0, compile_state_formula(b, rho_max), rho_max
+            )
         return None
-    fns = [compile_state_formula(c, rho_max) for c in formula.children]
-    if isinstance(formula, Eventually):
-        return _Eventually(fns[0])
-    if isinstance(formula, Always):
-        return _Always(fns[0])
-    if isinstance(formula, Next):
-        return _Next(fns[0], rho_max)
     if isinstance(formula, Until):
-        return _Until(fns[0], fns[1])
+        if formula.left.is_temporal or formula.right.is_temporal:
+            return None
+        return _Until(compile_state_formula(formula.left, rho_max), compile_state_formula(formula.right, rho_max))
     if isinstance(formula, Then):
-        return _Then(fns[0], fns[1])
-    raise TypeError(f"no incremental rule for formula node {type(formula).__name__}")
+        chain = _then_chain(formula)
+        if chain is None:
+            return None
+        return _ThenChain([compile_state_formula(f, rho_max) for f in chain])
+    return None
 
 
 def is_incremental(formula: Formula) -> bool:
