@@ -124,6 +124,9 @@ def test_smooth_matches_reference(formula, trace, beta, rho_max):
     assert isinstance(got, torch.Tensor) and got.dtype == torch.float64
     assert_matches(np.asarray(got), expected[:, 0], what="torch batched")
     assert_matches(np.asarray(formula.smooth_robustness_over_time(trace, beta, rho_max)), expected, what="over time")
+    over_time = formula.smooth_robustness_over_time(tensors, beta, rho_max)
+    assert isinstance(over_time, torch.Tensor)
+    assert_matches(over_time.numpy(), expected, what="torch over time")
     row = _row(trace, 0)
     value = formula.smooth_robustness(row, beta, rho_max)
     assert isinstance(value, float)

@@ -63,8 +63,8 @@ from tl_gym.tltl.ast import (
 
 rtamt = pytest.importorskip("rtamt")
 
-FORMULAS_PER_EXAMPLE = 10
-EXAMPLES = 110
+FORMULAS_PER_EXAMPLE = 20
+EXAMPLES = 55
 TEMPORAL_FREE = (Not, And, Or, Implies)
 
 
@@ -140,7 +140,7 @@ _predicates = S.predicates(exprs=_exprs())
 
 
 @st.composite
-def shared_formulas(draw, depth: int = 4) -> Formula:
+def shared_formulas(draw, depth: int = 3) -> Formula:
     """Predicates, not, and, or, implies, F, G, and U whose left operand is temporal-free."""
     if depth == 0 or draw(st.integers(0, 4)) == 0:
         return draw(_predicates)
