@@ -39,6 +39,7 @@ def drive(env, legs, seed):
     obs, _ = env.reset(seed=seed)
     legs = list(legs)
     sprint_left = 0
+    rewards = []
     while True:
         x, y, theta = obs[:3]
         speed, steer = 0.0, 0.0
@@ -74,9 +75,10 @@ def drive(env, legs, seed):
             steer = max(-p.max_steer, min(p.max_steer, steer))
             break
         action = np.array([2 * speed / p.max_speed - 1, steer / p.max_steer], dtype=np.float32)
-        obs, _, terminated, truncated, info = env.step(action)
+        obs, reward, terminated, truncated, info = env.step(action)
+        rewards.append(reward)
         if terminated or truncated:
-            return info
+            return {**info, "rewards": rewards}
 
 
 TASK1 = [("goto", 200, 70, 20, 60), ("goto", 255, 255, 2, 60)]  # pass right of the obstacle, park in g
@@ -107,6 +109,15 @@ def test_scripted_controllers_satisfy_every_task(kwargs, legs, low):
         assert info["satisfied"] and info["robustness"] > low, (kwargs, seed, info["robustness"])
         # the robustness is bounded by half a goal's width (15 units)
         assert info["robustness"] < 15.0
+
+
+@pytest.mark.parametrize(("no_revisit", "legs"), [("leave", TASK2_CRUISE), ("strict", TASK2_SPRINT)])
+def test_dense_rewards_on_task_two_sum_to_the_robustness(no_revisit, legs):
+    env = gym.make("TLCarNav-v0", task=2, no_revisit=no_revisit, reward_mode="dense")
+    assert env.get_wrapper_attr("_monitor").incremental
+    info = drive(env, legs, seed=0)
+    assert math.fsum(info["rewards"]) == pytest.approx(info["robustness"], abs=1e-9)
+    assert info["robustness"] > 0 and any(r > 0 for r in info["rewards"][:-1])
 
 
 def test_cruising_through_goals_fails_the_strict_no_revisit():

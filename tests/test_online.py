@@ -1,4 +1,7 @@
-"""PrefixMonitor against the offline engine on every prefix."""
+"""PrefixMonitor against the offline engine on every prefix.
+
+Set TL_GYM_HYPOTHESIS_EXAMPLES (default 300) for a longer search of the incremental fragment.
+"""
 
 import math
 import os
