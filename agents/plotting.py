@@ -71,7 +71,7 @@ def plot_learning_curve(
 
 
 def trajectory_band(xs: np.ndarray, ys: np.ndarray, width: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
-    """Mean path and the polygon of ± ``width`` standard deviations across it.
+    """Mean path and the band of ± ``width`` standard deviations across it.
 
     At each time step the spread is measured along the normal of the mean path, so the
     band's width is the trajectories' spread across their direction of travel.
@@ -82,7 +82,9 @@ def trajectory_band(xs: np.ndarray, ys: np.ndarray, width: float = 2.0) -> tuple
         width: band half-width in standard deviations.
 
     Returns:
-        ``(mean (T, 2), polygon (2T, 2))``.
+        ``(mean (T, 2), quads (T-1, 4, 2))``: the band as one quadrilateral per time step,
+        each counter-clockwise, so that filling them as one path (nonzero winding) paints
+        their union once even where a wide band folds over itself.
     """
     points = np.stack([xs, ys], axis=-1)  # (N, T, 2)
     mean = points.mean(axis=0)
@@ -93,7 +95,20 @@ def trajectory_band(xs: np.ndarray, ys: np.ndarray, width: float = 2.0) -> tuple
     spread = np.einsum("ntd,td->nt", points - mean, normal).std(axis=0)
     upper = mean + width * spread[:, None] * normal
     lower = mean - width * spread[:, None] * normal
-    return mean, np.concatenate([upper, lower[::-1]])
+    quads = np.stack([lower[:-1], lower[1:], upper[1:], upper[:-1]], axis=1)
+    x, y = quads[..., 0], quads[..., 1]
+    area = 0.5 * np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1)
+    quads[area < 0] = quads[area < 0, ::-1]
+    return mean, quads
+
+
+def _band_patch(quads: np.ndarray, color: Any) -> Any:
+    from matplotlib.patches import PathPatch
+    from matplotlib.path import Path as MplPath
+
+    vertices = np.concatenate([quads, quads[:, :1]], axis=1).reshape(-1, 2)
+    codes = np.tile([MplPath.MOVETO, *[MplPath.LINETO] * 3, MplPath.CLOSEPOLY], len(quads))
+    return PathPatch(MplPath(vertices, codes), facecolor=color, edgecolor="none", alpha=0.3)
 
 
 def plot_trajectories(
@@ -130,12 +145,12 @@ def plot_trajectories(
     colors = _shades(len(snapshots))
     for (iteration, traces), color in zip(snapshots, colors):
         xs, ys = _matrix(traces, x), _matrix(traces, y)
-        mean, polygon = trajectory_band(xs, ys)
-        ax.fill(polygon[:, 0], polygon[:, 1], color=color, alpha=0.35, lw=0)
+        mean, quads = trajectory_band(xs, ys)
+        ax.add_patch(_band_patch(quads, color))
         ax.plot(mean[:, 0], mean[:, 1], color=color, lw=1.5, label=f"iteration {iteration}")
     ax.set_xlabel(x)
     ax.set_ylabel(y)
-    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_aspect("equal", adjustable="box")
     ax.legend(loc="best", fontsize="small")
     if title:
         fig.suptitle(title)

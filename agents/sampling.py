@@ -67,7 +67,7 @@ def find_formula(venv: gym.vector.VectorEnv) -> Formula:
     Raises:
         TypeError: the env exposes no formula; wrap it in `tl_gym.TLTLRewardWrapper`.
     """
-    formula = _env_attr(venv, "formula")
+    formula = env_attribute(venv, "formula")
     if not isinstance(formula, Formula):
         raise TypeError(
             "the env has no `formula`: wrap it in tl_gym.TLTLRewardWrapper(env, spec, signals) "
@@ -237,7 +237,7 @@ def infer_horizon(venv: gym.vector.VectorEnv) -> int | None:
     ``params.horizon`` (the car env's parameters), then for the spec's ``max_episode_steps``.
     """
     for name in ("horizon", "params"):
-        value = _env_attr(venv, name)
+        value = env_attribute(venv, name)
         if name == "params":
             value = getattr(value, "horizon", None)
         if isinstance(value, (int, np.integer)):
@@ -246,7 +246,7 @@ def infer_horizon(venv: gym.vector.VectorEnv) -> int | None:
     return None if steps is None else int(steps)
 
 
-def _env_attr(venv: gym.vector.VectorEnv, name: str) -> Any:
+def env_attribute(venv: gym.vector.VectorEnv, name: str) -> Any:
     """Attribute ``name`` of the vector env, or of its first sub-env; ``None`` when absent."""
     value = getattr(venv, name, None)
     if value is None and isinstance(venv, (gym.vector.SyncVectorEnv, gym.vector.AsyncVectorEnv)):
