@@ -58,6 +58,10 @@ def plot_learning_curve(
         xs = [row[x] for row in history]
         top.plot(xs, [row["mean_robustness"] for row in history], label=label or None)
         bottom.plot(xs, [row["success_rate"] for row in history], label=label or None)
+    steps = {_steps_per_iteration(h) for h in runs.values()}
+    if x == "iteration" and len(steps) == 1 and None not in steps:
+        per = steps.pop()  # one budget per iteration: show env steps along the top as well
+        top.secondary_xaxis("top", functions=(lambda i: i * per, lambda s: s / per)).set_xlabel("env steps")
     top.axhline(0.0, color="0.5", lw=0.8, ls="--")
     top.set_ylabel("mean robustness")
     bottom.set_ylabel("success rate")
@@ -68,6 +72,14 @@ def plot_learning_curve(
     if title:
         fig.suptitle(title)
     return _saved(fig, path)
+
+
+def _steps_per_iteration(history: History) -> float | None:
+    """The env steps of every iteration when they are all equal, else ``None``."""
+    if not history:
+        return None
+    steps = np.diff([0] + [row["env_steps"] for row in history]) / np.diff([0] + [row["iteration"] for row in history])
+    return float(steps[0]) if np.allclose(steps, steps[0]) else None
 
 
 def trajectory_band(xs: np.ndarray, ys: np.ndarray, width: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
