@@ -97,12 +97,21 @@ class Provenance:
         described = results.describe_runs(self.runs)
         finished = {run.spec.run_id for run in self.runs}
         missing = sum(run.run_id not in finished for run in self.sweep.runs)
+        variant = self.sweep.name.partition("-")[2]
+        versions: dict[str, int] = {}
+        for run in self.runs:
+            key = run.summary.get("code", "not recorded")
+            versions[key] = versions.get(key, 0) + 1
+        code = "; ".join(f"{key}: {count} run(s)" for key, count in versions.items())
         lines = [
+            f"**Reduced grid** (config variant `{variant}`): fewer seeds and, where noted, smaller budgets than "
+            "the full benchmark (`python -m benchmarks.reproduce_paper`); see the table below for what ran.\n"
+            if variant else "",
             f"Produced by `{self.command}` from `{_relative(self.config)}` (sweep `{self.sweep.name}`, "
             f"results in `{self.out_dir}`), tl_gym at commit `{_git_commit()}`, on "
             f"{os.cpu_count()} CPU cores ({platform.machine()}, Python {platform.python_version()}), "
             f"written {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC. "
-            f"{len(self.runs)} finished runs"
+            f"Code of the runs: {code}. {len(self.runs)} finished runs"
             + (f"; {missing} run(s) of the grid not finished yet." if missing else "."),
             "",
             "| curve | agent | hyperparameters | env kwargs | seeds | iterations |",

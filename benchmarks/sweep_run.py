@@ -307,6 +307,7 @@ def _summarise(spec: RunSpec, agent: Any, elapsed: float) -> dict[str, Any]:
         "final_mean_robustness": float(last.get("mean_robustness", np.nan)),
         "final_success_rate": float(last.get("success_rate", np.nan)),
         "note": spec.note,
+        "code": code_version(),
     }
     if spec.evaluate_episodes > 0:
         for deterministic in (True, False):
@@ -317,6 +318,24 @@ def _summarise(spec: RunSpec, agent: Any, elapsed: float) -> dict[str, Any]:
                             "success_rate": float(result["success_rate"]),
                             "episodes": spec.evaluate_episodes}
     return summary
+
+
+def code_version() -> str:
+    """The tl_gym version and, in a git checkout, the commit (``+dirty`` if library code is modified)."""
+    import subprocess
+
+    import tl_gym
+
+    version = tl_gym.__version__
+    root = Path(tl_gym.__file__).resolve().parents[1]
+    try:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True,
+                                text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "tl_gym", "agents", "envs"], cwd=root,
+                               capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return version
+    return f"{version} ({commit}{'+dirty' if dirty else ''})"
 
 
 def write_atomic(path: str | Path, data: bytes) -> None:
