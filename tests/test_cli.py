@@ -1,0 +1,78 @@
+"""The tl-gym command line: train writes a complete run folder, eval reloads it."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import pytest
+
+from tl_gym.cli import main
+
+
+@pytest.fixture(scope="module")
+def car_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("runs") / "reps"
+    status = main(["train", "--env", "TLCarNav-v0", "--task", "1", "--agent", "reps", "--iterations", "3",
+                   "--seed", "1", "--n-episodes", "10", "--epsilon", "1.5", "--out", str(out), "--quiet"])
+    assert status == 0
+    return out
+
+
+def test_train_writes_the_run_folder(car_run):
+    names = {p.name for p in car_run.iterdir()}
+    assert {"run.json", "agent.zip", "history.csv", "learning_curve.png", "trajectories.png"} <= names
+    run = json.loads((car_run / "run.json").read_text())
+    assert run["hyperparameters"] == {"n_episodes": 10, "epsilon": 1.5} and run["env_kwargs"] == {"task": 1}
+    with (car_run / "history.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert [int(r["iteration"]) for r in rows] == [1, 2, 3]
+    assert [int(r["env_steps"]) for r in rows] == [2000, 4000, 6000]
+    assert {"mean_robustness", "success_rate", "wall_time", "kl"} <= set(rows[0])
+    for png in ("learning_curve.png", "trajectories.png"):
+        assert (car_run / png).read_bytes()[:4] == b"\x89PNG"
+
+
+def test_eval_prints_robustness_and_success(car_run, capsys):
+    assert main(["eval", str(car_run), "--episodes", "5"]) == 0
+    out = capsys.readouterr().out
+    assert "5 episodes" in out and "mean robustness" in out and "success rate" in out
+
+
+def test_eval_saves_a_gif(tmp_path, capsys):
+    out = tmp_path / "short"
+    assert main(["train", "--env", "TLCarNav-v0", "--env-kwargs", '{"horizon": 10}', "--agent", "reps",
+                 "--iterations", "1", "--n-episodes", "4", "--out", str(out), "--quiet"]) == 0
+    gif = tmp_path / "episode.gif"
+    assert main(["eval", str(out), "--episodes", "2", "--gif", str(gif)]) == 0
+    assert gif.read_bytes()[:3] == b"GIF" and "11 frames" in capsys.readouterr().out
+
+
+def test_spec_and_signals_train_on_any_env(tmp_path, capsys):
+    out = tmp_path / "pendulum"
+    assert main(["train", "--env", "Pendulum-v1", "--spec", "F(cos_th > 0.9)", "--signals", "cos_th=0",
+                 "--agent", "reps", "--iterations", "2", "--n-episodes", "4", "--out", str(out), "--quiet"]) == 0
+    assert (out / "trajectories.png").exists()  # signals over time: Pendulum has no plane layout
+    assert main(["eval", str(out), "--episodes", "2"]) == 0
+    assert "2 episodes" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--agent", "nope"], "unknown algorithm 'nope'"),
+        (["--agent", "reps", "--signals", "a=0"], "--signals only makes sense with --spec"),
+        (["--agent", "reps", "--bogus", "3"], "bogus"),
+        (["--agent", "reps", "--epsilon", "-1"], "epsilon"),
+        (["--agent", "reps", "--iterations", "0"], "--iterations"),
+        (["--env", "Pendulum-v1", "--spec", "F(x > 1", "--signals", "x=0", "--agent", "reps"], "column"),
+    ],
+)
+def test_bad_input_exits_with_a_clear_message(tmp_path, capsys, argv, message):
+    assert main(["train", "--out", str(tmp_path / "bad"), "--quiet", *argv]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_eval_of_a_missing_run(tmp_path, capsys):
+    assert main(["eval", str(tmp_path / "missing")]) == 2
+    assert "tl-gym train" in capsys.readouterr().err
