@@ -36,8 +36,8 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     ``reward_mode="dense"`` each step instead pays the change of the robustness of
     the prefix s_0 … s_t, so that the rewards of an episode add up to its (clipped)
     terminal robustness; formulas in the incremental fragment of
-    `tl_gym.tltl.online` cost O(1) per step, the others O(t) (the prefix is
-    re-evaluated). ``env_reward_weight`` adds the env's own reward, weighted.
+    `tl_gym.tltl.online` (both car tasks among them) cost O(1) per step, the
+    others O(t) (the prefix is re-evaluated). ``env_reward_weight`` adds the env's own reward, weighted.
 
     On the terminal step ``info`` gets ``"robustness"`` (exact, unclipped),
     ``"satisfied"`` (ρ > 0), ``"trace"`` (signal name -> float64 array s_0 … s_T)
