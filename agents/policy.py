@@ -179,7 +179,7 @@ class LinearGaussianPolicy:
             ff = ff + np.einsum("nij,nj->ni", self._cholesky()[np.minimum(t, self.horizon - 1)], noise)
         action = self.act(batch, t, ff)
         if single:
-            return action[0], t[0] + 1
+            return action[0], int(t[0]) + 1
         return action, t + 1
 
     # Update -----------------------------------------------------------------------
