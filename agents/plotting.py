@@ -150,7 +150,7 @@ def plot_trajectories(
         >>> len(plot_trajectories(snaps).axes[0].lines)
         2
     """
-    fig = Figure(figsize=(6.5, 6), constrained_layout=True)
+    fig = Figure(figsize=(8, 6), constrained_layout=True)
     ax = fig.subplots()
     if background is not None:
         background(ax)
@@ -163,7 +163,7 @@ def plot_trajectories(
     ax.set_xlabel(x)
     ax.set_ylabel(y)
     ax.set_aspect("equal", adjustable="box")
-    ax.legend(loc="best", fontsize="small")
+    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize="small")  # keep the layout visible
     if title:
         fig.suptitle(title)
     return _saved(fig, path)
