@@ -76,3 +76,11 @@ def test_bad_input_exits_with_a_clear_message(tmp_path, capsys, argv, message):
 def test_eval_of_a_missing_run(tmp_path, capsys):
     assert main(["eval", str(tmp_path / "missing")]) == 2
     assert "tl-gym train" in capsys.readouterr().err
+
+
+def test_help_lists_the_hyperparameters(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["train", "--help"])
+    assert exit_info.value.code == 0
+    out = capsys.readouterr().out
+    assert "reps: n_episodes=40" in out and "epsilon=2.0" in out and "--spec" in out

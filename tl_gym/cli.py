@@ -107,14 +107,38 @@ def parse_hyperparameters(extra: Sequence[str]) -> dict[str, Any]:
     return hyperparameters
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The ``tl-gym`` argument parser (``train`` and ``eval`` sub-commands)."""
+def hyperparameter_help() -> str:
+    """The episodic agents' hyperparameters and defaults, read from their config dataclasses."""
+    import dataclasses
+
+    lines = ["hyperparameters (--name value):"]
+    for name in EPISODIC_AGENTS:
+        try:
+            klass = agent_class(name)
+        except ImportError:  # the TLPS module is optional until it exists
+            continue
+        config = klass._make_config({})
+        fields = ", ".join(f"{f.name}={getattr(config, f.name)!r}" for f in dataclasses.fields(config))
+        lines.append(f"  {name}: {fields}")
+    lines.append("  stable-baselines3 agents: steps_per_iteration=8000, n_envs=8, policy=None, and the "
+                 "algorithm's own keywords (learning_rate, batch_size, ...)")
+    return "\n".join(lines)
+
+
+def build_parser(with_hyperparameters: bool = False) -> argparse.ArgumentParser:
+    """The ``tl-gym`` argument parser (``train`` and ``eval`` sub-commands).
+
+    Args:
+        with_hyperparameters: list every agent's hyperparameters in ``train --help`` (imports the agents).
+    """
     parser = argparse.ArgumentParser(prog="tl-gym", description="Reinforcement learning with TLTL rewards.")
     commands = parser.add_subparsers(dest="command", required=True)
 
     train = commands.add_parser(
         "train", help="train an agent and write a run folder",
         description="Train an agent; unknown --name value options are the agent's hyperparameters.",
+        epilog=hyperparameter_help() if with_hyperparameters else None,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     train.add_argument("--env", default="TLCarNav-v0", help="registered env id (default: TLCarNav-v0)")
     train.add_argument("--task", type=int, default=None, help="the car's task, 1 or 2 (env keyword `task`)")
@@ -327,7 +351,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``tl-gym``; returns the exit status."""
     from tl_gym.errors import TLGymError
 
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(with_hyperparameters=bool({"-h", "--help"} & set(argv)))
     args, extra = parser.parse_known_args(argv)
     if args.command != "train" and extra:
         parser.error(f"unrecognized arguments: {' '.join(extra)}")
