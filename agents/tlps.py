@@ -64,9 +64,10 @@ class TLPSConfig:
     temporal operator) or ``"linear"`` (same limit and error bracket, O(T))."""
     weights: str = "hybrid"
     """Sample logits: ``"hybrid"``, ``"importance"`` or ``"paper"`` (see `tl_gym.agents.weights`)."""
-    hybrid_mix: float = 0.7
+    hybrid_mix: float = 1.0
     """Share of the standardised ρ̂(τ̄^i) in the hybrid logits, in [0, 1]; the rest is the
-    standardised importance logit."""
+    standardised importance logit. 1.0 (the measured best) ranks samples by the smoothed
+    robustness of their updated trajectories alone."""
     kl_bound: float = 2.0
     """α is adapted so that KL(w ‖ uniform) equals this bound (> 0), unless ``alpha`` is set."""
     alpha: float | None = None
@@ -85,9 +86,10 @@ class TLPSConfig:
     """Initial feed-forward action ``k_t`` (every component, every step)."""
     min_std: float = DEFAULT_MIN_STD
     """Permanent floor on the policy's standard deviation (> 0)."""
-    exploration_floor: float = 0.1
+    exploration_floor: float = 0.0
     """Exploration schedule: the std floor at iteration ``m`` is
-    ``max(min_std, exploration_floor · 0.5^(m / exploration_halflife))``; 0 turns it off."""
+    ``max(min_std, exploration_floor · 0.5^(m / exploration_halflife))``; 0 (the default) turns it
+    off, 0.1 is the feasibility study's schedule."""
     exploration_halflife: float = 10.0
     """Iterations over which the exploration floor halves (> 0)."""
     covariance: str = "diag"
