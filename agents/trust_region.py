@@ -14,9 +14,12 @@ Two solvers:
   but slow (a few hundred milliseconds per trajectory).
 - ``"projected"``: projected normalised-gradient ascent for all N trajectories at
   once. The first step goes to the boundary along the gradient (the linearised
-  solution); later steps slide along the ball with a geometrically decaying length,
-  and the best iterate of each trajectory is kept. One value-and-gradient call per
-  step serves the whole batch. ``benchmarks/tlps_research.py`` checks it against SLSQP.
+  solution); later steps slide along the ball. Each trajectory keeps its own step
+  length, grown by 1.2 after a step that improved ρ̂ and cut by ``decay`` after one
+  that did not (which is then undone), and stops moving once the length falls below
+  1e-3·√ε. One value-and-gradient call per step serves the whole batch.
+  ``benchmarks/tlps_research.py --solver-check`` measures it against SLSQP: with the
+  default 20 steps it reaches at least 98 % of SLSQP's mean gain in ρ̂ on the car tasks.
 
 Example:
     >>> import numpy as np
@@ -47,6 +50,7 @@ from tl_gym.tltl.ast import Formula
 Solver = Literal["projected", "slsqp"]
 SOLVERS = ("projected", "slsqp")
 _GROWTH = 1.2  # step growth of the projected solver after a successful step
+_STEP_TOLERANCE = 1e-3  # a trajectory stops once its step is below this fraction of √ε
 
 
 @dataclass(frozen=True)
@@ -181,21 +185,28 @@ def _projected(evaluate: Evaluate, tau: np.ndarray, epsilon: float, steps: int, 
     best_x = tau.copy()
     best_value, grad = evaluate(best_x)
     before = best_value.copy()
+    calls = 1
     # per-trajectory step length: grows after a gain, shrinks after a loss ("bold driver");
     # the first step, of length √ε along the gradient, is the linearised solution
-    step = np.full((tau.shape[0], 1, 1), radius)
+    step = np.full(tau.shape[0], radius)
     for _ in range(steps):
-        norm = np.sqrt(np.sum(grad**2, axis=(1, 2), keepdims=True))
-        x = best_x + step * grad / np.maximum(norm, 1e-300)
-        offset = x - tau  # project back onto the ball ‖x − τ‖ ≤ √ε
+        active = np.flatnonzero(step > _STEP_TOLERANCE * radius)  # trajectories still moving
+        if active.size == 0:
+            break
+        g = grad[active]
+        norm = np.sqrt(np.sum(g**2, axis=(1, 2), keepdims=True))
+        x = best_x[active] + step[active, None, None] * g / np.maximum(norm, 1e-300)
+        offset = x - tau[active]  # project back onto the ball ‖x − τ‖ ≤ √ε
         length = np.sqrt(np.sum(offset**2, axis=(1, 2), keepdims=True))
-        x = tau + offset * np.minimum(1.0, radius / np.maximum(length, 1e-300))
+        x = tau[active] + offset * np.minimum(1.0, radius / np.maximum(length, 1e-300))
         value, new_grad = evaluate(x)
-        better = value > best_value
-        best_x[better], best_value[better], grad[better] = x[better], value[better], new_grad[better]
-        step[better] *= _GROWTH
-        step[~better] *= decay
-    return TrustRegionResult(best_x, before, best_value, steps + 1)
+        calls += 1
+        better = value > best_value[active]
+        improved = active[better]
+        best_x[improved], best_value[improved], grad[improved] = x[better], value[better], new_grad[better]
+        step[improved] *= _GROWTH
+        step[active[~better]] *= decay
+    return TrustRegionResult(best_x, before, best_value, calls)
 
 
 def _slsqp(evaluate: Evaluate, tau: np.ndarray, epsilon: float, max_iterations: int) -> TrustRegionResult:

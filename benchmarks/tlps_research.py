@@ -185,8 +185,14 @@ def plot(out: Path, task: int, variants: list[str]) -> None:
     plt.close(fig)
 
 
-def solver_check(out: Path, seeds: int = 2, n: int = 10) -> list[dict[str, Any]]:
-    """Projected solver vs SLSQP on trajectories sampled by the initial policy and a tighter one."""
+def solver_check(
+    out: Path, seeds: int = 2, n: int = 8, steps: tuple[int, ...] = (5, 10, 20, 40)
+) -> list[dict[str, Any]]:
+    """Projected solver (several step counts) vs SLSQP on car trajectories of two policies.
+
+    The policies: the initial one (``k_t = 0``, std 0.5) and a slow, tight one (mean speed
+    action -0.85, std 0.1) whose trajectories stay in the arena, as trained ones do.
+    """
     import torch
     from tl_gym.agents import TLPS
     from tl_gym.agents.sampling import rollout
@@ -199,31 +205,31 @@ def solver_check(out: Path, seeds: int = 2, n: int = 10) -> list[dict[str, Any]]
             agent = TLPS("TLCarNav-v0", seed=seed, n_episodes=n, env_kwargs={"task": task})
             rng = np.random.default_rng(seed)
             for label, mean, std in (("initial", 0.0, 0.5), ("slow", -0.85, 0.1)):
-                feedforward = mean + std * rng.standard_normal((n, agent.horizon, 2))
+                feedforward = np.array([mean, 0.0]) + std * rng.standard_normal((n, agent.horizon, 2))
                 batch = rollout(agent.env, feedforward, seed=seed)
                 tau = np.stack([batch.traces[s] for s in agent.signal_names], axis=-1)
                 for epsilon in (4.5, 45.0):
-                    kwargs = dict(beta=9.0, epsilon=epsilon, form=agent.config.smoothing)
+                    kwargs = dict(beta=agent.config.beta, epsilon=epsilon, form=agent.config.smoothing)
                     start = time.perf_counter()
                     slsqp = improve_trajectories(agent.formula, agent.signal_names, tau, solver="slsqp", **kwargs)
                     t_slsqp = time.perf_counter() - start
-                    start = time.perf_counter()
-                    proj = improve_trajectories(agent.formula, agent.signal_names, tau, solver="projected",
-                                                steps=agent.config.solver_steps, decay=agent.config.solver_decay,
-                                                **kwargs)
-                    t_proj = time.perf_counter() - start
                     gain_s = slsqp.smooth_after - slsqp.smooth_before
-                    gain_p = proj.smooth_after - proj.smooth_before
-                    rows.append({
-                        "task": task, "seed": seed, "policy": label, "epsilon": epsilon,
-                        "mean_gain_slsqp": float(gain_s.mean()), "mean_gain_projected": float(gain_p.mean()),
-                        "gain_ratio": float(gain_p.mean() / gain_s.mean()),
-                        "worst_trajectory_ratio": float(np.min(gain_p / np.maximum(gain_s, 1e-12))),
-                        "objective_rel_gap": float(np.max(np.abs(slsqp.smooth_after - proj.smooth_after)
-                                                          / np.maximum(np.abs(slsqp.smooth_after), 1e-12))),
-                        "seconds_slsqp_per_trajectory": t_slsqp / n, "seconds_projected_batch": t_proj,
-                    })
-                    print(rows[-1], flush=True)
+                    for k in steps:
+                        start = time.perf_counter()
+                        proj = improve_trajectories(agent.formula, agent.signal_names, tau, solver="projected",
+                                                    steps=k, decay=agent.config.solver_decay, **kwargs)
+                        t_proj = time.perf_counter() - start
+                        gain_p = proj.smooth_after - proj.smooth_before
+                        rows.append({
+                            "task": task, "seed": seed, "policy": label, "epsilon": epsilon, "steps": k,
+                            "mean_gain_slsqp": float(gain_s.mean()), "mean_gain_projected": float(gain_p.mean()),
+                            "gain_ratio": float(gain_p.mean() / gain_s.mean()),
+                            "worst_trajectory_ratio": float(np.min(gain_p / np.maximum(gain_s, 1e-12))),
+                            "objective_rel_gap": float(np.max((slsqp.smooth_after - proj.smooth_after)
+                                                              / np.abs(slsqp.smooth_after))),
+                            "seconds_slsqp_per_trajectory": t_slsqp / n, "seconds_projected_batch": t_proj,
+                        })
+                        print({k: round(v, 4) if isinstance(v, float) else v for k, v in rows[-1].items()}, flush=True)
             agent.close()
     _write_csv(out / "solver_check.csv", rows)
     return rows
