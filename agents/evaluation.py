@@ -15,6 +15,8 @@ from typing import Any, Protocol
 import gymnasium as gym
 import numpy as np
 
+from .sampling import terminal_info
+
 
 class PolicyPredictor(Protocol):
     """Anything with stable-baselines3's ``predict`` signature."""
@@ -121,6 +123,7 @@ def collect_episodes(
             obs, _, terminated, truncated, info = venv.step(action)
             ended = (np.asarray(terminated) | np.asarray(truncated)) & ~done
             if ended.any():
+                info = terminal_info(info)
                 robustness[ended] = np.asarray(_terminal_robustness(info), dtype=float)[ended]
                 for name, values in info.get("trace", {}).items():
                     if not name.startswith("_"):

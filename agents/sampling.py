@@ -182,7 +182,11 @@ def _rollout_chunk(
         obs = np.asarray(obs, dtype=float).reshape(n_envs, -1)
         observations[:, t + 1] = obs
         ended = (np.asarray(terminated) | np.asarray(truncated)) & (lengths < 0)
+        if ended.any() and "final_obs" in info:  # same-step autoreset: obs already holds the next episode's s_0
+            for i in np.flatnonzero(ended):
+                observations[i, t + 1] = np.asarray(info["final_obs"][i], dtype=float).reshape(-1)
         if ended.any():
+            info = terminal_info(info)
             if "robustness" not in info:
                 raise RuntimeError(
                     "the env's terminal info holds no 'robustness': wrap it in tl_gym.TLTLRewardWrapper"
@@ -222,6 +226,12 @@ def _zero_after(actions: np.ndarray, lengths: np.ndarray) -> np.ndarray:
     """Zero the actions of steps after an episode ended (they went to the next episode)."""
     mask = np.arange(actions.shape[1])[None, :] < lengths[:, None]
     return actions * mask[:, :, None]
+
+
+def terminal_info(info: Mapping[str, Any]) -> Mapping[str, Any]:
+    """The info of the episodes that just ended: ``info`` itself, or its ``final_info`` under same-step autoreset."""
+    final = info.get("final_info")
+    return final if isinstance(final, Mapping) else info
 
 
 def _trace_of(info: Mapping[str, Any]) -> Mapping[str, Any]:
