@@ -13,15 +13,22 @@ from __future__ import annotations
 import numpy as np
 
 
-def reduce_forward(z: np.ndarray, axis: int) -> np.ndarray:
-    """``log Σ exp(z)`` along ``axis`` (the axis is removed)."""
+def reduce_forward(z: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
+    """``log Σ exp(z)`` along ``axis`` (the axis is removed), and the softmax weights ``exp(z − out)``.
+
+    The weights are the whole gradient (`reduce_backward`), so they are kept rather than recomputed.
+    """
     peak = z.max(axis=axis, keepdims=True)
-    return (peak + np.log(np.exp(z - peak).sum(axis=axis, keepdims=True))).squeeze(axis)
+    weights = np.subtract(z, peak)
+    np.exp(weights, out=weights)
+    total = weights.sum(axis=axis, keepdims=True)
+    weights /= total
+    return (peak + np.log(total)).squeeze(axis), weights
 
 
-def reduce_backward(z: np.ndarray, out: np.ndarray, grad: np.ndarray, axis: int) -> np.ndarray:
+def reduce_backward(weights: np.ndarray, grad: np.ndarray, axis: int) -> np.ndarray:
     """Gradient of `reduce_forward` wrt ``z``: the softmax weights times the upstream gradient."""
-    return np.expand_dims(grad, axis) * np.exp(z - np.expand_dims(out, axis))
+    return np.expand_dims(grad, axis) * weights
 
 
 def logaddexp_backward(

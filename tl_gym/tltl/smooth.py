@@ -161,11 +161,11 @@ class _Smoother:
     def _nary(self, node: And | Or, first_only: bool, sign: float) -> tuple[np.ndarray, _Backward]:
         """``sign·lse(sign·children)``: smooth max (sign = 1) or min (sign = -1)."""
         stacked = np.stack([sign * self(c, first_only) for c in node.operands])
-        reduced = lse.reduce_forward(stacked, 0)
+        reduced, softmax = lse.reduce_forward(stacked, 0)
+        del stacked
 
         def backward(g: np.ndarray) -> None:
-            weights = lse.reduce_backward(stacked, reduced, g, 0)
-            for child, w in zip(node.operands, weights):
+            for child, w in zip(node.operands, lse.reduce_backward(softmax, g, 0)):
                 self.send(child, first_only, w)
 
         return sign * reduced, backward
@@ -202,12 +202,16 @@ class _Smoother:
 
     def _over_time(self, node: Eventually | Always, first_only: bool, sign: float) -> tuple[np.ndarray, _Backward]:
         child = sign * self(node.child)
-        out = lse.reduce_forward(child, 0)[None] if first_only else lse.suffix_forward(child)
+        if first_only:
+            reduced, softmax = lse.reduce_forward(child, 0)
+            out = reduced[None]
+        else:
+            out = lse.suffix_forward(child)
 
         def backward(g: np.ndarray) -> None:
             g = sign * g  # gradient wrt `out`
             if first_only:
-                g_child = lse.reduce_backward(child, out[0], g[0], 0)
+                g_child = lse.reduce_backward(softmax, g[0], 0)
             else:
                 g_child = lse.suffix_backward(child, out, g)
             self.send(node.child, False, sign * g_child)
@@ -246,10 +250,11 @@ class _Smoother:
         prefix = lse.prefix_forward(left)
         inner = sign * np.concatenate([self.full(-_INF, 1), prefix[:-1]])
         terms = _smin2(right, inner)
-        out = lse.reduce_forward(terms, 0)[None]
+        reduced, softmax = lse.reduce_forward(terms, 0)
+        out = reduced[None]
 
         def backward(g: np.ndarray) -> None:
-            g_terms = lse.reduce_backward(terms, out[0], g[0], 0)
+            g_terms = lse.reduce_backward(softmax, g[0], 0)
             g_right, g_inner = _smin2_backward(right, inner, terms, g_terms)
             g_prefix = np.zeros_like(prefix)
             g_prefix[:-1] = sign * g_inner[1:]
@@ -342,10 +347,10 @@ def _quadratic_from_matrix(
     inner = sign * suffix
     later = np.tri(length, length, -1, dtype=bool)[:, :, None]  # [t, t'] where t' < t: excluded
     terms = np.where(later, -_INF, _smin2(right[None], inner))
-    out = lse.reduce_forward(terms, 1)
+    out, softmax = lse.reduce_forward(terms, 1)
     if grad is None:
         return out, None
-    g_terms = np.where(later, 0.0, lse.reduce_backward(terms, out, grad, 1))
+    g_terms = np.where(later, 0.0, lse.reduce_backward(softmax, grad, 1))
     g_right, g_inner = _smin2_backward(right[None], inner, terms, g_terms)
     g_matrix = lse.suffix_backward(matrix, suffix, sign * g_inner)
     return out, (g_matrix, g_right.sum(axis=0))
