@@ -119,7 +119,6 @@ def test_bad_rho_max_smooth(rho_max):
         PHI.smooth_robustness({"x": [1.0], "y": [1.0]}, 1.0, rho_max)
 
 
-@pytest.mark.xfail(strict=True, reason="engine bug 5 in /work/briefs/engine_bugs.md: exact path accepts any rho_max")
 @pytest.mark.parametrize("rho_max", BAD_RHO_MAX)
 def test_bad_rho_max_exact(rho_max):
     with pytest.raises(ValueError, match="rho_max"):

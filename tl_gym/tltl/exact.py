@@ -63,7 +63,9 @@ def _boolean_predicate(margin: Any, op: str) -> Any:
 
 
 def numeric_algebra(rho_max: float) -> _Algebra:
-    """Robustness: max/min over reals, ``true`` = ρ_max."""
+    """Robustness: max/min over reals, ``true`` = ρ_max (> 0, +inf allowed)."""
+    if isinstance(rho_max, bool) or not (isinstance(rho_max, (int, float)) and rho_max > 0):
+        raise ValueError(f"rho_max must be positive (+inf allowed), got {rho_max!r}")
     return _Algebra(
         top=float(rho_max), bottom=-float(rho_max), dtype=np.float64,
         maximum=np.maximum, minimum=np.minimum, negate=np.negative,
