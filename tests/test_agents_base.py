@@ -406,12 +406,12 @@ def test_rollout_handles_same_step_autoreset():
     env = gym.make_vec(POINT_ID, num_envs=2, vectorization_mode="sync", terminate_in_goal=True, goal=0.3,
                        vector_kwargs={"autoreset_mode": AutoresetMode.SAME_STEP})
     feedforward = np.ones((2, HORIZON, 2))
+    next_step = gym.make_vec(POINT_ID, num_envs=2, vectorization_mode="sync", terminate_in_goal=True, goal=0.3)
     batch = rollout(env, feedforward, seed=0)
-    reference = rollout(gym.make_vec(POINT_ID, num_envs=2, vectorization_mode="sync", terminate_in_goal=True,
-                                     goal=0.3), feedforward, seed=0)
+    reference = rollout(next_step, feedforward, seed=0)
     np.testing.assert_array_equal(batch.observations, reference.observations)
     np.testing.assert_array_equal(batch.robustness, reference.robustness)
     assert np.all(batch.lengths < HORIZON)
     agent = make_agent()
     np.testing.assert_array_equal(evaluate_policy(agent, env, n_episodes=2, seed=1)["robustness"],
-                                  evaluate_policy(agent, agent.env, n_episodes=2, seed=1)["robustness"])
+                                  evaluate_policy(agent, next_step, n_episodes=2, seed=1)["robustness"])
