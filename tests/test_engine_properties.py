@@ -118,7 +118,7 @@ def test_bracket_hand_worked(text, horizon, beta, expected):
 # --------------------------------------------------------------------------- β → ∞
 
 
-@settings(max_examples=40)
+@settings(max_examples=min(settings().max_examples, 40))
 @given(S.formulas(min_depth=2, max_depth=4), S.traces(max_length=6))
 def test_smoothing_error_shrinks_as_beta_grows(formula, trace):
     assume(_defined(formula, trace))
@@ -155,7 +155,7 @@ def _grouped(draw, operands, combine):
     return items[0]
 
 
-@settings(max_examples=30)
+@settings(max_examples=min(settings().max_examples, 30))
 @given(st.data(), st.lists(S.formulas(max_depth=2), min_size=3, max_size=5), S.traces(max_length=5), S.betas())
 def test_regrouping_never_changes_a_smoothed_value(data, operands, trace, beta):
     assume(_defined(all_of(*operands), trace))
@@ -191,7 +191,7 @@ smooth_formulas = S.formulas(
 )
 
 
-@settings(max_examples=25)
+@settings(max_examples=min(settings().max_examples, 25))
 @given(smooth_formulas, S.batched_traces(max_length=5, max_batch=2),
        st.sampled_from([0.5, 1.0, 3.0]), st.sampled_from(["nested", "linear"]))
 def test_autograd_equals_finite_differences(formula, trace, beta, form):
@@ -232,7 +232,7 @@ def test_gradient_of_the_paper_example_by_hand():
 # --------------------------------------------------------------------------- determinism
 
 
-@settings(max_examples=30)
+@settings(max_examples=min(settings().max_examples, 30))
 @given(S.formulas(min_depth=2, max_depth=4), S.batched_traces(), S.batched_traces(), S.betas())
 def test_evaluating_twice_gives_the_same_answer(formula, trace, other, beta):
     assume(_defined(formula, trace) and _defined(formula, other))

@@ -141,7 +141,7 @@ def test_signal_free_formula_keeps_torch(text):
     assert isinstance(value, torch.Tensor)
 
 
-@settings(max_examples=30)
+@settings(max_examples=min(settings().max_examples, 30))
 @given(S.formulas(min_depth=2, max_depth=4, leaves=S.predicates(exprs=S.smooth_expressions())),
        S.traces(max_length=6), st.sampled_from(S.BETAS))
 def test_smooth_values_and_gradients_are_never_nan(formula, trace, beta):
