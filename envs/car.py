@@ -151,6 +151,11 @@ class CarNavEnv(gym.Env):
         self._t = -1  # -1: never reset
         self._viewer: Any = None
 
+    @property
+    def horizon(self) -> int:
+        """Actions per episode; the trace has ``horizon + 1`` states."""
+        return self.params.horizon
+
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
         super().reset(seed=seed)
         self.state, self._noise = sample_episode_noise(self.np_random, self.params, self.layout.start)

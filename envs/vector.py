@@ -130,6 +130,11 @@ class CarNavVectorEnv(VectorEnv):
         self._path[0] = self._state[:, :2]
         self._autoreset = False
 
+    @property
+    def horizon(self) -> int:
+        """Actions per episode; the trace has ``horizon + 1`` states."""
+        return self.params.horizon
+
     def reset(
         self, *, seed: int | Sequence[int | None] | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:

@@ -38,7 +38,7 @@ def evaluate_expression(expr: Expr, signals: dict[str, Any], sample: Any) -> Any
         if isinstance(e, Var):
             return signals[e.name]
         if isinstance(e, Num):
-            return e.value
+            return np.float64(e.value)  # numpy division: 0/0 is NaN (refused later), not ZeroDivisionError
         if isinstance(e, Neg):
             return -ev(e.operand)
         if isinstance(e, BinOp):
@@ -81,7 +81,7 @@ def evaluate_with_gradient(expr: Expr, signals: dict[str, np.ndarray]) -> tuple[
                 sink[e.name] = grad if e.name not in sink else sink[e.name] + grad
             return signals[e.name], back_var
         if isinstance(e, Num):
-            return e.value, None
+            return np.float64(e.value), None
         if isinstance(e, Neg):
             value, back = ev(e.operand)
             return -value, (None if back is None else lambda g, s: back(-g, s))
