@@ -7,8 +7,10 @@ Writes, under ``docs/results/tlps_research/`` (or ``--out``):
 - ``summary.csv``: one row per run: first iteration with mean exact robustness > 0 and with
   success ≥ 80 %, the best and final batch success, and the final policy's success on
   200 fresh episodes (stochastic, as it is trained, and deterministic);
-- ``task<k>_curves.png``: success rate and mean exact robustness vs iteration, one panel
-  column per variant (thin lines: seeds; thick: median);
+- ``task<k>_success.png``, ``task<k>_robustness.png``: success rate and mean exact robustness
+  vs iteration, one panel per variant (thin lines: seeds; thick: median), and
+  ``task<k>_medians.png``, the medians of all variants on one pair of axes;
+- ``tables.md``: the per-variant tables quoted in ``docs/tlps.md``;
 - ``solver_check.csv`` (``--solver-check``): the projected solver's gain in ρ̂ against
   SLSQP's on sampled car trajectories;
 - ``timing.csv`` (``--timing``): seconds per TLPS iteration on both tasks.
@@ -144,44 +146,91 @@ def summarise(out: Path) -> list[dict[str, Any]]:
             "final_rho": float(rho[-1]),
             "eval_success_stochastic": history[-1]["eval_success_stochastic"],
             "eval_success_deterministic": history[-1]["eval_success_deterministic"],
+            "eval_rho_stochastic": history[-1]["eval_rho_stochastic"],
             "seconds_per_iteration": history[-1]["wall_time"] / len(history),
         })
     _write_csv(out / "summary.csv", rows)
     return rows
 
 
+def table(rows: list[dict[str, Any]], task: int) -> str:
+    """A markdown table per variant of ``task``: per-seed first iterations, medians, final evaluations."""
+    key = "first_rho_positive" if task == 1 else "first_success_80"
+    label = "mean ρ > 0 at" if task == 1 else "80 % at"
+    lines = [f"| variant | seeds | {label} (per seed) | median | eval success | eval mean ρ |",
+             "|---|---|---|---|---|---|"]
+    for variant in VARIANTS:
+        runs = sorted((r for r in rows if r["task"] == task and r["variant"] == variant), key=lambda r: r["seed"])
+        if not runs:
+            continue
+        firsts = [r[key] if r[key] != "" else math.inf for r in runs]
+        per_seed = ", ".join("–" if math.isinf(f) else str(f) for f in firsts)
+        median = float(np.median(firsts))
+        success = [r["eval_success_stochastic"] for r in runs]
+        rho = [r["eval_rho_stochastic"] for r in runs]
+        lines.append(
+            f"| {variant} | {len(runs)} | {per_seed} | {'–' if math.isinf(median) else f'{median:g}'} | "
+            f"{min(success):.1%}–{max(success):.1%} | {np.mean(rho):.2f} |"
+        )
+    return "\n".join(lines)
+
+
 def plot(out: Path, task: int, variants: list[str]) -> None:
-    """Curves of success rate and mean exact robustness for ``variants`` on ``task``."""
+    """Learning curves of ``task``: ``task<k>_success.png``, ``task<k>_robustness.png``, ``task<k>_medians.png``.
+
+    One panel per variant (seeds thin, median thick) of success rate and of mean exact
+    robustness, and one overlay of all variants' medians.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    found = [v for v in variants if list((out / "runs").glob(f"task{task}_{v}_s*.csv"))]
-    if not found:
+    curves = {v: [_read_csv(p) for p in sorted((out / "runs").glob(f"task{task}_{v}_s*.csv"))] for v in variants}
+    curves = {v: c for v, c in curves.items() if c}
+    if not curves:
         return
-    fig, axes = plt.subplots(2, len(found), figsize=(3.2 * len(found), 5.5), sharey="row", squeeze=False)
-    for col, variant in enumerate(found):
-        curves = [_read_csv(p) for p in sorted((out / "runs").glob(f"task{task}_{variant}_s*.csv"))]
-        for row, key in enumerate(("success_rate", "mean_robustness")):
-            ax = axes[row, col]
-            series = [np.array([r[key] for r in c]) for c in curves]
-            for s in series:
-                ax.plot(np.arange(1, len(s) + 1), s, lw=0.8, alpha=0.6)
-            length = min(len(s) for s in series)
-            ax.plot(np.arange(1, length + 1), np.median([s[:length] for s in series], axis=0), color="k", lw=2)
-            if key == "success_rate":
-                ax.axhline(0.8, color="gray", ls="--", lw=0.8)
-                ax.set_title(f"{variant} ({len(series)} seeds)", fontsize=9)
-            else:
+    medians: dict[str, dict[str, np.ndarray]] = {}
+    for key, name in (("success_rate", "success"), ("mean_robustness", "robustness")):
+        cols = min(5, len(curves))
+        rows = math.ceil(len(curves) / cols)
+        fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.6 * rows), sharex=True, sharey=True,
+                                 squeeze=False)
+        for ax, (variant, runs) in zip(axes.flat, curves.items()):
+            series = [np.array([r[key] for r in run]) for run in runs]
+            for values in series:
+                ax.plot(np.arange(1, len(values) + 1), values, lw=0.8, alpha=0.6)
+            length = min(len(v) for v in series)
+            median = np.median([v[:length] for v in series], axis=0)
+            medians.setdefault(variant, {})[key] = median
+            ax.plot(np.arange(1, length + 1), median, color="k", lw=2)
+            ax.axhline(0.8 if key == "success_rate" else 0.0, color="gray", ls="--", lw=0.8)
+            ax.set_title(f"{variant} ({len(series)} seeds)", fontsize=9)
+            if key == "mean_robustness":
                 ax.set_yscale("symlog", linthresh=5.0)
-                ax.axhline(0.0, color="gray", ls="--", lw=0.8)
-                ax.set_xlabel("iteration")
-        axes[0, 0].set_ylabel("success rate")
-        axes[1, 0].set_ylabel("mean exact robustness")
-    fig.suptitle(f"TLCarNav-v0 task {task}: TLPS variants and REPS")
+        for ax in axes.flat[len(curves):]:
+            ax.set_visible(False)
+        fig.supxlabel("iteration (40 episodes each)")
+        fig.supylabel("success rate" if key == "success_rate" else "mean exact robustness")
+        fig.suptitle(f"TLCarNav-v0 task {task}: thin = seeds, thick = median")
+        fig.tight_layout()
+        fig.savefig(out / f"task{task}_{name}.png", dpi=80)
+        plt.close(fig)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    for variant, median in medians.items():
+        style = dict(lw=2.5, color="k") if variant == "default" else dict(lw=2.5, color="tab:red") \
+            if variant == "reps" else dict(lw=1.0)
+        for ax, key in zip(axes, ("success_rate", "mean_robustness")):
+            ax.plot(np.arange(1, len(median[key]) + 1), median[key], label=variant, **style)
+    axes[0].set_ylabel("median success rate")
+    axes[1].set_ylabel("median mean exact robustness")
+    axes[1].set_yscale("symlog", linthresh=5.0)
+    for ax in axes:
+        ax.set_xlabel("iteration")
+    axes[1].legend(fontsize=7, ncol=2)
+    fig.suptitle(f"TLCarNav-v0 task {task}: medians over seeds (black: TLPS default, red: REPS ε = 2)")
     fig.tight_layout()
-    fig.savefig(out / f"task{task}_curves.png", dpi=90)
+    fig.savefig(out / f"task{task}_medians.png", dpi=80)
     plt.close(fig)
 
 
@@ -284,10 +333,12 @@ def main(argv: list[str] | None = None) -> None:
             for path in pool.map(run_one, *zip(*jobs)):
                 print("done", path.name, flush=True)
     rows = summarise(args.out)
+    tables = []
     for task in (1, 2):
         plot(args.out, task, [v for v in VARIANTS if any(r["variant"] == v and r["task"] == task for r in rows)])
-    for row in rows:
-        print(row)
+        tables.append(f"### Task {task}\n\n{table(rows, task)}\n")
+    (args.out / "tables.md").write_text("\n".join(tables))
+    print("\n".join(tables))
 
 
 if __name__ == "__main__":

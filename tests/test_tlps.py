@@ -86,3 +86,17 @@ def test_every_weighting_and_a_fixed_alpha_run(weights):
 def test_slsqp_solver_runs():
     agent = TLPS("TLCarNav-v0", seed=1, n_episodes=3, horizon=200, solver="slsqp", solver_steps=2).learn(1)
     assert agent.history[-1]["smooth_updated"] >= agent.history[-1]["smooth_robustness"]
+
+
+def test_runs_on_any_wrapped_env_through_its_signals():
+    # Pendulum's obs is [cos θ, sin θ, θ̇]: the trajectory TLPS works on is the one signal
+    # the formula reads, whatever the env's state.
+    import gymnasium as gym
+
+    from tl_gym import TLTLRewardWrapper
+
+    env = TLTLRewardWrapper(gym.make("Pendulum-v1", max_episode_steps=30), "F (cos_th > 0.5)", {"cos_th": 0})
+    agent = TLPS(env, seed=0, n_episodes=4, solver_steps=3).learn(2)
+    assert agent.signal_names == ("cos_th",)
+    assert agent.horizon == 30
+    assert all(np.isfinite(row["smooth_updated"]) for row in agent.history)
