@@ -205,23 +205,28 @@ def _values(integers: bool) -> st.SearchStrategy[float]:
 
 @st.composite
 def traces(draw: st.DrawFn, names: tuple[str, ...] = SIGNALS, min_length: int = 1, max_length: int = 7,
-           batch: int | None = None) -> dict[str, np.ndarray]:
-    """A trace over ``names``: arrays ``(T,)``, or ``(N, T)`` with ``N = batch``."""
+           batch: int | None = None, rescale: bool = True) -> dict[str, np.ndarray]:
+    """A trace over ``names``: arrays ``(T,)``, or ``(N, T)`` with ``N = batch``.
+
+    Values lie in [-10, 10]; with ``rescale`` a trace is sometimes scaled by 1e-3 or 1e4.
+    """
     length = draw(st.integers(min_length, max_length))
     shape = (length,) if batch is None else (batch, length)
     integers = draw(st.booleans())
+    # mostly unit scale (values near the formulas' thresholds), sometimes tiny or huge
+    scale = 1.0 if integers or not rescale else draw(st.sampled_from((1.0, 1.0, 1.0, 1e-3, 1e4)))
     size = math.prod(shape)
     return {
-        name: np.array(draw(st.lists(_values(integers), min_size=size, max_size=size)), dtype=np.float64).reshape(shape)
+        name: scale * np.array(draw(st.lists(_values(integers), min_size=size, max_size=size))).reshape(shape)
         for name in names
     }
 
 
 @st.composite
 def batched_traces(draw: st.DrawFn, names: tuple[str, ...] = SIGNALS, max_length: int = 7,
-                   max_batch: int = 3) -> dict[str, np.ndarray]:
+                   max_batch: int = 3, rescale: bool = True) -> dict[str, np.ndarray]:
     """A batch of 1 … ``max_batch`` trajectories of one length."""
-    return draw(traces(names, max_length=max_length, batch=draw(st.integers(1, max_batch))))
+    return draw(traces(names, max_length=max_length, batch=draw(st.integers(1, max_batch)), rescale=rescale))
 
 
 def rho_maxes() -> st.SearchStrategy[float]:
