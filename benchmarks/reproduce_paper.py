@@ -184,8 +184,9 @@ def write_ablations(runs: Sequence[results.RunResult], docs: Path, context: Prov
         "# TLPS ablations",
         "",
         "Weights (`hybrid`, the default, against `importance` and the paper's literal `paper` form), the "
-        "exploration schedule switched off (`exploration_floor = 0`), and task 2 with `no_revisit=\"strict\"` "
-        "(Eq. 19 literally). TLPS has no feedback-gain option (K_t = 0), so that ablation is not run.",
+        "exploration schedule (a decaying floor on the policy's std, `exploration_floor`) against the default, "
+        "and task 2 with `no_revisit=\"strict\"` (Eq. 19 literally). "
+        "TLPS has no feedback-gain option (K_t = 0), so that ablation is not run.",
         "",
         context.markdown(),
         "",
