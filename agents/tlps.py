@@ -8,9 +8,9 @@ episode draws its own feed-forward sequence ``k_t^i``.
 
 A trajectory τ is what the formula reads: the recorded values of its signals,
 shape ``(T+1, S)`` (``x`` and ``y`` on the car), so TLPS runs on any env wrapped
-by `tl_gym.TLTLRewardWrapper`. One update (Algorithm 1, lines 5–18):
+by `tl_gym.TLTLRewardWrapper`. One update (Algorithm 1, lines 4–18):
 
-1. sample N episodes in one batch (l.5–7);
+1. sample N episodes in one batch (l.4–7);
 2. move every τ^i to the τ̄^i that maximises the smoothed robustness ρ̂ within
    ``‖τ̄^i − τ^i‖² ≤ ε`` (l.8, `tl_gym.agents.trust_region`);
 3. fit a Gaussian to the *updated* trajectories (Eq. 12; line 9's "τ" is a typo:
@@ -192,7 +192,8 @@ class TLPS(Agent):
         # l.18: the buffer is cleared: nothing is carried to the next update.
 
         # TRY NOT TO MODIFY: diagnostics for the history
-        corr = spearmanr(logits, batch.robustness).statistic if np.ptp(batch.robustness) > 0 else 0.0
+        varied = np.ptp(batch.robustness) > 0 and np.ptp(logits) > 0  # spearmanr warns on constants
+        corr = spearmanr(logits, batch.robustness).statistic if varied else 0.0
         return {
             "env_steps": batch.env_steps,
             "mean_robustness": batch.mean_robustness,

@@ -50,6 +50,7 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "importance": ("TLPS", {"weights": "importance"}),
     "importance_floor": ("TLPS", {"weights": "importance", "exploration_floor": 0.1}),
     "paper": ("TLPS", {"weights": "paper"}),
+    "hybrid_0.9": ("TLPS", {"hybrid_mix": 0.9}),
     "hybrid_0.7": ("TLPS", {"hybrid_mix": 0.7}),
     "hybrid_0.7_floor": ("TLPS", {"hybrid_mix": 0.7, "exploration_floor": 0.1}),  # the issue's best recipe
     "hybrid_0.7_beta_30": ("TLPS", {"hybrid_mix": 0.7, "beta": 30.0}),
@@ -285,26 +286,36 @@ def solver_check(
 
 
 def timing(out: Path, iterations: int = 5) -> list[dict[str, Any]]:
-    """Seconds per TLPS iteration (default config, N = 40, T = 200) on both tasks."""
+    """Seconds per TLPS iteration (defaults: N = 40, T = 200) on both tasks, with the machine's load.
+
+    The nested smoothing is timed on task 2 for one iteration only (it costs seconds per solver step).
+    """
     import torch
-    from tl_gym.agents import TLPS
+    from tl_gym.agents import REPS, TLPS
 
     torch.set_num_threads(1)
     rows = []
-    for task in (1, 2):
-        for smoothing in ("linear", "nested"):
+    cases = [("TLPS", 1, "linear", iterations), ("TLPS", 2, "linear", iterations), ("TLPS", 2, "nested", 1),
+             ("REPS", 1, "", iterations), ("REPS", 2, "", iterations)]
+    for kind, task, smoothing, n in cases:
+        if kind == "TLPS":
             agent = TLPS("TLCarNav-v0", seed=0, env_kwargs={"task": task}, smoothing=smoothing)
-            agent.learn(1)  # warm-up
-            agent.learn(iterations)
-            hist = agent.history[1:]
-            rows.append({
-                "task": task, "smoothing": smoothing,
-                "seconds_per_iteration": float(np.mean(np.diff([0.0] + [r["wall_time"] for r in agent.history])[1:])),
-                "sampling": float(np.mean([r["time_sampling"] for r in hist])),
-                "trust_region": float(np.mean([r["time_trust_region"] for r in hist])),
-            })
-            print(rows[-1], flush=True)
-            agent.close()
+        else:
+            agent = REPS("TLCarNav-v0", seed=0, env_kwargs={"task": task})
+        agent.learn(1)  # warm-up
+        load_before = os.getloadavg()[0]
+        agent.learn(n)
+        hist = agent.history[1:]
+        walls = np.diff([agent.history[0]["wall_time"]] + [r["wall_time"] for r in hist])
+        rows.append({
+            "agent": kind, "task": task, "smoothing": smoothing, "iterations": n,
+            "seconds_per_iteration": float(np.mean(walls)), "min_seconds": float(np.min(walls)),
+            "sampling": float(np.mean([r.get("time_sampling", math.nan) for r in hist])),
+            "trust_region": float(np.mean([r.get("time_trust_region", math.nan) for r in hist])),
+            "load_average": 0.5 * (load_before + os.getloadavg()[0]),
+        })
+        print(rows[-1], flush=True)
+        agent.close()
     _write_csv(out / "timing.csv", rows)
     return rows
 
