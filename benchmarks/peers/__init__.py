@@ -34,7 +34,8 @@ class Evaluator:
         per_trajectory: the library's cost is per trajectory (a loop, or a vmap in chunks), so
             the benchmark times it on a prefix of the batch sized by a time budget; throughput
             per trajectory is what is compared.
-        max_length: the longest T the library can take here (memory), or None.
+        max_length: the longest T the library can take here, or None.
+        too_long: why longer trajectories are skipped.
         compiles: the first call on a new batch shape compiles (JIT), so the benchmark
             always makes one untimed call on the timed batch first, however slow.
     """
@@ -45,6 +46,7 @@ class Evaluator:
     expressed: str = ""
     per_trajectory: bool = True
     max_length: int | None = None
+    too_long: str = "memory grows as T²"
     compiles: bool = False
 
 
