@@ -51,7 +51,11 @@ def plot_learning_curves(
             for ax, key in ((top, "mean_robustness"), (bottom, "success_rate")):
                 iterations, values = stack(members, key)
                 mean, low, high = mean_band(values)
-                ax.plot(iterations, mean, color=colors[label], lw=1.5, label=f"{label} ({len(members)})")
+                if key == "success_rate":  # a rate's band stays within [0, 1]
+                    low, high = np.clip(low, 0.0, 1.0), np.clip(high, 0.0, 1.0)
+                marker = "o" if len(iterations) <= 5 else None  # short budgets (SAC) stay visible
+                ax.plot(iterations, mean, color=colors[label], lw=1.5, marker=marker, markersize=4,
+                        label=f"{label} ({len(members)})")
                 ax.fill_between(iterations, low, high, color=colors[label], alpha=0.2, lw=0)
         top.axhline(0.0, color="0.4", lw=0.8, ls="--")
         top.set_title(f"task {task}" if task is not None else "")
