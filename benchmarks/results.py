@@ -198,8 +198,10 @@ def markdown_table(rows: Sequence[GroupSummary]) -> str:
     for row in rows:
         rho, half = row.final_robustness
         evaluation = "–" if row.eval_success is None else f"{row.eval_success:.0%}"
+        final = "–" if math.isnan(rho) else f"{rho:.3g} ± {half:.2g}"  # nan: no episode ended in the iteration
+        success = "–" if math.isnan(row.final_success) else f"{row.final_success:.0%}"
         lines.append(
-            f"| {row.label} | {row.seeds} | {row.iterations} | {rho:.3g} ± {half:.2g} | {row.final_success:.0%} "
+            f"| {row.label} | {row.seeds} | {row.iterations} | {final} | {success} "
             f"| {evaluation} | {_first_text(row.first_positive)} | {_first_text(row.first_success)} "
             f"| {row.env_steps:,.0f} | {row.wall_time:.1f} | {row.note} |"
         )
