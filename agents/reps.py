@@ -24,7 +24,6 @@ task 1 it needed 6–8 updates to a mean robustness above 0 where ``ε = 1`` nee
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -32,9 +31,10 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.special import logsumexp
 
-from .base import Agent, build_config, check_episodic
-from .policy import DEFAULT_INIT_STD, DEFAULT_MIN_STD, LinearGaussianPolicy
-from .sampling import resolve_horizon, rollout
+from .base import build_config, check_episodic
+from .episodic import AbstractEpisodicSearch
+from .policy import DEFAULT_INIT_STD, DEFAULT_MIN_STD
+from .sampling import rollout
 
 #: Lower bound on the temperature ``η`` of standardised returns: below it the
 #: weights are one-hot to machine precision and the dual's gradient is noise.
@@ -135,7 +135,7 @@ def _log_weights(r: np.ndarray, eta: float) -> tuple[np.ndarray, float]:
     return log_w, float(np.exp(log_w) @ (log_w + np.log(r.shape[0])))
 
 
-class REPS(Agent):
+class REPS(AbstractEpisodicSearch):
     """Episodic REPS over the feed-forward terms of a time-varying linear-Gaussian policy.
 
     See the module docstring for the algorithm and `REPSConfig` for the hyperparameters.
@@ -155,15 +155,6 @@ class REPS(Agent):
     def _make_config(cls, hyperparameters: dict[str, Any]) -> REPSConfig:
         return build_config(REPSConfig, hyperparameters, cls.__name__)
 
-    def _num_envs(self) -> int:
-        return self.config.n_episodes
-
-    def _setup(self) -> None:
-        self.horizon = resolve_horizon(self.config.horizon, self.env)
-        self.policy = LinearGaussianPolicy.for_spaces(
-            self.observation_space, self.action_space, self.horizon, init_mean=self.config.init_mean,
-            init_std=self.config.init_std, covariance=self.config.covariance, min_std=self.config.min_std,
-        )
 
     def _update(self, iteration: int) -> dict[str, Any]:
         seed = int(self.rng.integers(2**31 - 1))
@@ -179,22 +170,3 @@ class REPS(Agent):
             "kl": kl,
             "policy_std": float(self.policy.std.mean()),
         }
-
-    def predict(
-        self, obs: Any, state: Any = None, episode_start: Any = None, deterministic: bool = True
-    ) -> tuple[np.ndarray, Any]:
-        action, state = self.policy.predict(obs, state, episode_start, deterministic, self._predict_rng)
-        return np.clip(action, self.action_space.low, self.action_space.high), state
-
-    def _config(self) -> dict[str, Any]:
-        return dataclasses.asdict(self.config)
-
-    def _state_arrays(self) -> dict[str, np.ndarray]:
-        return self.policy.arrays()
-
-    def _extra_files(self) -> dict[str, bytes]:
-        return {}
-
-    def _load_state(self, arrays: dict[str, np.ndarray], files: dict[str, bytes]) -> None:
-        self.policy.load_arrays(arrays)
-

@@ -27,7 +27,6 @@ not the literal softmax of densities, which does not learn (see `TLPSConfig.weig
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -36,9 +35,10 @@ from typing import Any
 import numpy as np
 from scipy.stats import spearmanr
 
-from .base import Agent, build_config, check_episodic
-from .policy import DEFAULT_INIT_STD, DEFAULT_MIN_STD, LinearGaussianPolicy
-from .sampling import resolve_horizon, rollout
+from .base import build_config, check_episodic
+from .episodic import AbstractEpisodicSearch
+from .policy import DEFAULT_INIT_STD, DEFAULT_MIN_STD
+from .sampling import rollout
 from .trust_region import check_trust_region, improve_trajectories
 from .weights import WEIGHTINGS, adapt_alpha, kl_to_uniform, sample_logits, softmax_weights
 
@@ -131,7 +131,7 @@ def _positive(name: str, value: Any) -> None:
         raise ValueError(f"{name} must be a positive finite number, got {value!r}")
 
 
-class TLPS(Agent):
+class TLPS(AbstractEpisodicSearch):
     """Temporal Logic Policy Search (the paper's Algorithm 1) on any TLTL-wrapped env.
 
     See the module docstring for the algorithm and `TLPSConfig` for the hyperparameters.
@@ -153,16 +153,11 @@ class TLPS(Agent):
     def _make_config(cls, hyperparameters: dict[str, Any]) -> TLPSConfig:
         return build_config(TLPSConfig, hyperparameters, cls.__name__)
 
-    def _num_envs(self) -> int:
-        return self.config.n_episodes
 
-    def _setup(self) -> None:
-        self.horizon = resolve_horizon(self.config.horizon, self.env)
-        self.signal_names = self.formula.signals
-        self.policy = LinearGaussianPolicy.for_spaces(  # l.2
-            self.observation_space, self.action_space, self.horizon, init_mean=self.config.init_mean,
-            init_std=self.config.init_std, covariance=self.config.covariance, min_std=self.config.min_std,
-        )
+    @property
+    def signal_names(self) -> tuple[str, ...]:
+        """The signals that make up a trajectory τ, in the order of its last axis."""
+        return self.formula.signals
 
     def _update(self, iteration: int) -> dict[str, Any]:
         cfg = self.config
@@ -208,21 +203,3 @@ class TLPS(Agent):
             "time_sampling": sampled_at - start,
             "time_trust_region": solved_at - sampled_at,
         }
-
-    def predict(
-        self, obs: Any, state: Any = None, episode_start: Any = None, deterministic: bool = True
-    ) -> tuple[np.ndarray, Any]:
-        action, state = self.policy.predict(obs, state, episode_start, deterministic, self._predict_rng)
-        return np.clip(action, self.action_space.low, self.action_space.high), state
-
-    def _config(self) -> dict[str, Any]:
-        return dataclasses.asdict(self.config)
-
-    def _state_arrays(self) -> dict[str, np.ndarray]:
-        return self.policy.arrays()
-
-    def _extra_files(self) -> dict[str, bytes]:
-        return {}
-
-    def _load_state(self, arrays: dict[str, np.ndarray], files: dict[str, bytes]) -> None:
-        self.policy.load_arrays(arrays)
