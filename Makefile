@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup demo test lint bench bench-quick clean
+.PHONY: setup demo test lint bench bench-quick bench-peers clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -32,5 +32,16 @@ bench: $(STAMP)
 bench-quick: $(STAMP)
 	$(PY) -m benchmarks.run_all --quick
 
+# The engine against rtamt, argus, STLRom, stlcg++ and stljax, in their own virtualenv
+# (STLRom builds from source: apt-get install bison flex).
+.venv-bench/.installed: pyproject.toml benchmarks/requirements-peers.txt
+	$(PYTHON) -m venv .venv-bench
+	.venv-bench/bin/python -m pip install --quiet torch==2.13.0
+	.venv-bench/bin/python -m pip install --quiet -e . -r benchmarks/requirements-peers.txt
+	touch .venv-bench/.installed
+
+bench-peers: .venv-bench/.installed
+	.venv-bench/bin/python -m benchmarks.bench_robustness
+
 clean:
-	rm -rf $(VENV) build dist *.egg-info
+	rm -rf $(VENV) .venv-bench build dist *.egg-info
