@@ -139,28 +139,33 @@ class _Smoother:
         rhs, rhs_grad = evaluate_with_gradient(node.rhs, self.signals)
         with np.errstate(all="ignore"):
             value = np.broadcast_to(rhs - lhs if node.op in ("<", "<=") else lhs - rhs, (self.length, self.n))
-        finite = np.isfinite(value)
-        if not finite.all():
-            t, i = np.argwhere(~finite)[0]
+        # a NaN or inf makes the sum non-finite: one cheap pass clears almost every call
+        if not np.isfinite(np.sum(value)) and not np.isfinite(value).all():
+            t, i = np.argwhere(~np.isfinite(value))[0]
             raise TraceError(f"predicate {str(node)!r} is NaN or infinite at trajectory {i}, position {t}")
         sign = -1.0 if node.op in ("<", "<=") else 1.0  # d value / d lhs
-        z = self.beta * value
+        z = self.beta * (value[:1] if first_only else value)
 
         def backward(g: np.ndarray) -> None:
-            scale = np.zeros((self.length, self.n))
-            scale[: len(g)] = self.beta * g
+            if len(g) == self.length:
+                scale = self.beta * g
+            else:  # position 0 only
+                scale = np.zeros((self.length, self.n))
+                scale[: len(g)] = self.beta * g
             shape = scale.shape
             self.send_signals({k: np.broadcast_to(v, shape) for k, v in lhs_grad(sign * scale).items()})
             self.send_signals({k: np.broadcast_to(v, shape) for k, v in rhs_grad(-sign * scale).items()})
 
-        return np.array(z[:1] if first_only else z), backward
+        return z, backward
 
     def not_(self, node: Not, first_only: bool) -> tuple[np.ndarray, _Backward]:
         return -self(node.child, first_only), lambda g: self.send(node.child, first_only, -g)
 
     def _nary(self, node: And | Or, first_only: bool, sign: float) -> tuple[np.ndarray, _Backward]:
         """``sign·lse(sign·children)``: smooth max (sign = 1) or min (sign = -1)."""
-        stacked = np.stack([sign * self(c, first_only) for c in node.operands])
+        stacked = np.stack([self(c, first_only) for c in node.operands])
+        if sign < 0:
+            np.negative(stacked, out=stacked)
         reduced, softmax = lse.reduce_forward(stacked, 0)
         del stacked
 
