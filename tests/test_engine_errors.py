@@ -182,13 +182,8 @@ def test_builders_reject_non_formulas_and_non_numbers():
         signal("x") < math.inf  # noqa: B015
 
 
-_BUG6 = pytest.mark.xfail(strict=True, reason="engine bug 6 in /work/briefs/engine_bugs.md: np.sum(inf, -inf) warns")
-
-
-@pytest.mark.parametrize(
-    "method", [pytest.param(m, marks=_BUG6) if not m.startswith("smooth") else m for m in EVALUATORS]
-)
+@pytest.mark.parametrize("method", EVALUATORS)
 def test_mixed_infinite_margin_raises_trace_error(method):
-    """A margin of [-inf, +inf] (x · log 0 with x of both signs): TraceError, no numpy warning."""
+    """A margin of [-inf, +inf] (x · log 0 with x of both signs): TraceError, no numpy warning (engine bug 6)."""
     with pytest.raises(TraceError, match="position 0"):
         _evaluators(parse("F(x < x * log(0))"))[method]({"x": [1.0, -1.0]})
