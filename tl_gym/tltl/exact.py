@@ -144,7 +144,9 @@ class _Evaluator:
         margin = np.broadcast_to(margin, shape)
         # Undefined arithmetic (log of a negative, overflow...) is refused. A NaN or inf makes the
         # sum non-finite, so one cheap pass clears almost every call; only then look closer.
-        if not np.isfinite(np.sum(margin)) and not np.isfinite(margin).all():
+        with np.errstate(all="ignore"):
+            suspicious = not np.isfinite(np.sum(margin))
+        if suspicious and not np.isfinite(margin).all():
             i, t = np.argwhere(~np.isfinite(margin))[0]
             raise TraceError(
                 f"predicate {str(node)!r} is NaN or infinite at trajectory {i}, position {t} "

@@ -140,7 +140,9 @@ class _Smoother:
         with np.errstate(all="ignore"):
             value = np.broadcast_to(rhs - lhs if node.op in ("<", "<=") else lhs - rhs, (self.length, self.n))
         # a NaN or inf makes the sum non-finite: one cheap pass clears almost every call
-        if not np.isfinite(np.sum(value)) and not np.isfinite(value).all():
+        with np.errstate(all="ignore"):
+            suspicious = not np.isfinite(np.sum(value))
+        if suspicious and not np.isfinite(value).all():
             t, i = np.argwhere(~np.isfinite(value))[0]
             raise TraceError(f"predicate {str(node)!r} is NaN or infinite at trajectory {i}, position {t}")
         sign = -1.0 if node.op in ("<", "<=") else 1.0  # d value / d lhs
