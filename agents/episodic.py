@@ -22,7 +22,7 @@ class AbstractEpisodicSearch(Agent):
     """Abstract agent over a `LinearGaussianPolicy`; subclasses define `_make_config` and `_update`.
 
     The config must have the fields ``n_episodes``, ``horizon``, ``init_mean``,
-    ``init_std``, ``covariance`` and ``min_std``.
+    ``init_std``, ``covariance``, ``min_std`` and ``gains``.
     """
 
     policy: LinearGaussianPolicy
@@ -36,7 +36,7 @@ class AbstractEpisodicSearch(Agent):
         self.horizon = resolve_horizon(cfg.horizon, self.env)
         self.policy = LinearGaussianPolicy.for_spaces(  # Algorithm 1, l.2
             self.observation_space, self.action_space, self.horizon, init_mean=cfg.init_mean,
-            init_std=cfg.init_std, covariance=cfg.covariance, min_std=cfg.min_std,
+            init_std=cfg.init_std, covariance=cfg.covariance, min_std=cfg.min_std, gains=cfg.gains,
         )
 
     @abc.abstractmethod

@@ -59,8 +59,14 @@ class REPSConfig:
     """Floor on the policy's standard deviation (> 0)."""
     covariance: str = "diag"
     """``"diag"`` or ``"full"`` covariance ``C_t`` per time step."""
+    gains: Any = None
+    """Fixed feedback gains ``K_t`` of the policy ``a = K_t s_t + k_t``: an array (or nested lists) of
+    shape ``(act_dim, obs_dim)`` or ``(T, act_dim, obs_dim)``; ``None`` is zeros, the default (fixed
+    gains around a mean path cancelled exploration in the feasibility studies). Stored as lists."""
 
     def __post_init__(self) -> None:
+        if self.gains is not None:  # plain lists, so that the config stays JSON
+            object.__setattr__(self, "gains", np.asarray(self.gains, dtype=float).tolist())
         check_episodic(self.n_episodes, self.horizon)
         if not self.epsilon > 0:
             raise ValueError(f"epsilon must be > 0 (the KL bound), got {self.epsilon}")

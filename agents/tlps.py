@@ -94,11 +94,17 @@ class TLPSConfig:
     """Iterations over which the exploration floor halves (> 0)."""
     covariance: str = "diag"
     """``"diag"`` or ``"full"`` covariance ``C_t`` per time step."""
+    gains: Any = None
+    """Fixed feedback gains ``K_t`` of the policy ``a = K_t s_t + k_t``: an array (or nested lists) of
+    shape ``(act_dim, obs_dim)`` or ``(T, act_dim, obs_dim)``; ``None`` is zeros, the default (fixed
+    gains around a mean path cancelled exploration in the feasibility studies). Stored as lists."""
     threads: int | None = 1
     """Torch threads during the trust-region solve (one is fastest for these small tensors);
     ``None`` keeps the process setting."""
 
     def __post_init__(self) -> None:
+        if self.gains is not None:  # plain lists, so that the config stays JSON
+            object.__setattr__(self, "gains", np.asarray(self.gains, dtype=float).tolist())
         check_episodic(self.n_episodes, self.horizon)
         check_trust_region(self.epsilon, self.beta, self.solver, self.solver_steps, self.solver_decay)
         if self.smoothing not in SMOOTHING_FORMS:
