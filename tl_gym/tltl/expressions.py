@@ -89,54 +89,65 @@ def evaluate_with_gradient(expr: Expr, signals: dict[str, np.ndarray]) -> tuple[
             (a, back_a), (b, back_b) = ev(e.left), ev(e.right)
             with np.errstate(all="ignore"):
                 if e.op == "+":
-                    out, da, db = a + b, 1.0, 1.0
+                    out = a + b
                 elif e.op == "-":
-                    out, da, db = a - b, 1.0, -1.0
+                    out = a - b
                 elif e.op == "*":
-                    out, da, db = a * b, b, a
+                    out = a * b
                 elif e.op == "/":
                     out = a / b
-                    da, db = 1.0 / b, -out / b
                 else:
                     out = np.power(np.float64(a) if isinstance(a, float) else a, b)
-                    da = b * np.power(a, b - 1.0) if back_a is not None else 0.0
-                    db = out * np.log(a) if back_b is not None else 0.0
+
+            def slopes() -> tuple[Any, Any]:
+                # derivatives are computed only when a gradient is asked for
+                if e.op == "+":
+                    return 1.0, 1.0
+                if e.op == "-":
+                    return 1.0, -1.0
+                if e.op == "*":
+                    return b, a
+                if e.op == "/":
+                    return 1.0 / b, -out / b
+                da = (2.0 * a if b == 2.0 else b * np.power(a, b - 1.0)) if back_a is not None else 0.0
+                return da, (out * np.log(a) if back_b is not None else 0.0)
 
             def back_bin(grad: Any, sink: dict[str, Any]) -> None:
-                if back_a is not None:
-                    back_a(grad * da, sink)
-                if back_b is not None:
-                    back_b(grad * db, sink)
+                with np.errstate(all="ignore"):
+                    da, db = slopes()
+                    if back_a is not None:
+                        back_a(grad * da, sink)
+                    if back_b is not None:
+                        back_b(grad * db, sink)
 
             return out, (None if back_a is None and back_b is None else back_bin)
         if isinstance(e, Call):
             parts = [ev(a) for a in e.args]
             values = [p[0] for p in parts]
+            pick = None
             with np.errstate(all="ignore"):
                 if e.func in ("min", "max"):
                     stacked = np.stack(np.broadcast_arrays(*values))
                     pick = stacked.argmin(0) if e.func == "min" else stacked.argmax(0)
                     out = np.take_along_axis(stacked, pick[None], 0)[0]
-                    slopes = [(pick == i).astype(np.float64) for i in range(len(values))]
                 else:
                     x = values[0]
                     x = np.float64(x) if isinstance(x, float) else x
-                    if e.func == "abs":
-                        out, slope = np.abs(x), np.sign(x)
-                    elif e.func == "sqrt":
-                        out = np.sqrt(x)
-                        slope = 0.5 / out
-                    elif e.func == "exp":
-                        out = np.exp(x)
-                        slope = out
-                    else:
-                        out, slope = np.log(x), 1.0 / x
-                    slopes = [slope]
+                    out = {"abs": np.abs, "sqrt": np.sqrt, "exp": np.exp, "log": np.log}[e.func](x)
+
+            def call_slopes() -> list[Any]:
+                if pick is not None:
+                    return [(pick == i).astype(np.float64) for i in range(len(values))]
+                x = values[0]
+                slope = {"abs": lambda: np.sign(x), "sqrt": lambda: 0.5 / out, "exp": lambda: out,
+                         "log": lambda: 1.0 / x}[e.func]()
+                return [slope]
 
             def back_call(grad: Any, sink: dict[str, Any]) -> None:
-                for (_, back), slope in zip(parts, slopes):
-                    if back is not None:
-                        back(grad * slope, sink)
+                with np.errstate(all="ignore"):
+                    for (_, back), slope in zip(parts, call_slopes()):
+                        if back is not None:
+                            back(grad * slope, sink)
 
             return out, (None if all(p[1] is None for p in parts) else back_call)
         raise TypeError(f"no evaluation rule for expression node {type(e).__name__}")
