@@ -2,8 +2,8 @@
 
 Every evaluator of the speed benchmark (tl_gym, the hand-written numpy functions,
 each peer library) builds its formula from one `Task`, so all of them judge the
-same goals and obstacle. The layout is the car arena's: a 300 × 300 square,
-30 × 30 goals, an obstacle of radius 40 in the middle.
+same goals and obstacle: those of TLCarNav-v0 (`tl_gym.envs.tasks`), whose formula
+is also the one tl_gym evaluates here.
 
 Example:
     >>> task = task_formula("phi1")
@@ -13,6 +13,8 @@ Example:
     >>> x, y = np.array([10.0, 250.0]), np.array([10.0, 250.0])  # ends inside the goal
     >>> float(task.formula.robustness({"x": x, "y": y}))
     10.0
+    >>> task.formula == tl_gym_task_formula(1)
+    True
 """
 
 from __future__ import annotations
@@ -20,11 +22,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cached_property
 
-from tl_gym import Formula, parse
+from tl_gym.envs.tasks import make_layout
+from tl_gym.envs.tasks import task_formula as tl_gym_task_formula
 
-ARENA = 300.0  # side of the square arena
-GOAL = 30.0  # side of a square goal
-OBSTACLE_RADIUS = 40.0
+from tl_gym import Formula
+
+ARENA = float(make_layout(1).arena[0])  # side of the square arena, for drawing random paths
 
 TASKS = ("phi1", "phi2", "phi2-strict")
 
@@ -56,10 +59,6 @@ class Circle:
         return f"sqrt((x - {self.cx:g})^2 + (y - {self.cy:g})^2) > {self.r:g}"
 
 
-def _square(x: float, y: float) -> Box:
-    return Box(x, x + GOAL, y, y + GOAL)
-
-
 @dataclass(frozen=True)
 class Task:
     """One benchmark formula: φ1, φ2 (default no-revisit) or φ2 with the paper's strict no-revisit.
@@ -80,25 +79,9 @@ class Task:
         return self.key == "phi2-strict"
 
     @cached_property
-    def text(self) -> str:
-        """The formula in tl_gym syntax."""
-        avoid = f"G({self.obstacle.text()})"
-        g = [f"({b.text()})" for b in self.goals]
-        if self.key == "phi1":
-            return f"F{g[0]} & {avoid}"
-        order = f"({g[0]} T {g[1]} T {g[2]})"
-        not_before_first = f"(!({g[1]} | {g[2]}) U {g[0]})"
-        not_before_second = f"(!{g[2]} U {g[1]})"
-        if self.strict:  # Eq. 19 literally: once in g, never again (not even the next step)
-            revisit = [f"G({gi} -> X G !{gi})" for gi in g]
-        else:  # leaving g (inside now, outside next) means never coming back
-            revisit = [f"G(({gi} & X !{gi}) -> X G !{gi})" for gi in g]
-        return " & ".join([order, not_before_first, not_before_second, *revisit, avoid])
-
-    @cached_property
     def formula(self) -> Formula:
-        """The parsed tl_gym formula (compiled once, evaluated many times)."""
-        return parse(self.text)
+        """The env's tl_gym formula for this task (compiled once, evaluated many times)."""
+        return tl_gym_task_formula(1 if self.key == "phi1" else 2, "strict" if self.strict else "leave")
 
 
 def task_formula(key: str) -> Task:
@@ -109,7 +92,7 @@ def task_formula(key: str) -> Task:
     """
     if key not in TASKS:
         raise ValueError(f"unknown task {key!r}; expected one of {', '.join(TASKS)}")
-    obstacle = Circle(ARENA / 2, ARENA / 2, OBSTACLE_RADIUS)
-    if key == "phi1":
-        return Task(key, (_square(240.0, 240.0),), obstacle)
-    return Task(key, (_square(45.0, 225.0), _square(225.0, 225.0), _square(225.0, 45.0)), obstacle)
+    layout = make_layout(1 if key == "phi1" else 2)
+    goals = tuple(Box(g.x_low, g.x_high, g.y_low, g.y_high) for g in layout.goals)
+    o = layout.obstacle
+    return Task(key, goals, Circle(o.x, o.y, o.radius))
