@@ -36,6 +36,29 @@ def reduce_forward(z: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
     return (peak + np.log(total)).squeeze(axis), weights
 
 
+def reduce_operands(operands: list[np.ndarray], sign: float) -> tuple[np.ndarray, list[np.ndarray]]:
+    """``sign·log Σ_i exp(sign·operands[i])`` (smooth max for sign 1, min for -1) and each operand's weight.
+
+    The same value as `reduce_forward` over the stacked operands, without building the
+    stack (one full copy of every operand) or negating it: the shift is the elementwise
+    extreme, and ``sign·(operand − extreme)`` is one subtraction per operand.
+    """
+    pick = np.maximum if sign > 0 else np.minimum
+    peak = pick(operands[0], operands[1])
+    for operand in operands[2:]:
+        pick(peak, operand, out=peak)
+    weights = []
+    total = np.zeros_like(peak)
+    for operand in operands:
+        w = np.subtract(operand, peak) if sign > 0 else np.subtract(peak, operand)
+        _exp_floored(w)
+        total += w
+        weights.append(w)
+    for w in weights:
+        w /= total
+    return peak + sign * np.log(total), weights
+
+
 def reduce_backward(weights: np.ndarray, grad: np.ndarray, axis: int) -> np.ndarray:
     """Gradient of `reduce_forward` wrt ``z``: the softmax weights times the upstream gradient."""
     return np.expand_dims(grad, axis) * weights

@@ -165,17 +165,13 @@ class _Smoother:
 
     def _nary(self, node: And | Or, first_only: bool, sign: float) -> tuple[np.ndarray, _Backward]:
         """``sign·lse(sign·children)``: smooth max (sign = 1) or min (sign = -1)."""
-        stacked = np.stack([self(c, first_only) for c in node.operands])
-        if sign < 0:
-            np.negative(stacked, out=stacked)
-        reduced, softmax = lse.reduce_forward(stacked, 0)
-        del stacked
+        out, weights = lse.reduce_operands([self(c, first_only) for c in node.operands], sign)
 
         def backward(g: np.ndarray) -> None:
-            for child, w in zip(node.operands, lse.reduce_backward(softmax, g, 0)):
-                self.send(child, first_only, w)
+            for child, w in zip(node.operands, weights):
+                self.send(child, first_only, g * w)
 
-        return sign * reduced, backward
+        return out, backward
 
     def and_(self, node: And, first_only: bool) -> tuple[np.ndarray, _Backward]:
         return self._nary(node, first_only, -1.0)
