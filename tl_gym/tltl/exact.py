@@ -29,10 +29,12 @@ from tl_gym.tltl.ast import (
     Implies,
     Next,
     Not,
+    Num,
     Or,
     Predicate,
     Then,
     Until,
+    Var,
 )
 from tl_gym.tltl.expressions import evaluate_expression
 from tl_gym.tltl.trace import Trace, prepare
@@ -102,9 +104,12 @@ class _Evaluator:
     becomes one reduction over time instead of a scan.
     """
 
-    def __init__(self, alg: _Algebra, signals: dict[str, np.ndarray], n: int, length: int):
+    def __init__(
+        self, alg: _Algebra, signals: dict[str, np.ndarray], n: int, length: int, magnitudes: dict[str, float]
+    ):
         self.alg = alg
         self.signals = signals
+        self.magnitudes = magnitudes
         self.n = n
         self.length = length
         self.cache: dict[tuple[Formula, bool], np.ndarray] = {}  # a repeated sub-formula is evaluated once
@@ -127,7 +132,8 @@ class _Evaluator:
 
     def on_prefix(self, node: Formula, length: int) -> np.ndarray:
         """Values of ``node`` at every position of the truncated trace s_0 … s_{length-1}."""
-        sub = _Evaluator(self.alg, {k: v[:, :length] for k, v in self.signals.items()}, self.n, length)
+        signals = {k: v[:, :length] for k, v in self.signals.items()}
+        sub = _Evaluator(self.alg, signals, self.n, length, self.magnitudes)
         return sub(node)
 
     # rules ----------------------------------------------------------------------------
@@ -145,7 +151,7 @@ class _Evaluator:
         # Undefined arithmetic (log of a negative, overflow...) is refused. A NaN or inf makes the
         # sum non-finite, so one cheap pass clears almost every call; only then look closer.
         with np.errstate(all="ignore"):
-            suspicious = not np.isfinite(np.sum(margin))
+            suspicious = not self._cannot_overflow(node) and not np.isfinite(np.sum(margin))
         if suspicious and not np.isfinite(margin).all():
             i, t = np.argwhere(~np.isfinite(margin))[0]
             raise TraceError(
@@ -153,6 +159,18 @@ class _Evaluator:
                 "(its arithmetic is undefined there)"
             )
         return np.asarray(self.alg.predicate(margin, node.op), dtype=self.alg.dtype)
+
+    def _cannot_overflow(self, node: Predicate) -> bool:
+        """Whether the margin is a difference of signals and numbers too small to overflow."""
+        bound = 0.0
+        for side in (node.lhs, node.rhs):
+            if isinstance(side, Var):
+                bound += self.magnitudes[side.name]
+            elif isinstance(side, Num):
+                bound += abs(side.value)
+            else:
+                return False
+        return bound < 1e307
 
     def not_(self, node: Not, first_only: bool) -> np.ndarray:
         return self.alg.negate(self(node.child, first_only))
@@ -274,7 +292,7 @@ _RULES: dict[type, Callable[[_Evaluator, Any], np.ndarray]] = {
 
 def _evaluate(formula: Formula, trace: Trace, alg: _Algebra, first_only: bool) -> tuple[np.ndarray, bool]:
     prepared = prepare(formula.signals, trace)
-    values = _Evaluator(alg, prepared.signals, prepared.n, prepared.length)(formula, first_only)
+    values = _Evaluator(alg, prepared.signals, prepared.n, prepared.length, prepared.magnitudes)(formula, first_only)
     return values, prepared.batched
 
 

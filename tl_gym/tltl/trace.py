@@ -41,6 +41,7 @@ class Prepared:
     n: int
     length: int
     batched: bool
+    magnitudes: dict[str, float]  # max |value| of each signal: lets evaluators skip overflow checks
 
 
 def prepare(names: tuple[str, ...], trace: Trace, *, torch_ok: bool = False) -> Prepared:
@@ -58,19 +59,20 @@ def prepare(names: tuple[str, ...], trace: Trace, *, torch_ok: bool = False) -> 
             f"the trace has no signal {missing[0]!r}, which the formula reads (trace has: {available})"
         )
     out: dict[str, Any] = {}
+    magnitudes: dict[str, float] = {}
     shape: tuple[int, ...] | None = None
     first = names[0] if names else None
     for name in names:
         value = trace[name]
         if torch_ok and is_torch(value):
             array = value
-            finite = value.detach().isfinite().cpu().numpy()
+            magnitude = float(value.detach().abs().max()) if value.numel() else 0.0
         else:
             try:
                 array = np.asarray(value, dtype=np.float64)
             except (TypeError, ValueError) as exc:
                 raise TraceError(f"signal {name!r} is not numeric: {exc}") from None
-            finite = np.isfinite(array)
+            magnitude = float(np.max(np.abs(array))) if array.size else 0.0
         if array.ndim not in (1, 2) or array.shape[-1] == 0:
             raise TraceError(
                 f"signal {name!r} has shape {tuple(array.shape)}; expected (T,) or (N, T) with T >= 1"
@@ -82,8 +84,10 @@ def prepare(names: tuple[str, ...], trace: Trace, *, torch_ok: bool = False) -> 
                 f"signal {name!r} has shape {tuple(array.shape)} but {first!r} has {shape}; "
                 "all signals of a trace share one shape"
             )
-        if not finite.all():
+        if not np.isfinite(magnitude):  # a NaN or inf anywhere makes the max non-finite
+            finite = value.detach().isfinite().cpu().numpy() if is_torch(array) else np.isfinite(array)
             raise _first_bad(name, finite, array.ndim == 2)
+        magnitudes[name] = magnitude
         out[name] = array if array.ndim == 2 else array[None, :]
     if shape is None:  # the formula reads no signal: take the length from the trace
         shapes = [tuple(np.shape(v)) for v in trace.values()]
@@ -91,4 +95,4 @@ def prepare(names: tuple[str, ...], trace: Trace, *, torch_ok: bool = False) -> 
         if not shapes:
             raise TraceError("the formula reads no signal, so the trace must hold an array that gives its length")
         shape = shapes[0]
-    return Prepared(out, shape[0] if len(shape) == 2 else 1, shape[-1], len(shape) == 2)
+    return Prepared(out, shape[0] if len(shape) == 2 else 1, shape[-1], len(shape) == 2, magnitudes)
