@@ -23,6 +23,7 @@ from tl_gym.errors import TraceError
 from tl_gym.tltl.ast import (
     Always,
     And,
+    Call,
     Constant,
     Eventually,
     Formula,
@@ -80,6 +81,10 @@ BOOLEAN = _Algebra(
     maximum=np.logical_or, minimum=np.logical_and, negate=np.logical_not,
     predicate=_boolean_predicate, empty_max=False, empty_min=True,
 )
+
+
+# Increasing functions whose extreme over time can be taken before applying them.
+_MONOTONE = {"sqrt": np.sqrt, "exp": np.exp, "log": np.log}
 
 
 def _suffix(ufunc: np.ufunc, values: np.ndarray) -> np.ndarray:
@@ -202,12 +207,47 @@ class _Evaluator:
         return out
 
     def eventually(self, node: Eventually, first_only: bool) -> np.ndarray:
+        if first_only:
+            hoisted = self._monotone_extreme(node.child, largest=True)
+            if hoisted is not None:
+                return hoisted
         child = self(node.child)
         return self.alg.maximum.reduce(child, axis=1, keepdims=True) if first_only else _suffix(self.alg.maximum, child)
 
     def always(self, node: Always, first_only: bool) -> np.ndarray:
+        if first_only:
+            hoisted = self._monotone_extreme(node.child, largest=False)
+            if hoisted is not None:
+                return hoisted
         child = self(node.child)
         return self.alg.minimum.reduce(child, axis=1, keepdims=True) if first_only else _suffix(self.alg.minimum, child)
+
+    def _monotone_extreme(self, node: Formula, largest: bool) -> np.ndarray | None:
+        """Max (F) or min (G) over time of a predicate ``f(e) ⋈ c`` with f increasing, or None.
+
+        For f in sqrt, exp, log the extreme over time commutes with f, so f is applied to
+        the ``(N, 1)`` extreme of e instead of to every state (the obstacle clause
+        ``G(sqrt(...) > r)`` of the car tasks). Both extremes of e are checked to lie in
+        f's domain, so a trace that the general path would refuse takes the general path.
+        """
+        if self.alg.dtype is not np.float64 or not isinstance(node, Predicate):
+            return None
+        if isinstance(node.lhs, Call) and node.lhs.func in _MONOTONE and isinstance(node.rhs, Num):
+            call, constant, grows = node.lhs, node.rhs.value, node.op in (">", ">=")
+        elif isinstance(node.rhs, Call) and node.rhs.func in _MONOTONE and isinstance(node.lhs, Num):
+            call, constant, grows = node.rhs, node.lhs.value, node.op in ("<", "<=")
+        else:
+            return None
+        with np.errstate(all="ignore"):
+            inner = np.broadcast_to(evaluate_expression(call.args[0], self.signals, None), (self.n, self.length))
+            low, high = inner.min(axis=1, keepdims=True), inner.max(axis=1, keepdims=True)
+            function = _MONOTONE[call.func]
+            ends = function(low), function(high)
+        if not (np.isfinite(ends[0]).all() and np.isfinite(ends[1]).all()):
+            return None  # outside f's domain somewhere (or NaN): the general path names the position
+        # margin = f(e) - c if it grows with f, else c - f(e); pick the extreme of the margin
+        extreme = ends[1] if grows == largest else ends[0]
+        return extreme - constant if grows else constant - extreme
 
     def until(self, node: Until, first_only: bool) -> np.ndarray:
         alg = self.alg

@@ -1,0 +1,40 @@
+"""Shortcuts of the exact evaluator give the general path's answers, errors included."""
+
+import numpy as np
+import pytest
+
+from tl_gym import TraceError, parse
+
+# F/G of a predicate over sqrt/exp/log take the extreme before the function (position 0 only);
+# robustness_over_time never takes the shortcut, so its entry 0 is the general path's value.
+MONOTONE = [
+    "G(sqrt((x - 1)^2 + y^2) > 1)",
+    "F(sqrt(x^2 + y^2) >= 2)",
+    "G(2 < exp(x / 3))",
+    "F(3 > log(x^2 + 1))",
+    "G(log(x^2 + 1) <= 1.5)",
+    "F(1 <= sqrt(abs(y)))",
+]
+
+
+@pytest.mark.parametrize("text", MONOTONE)
+def test_monotone_shortcut_equals_the_general_path(text):
+    rng = np.random.default_rng(0)
+    trace = {"x": rng.normal(0, 2, (64, 25)), "y": rng.normal(0, 2, (64, 25))}
+    formula = parse(text)
+    np.testing.assert_array_equal(formula.robustness(trace), formula.robustness_over_time(trace)[:, 0])
+    assert formula.robustness({k: v[0] for k, v in trace.items()}) == formula.robustness_over_time(trace)[0, 0]
+
+
+@pytest.mark.parametrize("text", ["G(sqrt(x) > 1)", "F(log(x) < 0)", "G(exp(x) > 0)"])
+def test_monotone_shortcut_refuses_what_the_general_path_refuses(text):
+    trace = {"x": np.array([[1.0, 4.0, -1.0, 800.0]])}
+    with pytest.raises(TraceError, match=r"position (2|3)"):
+        parse(text).robustness(trace)
+
+
+def test_signal_versus_number_skips_no_real_overflow():
+    # x - (-1e308) overflows although x is finite: the magnitude bound must send it to the check
+    with pytest.raises(TraceError, match="position 0"):
+        parse("x > -1e308").robustness({"x": [1e308, 0.0]})
+    assert parse("x > 240").robustness({"x": [250.0, 0.0]}) == 10.0
