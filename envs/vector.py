@@ -21,7 +21,7 @@ from tl_gym.envs.car import ACTION_SPACE, RENDER_SIZE, observation_space
 from tl_gym.envs.dynamics import CarParams, car_step, sample_episode_noise
 from tl_gym.envs.tasks import Layout, make_layout, task_formula
 
-from tl_gym.wrapper import DEFAULT_CLIP, REWARDS
+from tl_gym.wrapper import DEFAULT_CLIP, REWARDS, check_positive
 
 
 class CarNavVectorEnv(VectorEnv):
@@ -89,9 +89,9 @@ class CarNavVectorEnv(VectorEnv):
                 f"CarNavVectorEnv pays terminal rewards only, got reward_mode={reward_mode!r}; for dense rewards "
                 'use gym.make_vec("TLCarNav-v0", vectorization_mode="sync", reward_mode="dense")'
             )
-        for name, value, allow_inf in (("beta", beta, False), ("rho_max", rho_max, True), ("clip", clip, False)):
-            if not (isinstance(value, (int, float)) and value > 0 and (allow_inf or math.isfinite(value))):
-                raise ValueError(f"{name} must be {'> 0' if allow_inf else 'finite and > 0'}, got {value!r}")
+        check_positive("beta", beta, allow_inf=False)
+        check_positive("rho_max", rho_max, allow_inf=True)
+        check_positive("clip", clip, allow_inf=False)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
         self.num_envs = int(num_envs)

@@ -113,9 +113,9 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             raise ValueError(f"reward_mode must be one of {REWARD_MODES}, got {reward_mode!r}")
         if reward_mode == "dense" and reward == "smooth":
             raise ValueError("reward_mode='dense' pays exact robustness increments; use reward='exact'")
-        _check_positive("beta", beta, allow_inf=False)
-        _check_positive("rho_max", rho_max, allow_inf=True)
-        _check_positive("clip", clip, allow_inf=False)
+        check_positive("beta", beta, allow_inf=False)
+        check_positive("rho_max", rho_max, allow_inf=True)
+        check_positive("clip", clip, allow_inf=False)
         if not (isinstance(env_reward_weight, numbers.Real) and math.isfinite(env_reward_weight)):
             raise ValueError(f"env_reward_weight must be a finite number, got {env_reward_weight!r}")
         if not isinstance(env, gym.Env):
@@ -212,7 +212,8 @@ def _as_formula(spec: Any) -> Formula:
     raise TypeError(f"spec must be formula text or a Formula, got {type(spec).__name__}")
 
 
-def _check_positive(name: str, value: Any, allow_inf: bool) -> None:
+def check_positive(name: str, value: Any, allow_inf: bool) -> None:
+    """Raise a ValueError naming ``name`` unless ``value`` is a real number > 0 (finite unless ``allow_inf``)."""
     ok = isinstance(value, numbers.Real) and not isinstance(value, bool) and value > 0
     if ok and not allow_inf:
         ok = math.isfinite(value)
