@@ -38,7 +38,7 @@ from tl_gym.tltl.ast import (
     Var,
 )
 from tl_gym.tltl.expressions import evaluate_expression
-from tl_gym.tltl.trace import Trace, prepare
+from tl_gym.tltl.trace import Trace, check_rho_max, prepare
 
 
 @dataclass(frozen=True)
@@ -67,8 +67,7 @@ def _boolean_predicate(margin: Any, op: str) -> Any:
 
 def numeric_algebra(rho_max: float) -> _Algebra:
     """Robustness: max/min over reals, ``true`` = ρ_max (> 0, +inf allowed)."""
-    if isinstance(rho_max, bool) or not (isinstance(rho_max, (int, float)) and rho_max > 0):
-        raise ValueError(f"rho_max must be positive (+inf allowed), got {rho_max!r}")
+    rho_max = check_rho_max(rho_max)
     return _Algebra(
         top=float(rho_max), bottom=-float(rho_max), dtype=np.float64,
         maximum=np.maximum, minimum=np.minimum, negate=np.negative,

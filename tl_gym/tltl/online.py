@@ -67,6 +67,7 @@ from tl_gym.tltl.ast import (
     Var,
 )
 from tl_gym.tltl.expressions import can_be_non_finite
+from tl_gym.tltl.trace import check_rho_max
 
 State = Mapping[str, float]
 _Scalar = Callable[[State], float]
@@ -455,10 +456,8 @@ class PrefixMonitor:
     def __init__(self, formula: Formula, rho_max: float = math.inf):
         if not isinstance(formula, Formula):
             raise TypeError(f"formula must be a Formula, got {type(formula).__name__}")
-        if not rho_max > 0:
-            raise ValueError(f"rho_max must be > 0, got {rho_max!r}")
         self.formula = formula
-        self.rho_max = float(rho_max)
+        self.rho_max = check_rho_max(rho_max)
         self._names = formula.signals
         self._root = _compile_incremental(formula, self.rho_max)
         self.incremental = self._root is not None

@@ -50,7 +50,7 @@ from tl_gym.tltl.ast import (
     Until,
 )
 from tl_gym.tltl.expressions import evaluate_with_gradient
-from tl_gym.tltl.trace import Trace, is_torch, prepare
+from tl_gym.tltl.trace import Trace, check_rho_max, is_torch, prepare
 
 _INF = 1e300  # stands for +∞ in β-scaled units
 _MAX_QUADRATIC_ELEMENTS = 1 << 22  # cap on T²·N per chunk of a quadratic U/T
@@ -382,8 +382,7 @@ def _to_rho(z: np.ndarray, beta: float) -> np.ndarray:
 def _check(beta: float, rho_max: float, form: str) -> None:
     if isinstance(beta, bool) or not (isinstance(beta, (int, float)) and math.isfinite(beta) and beta > 0):
         raise ValueError(f"beta must be a positive finite number, got {beta!r}")
-    if not rho_max > 0:
-        raise ValueError(f"rho_max must be positive, got {rho_max!r}")
+    check_rho_max(rho_max)
     if form not in FORMS:
         raise ValueError(f"form must be one of {FORMS}, got {form!r}")
 

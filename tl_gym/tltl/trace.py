@@ -19,6 +19,13 @@ from tl_gym.errors import TraceError, UnknownSignalError
 Trace = Mapping[str, Union[np.ndarray, Sequence[float], Any]]
 
 
+def check_rho_max(rho_max: Any) -> float:
+    """The value of ``true``, checked: a real number > 0 (+inf allowed); NaN and booleans are refused."""
+    if isinstance(rho_max, bool) or not (isinstance(rho_max, (int, float)) and rho_max > 0):
+        raise ValueError(f"rho_max must be positive (+inf allowed), got {rho_max!r}")
+    return float(rho_max)
+
+
 def is_torch(value: Any) -> bool:
     """Whether ``value`` is a torch tensor, without importing torch."""
     return type(value).__module__.startswith("torch")
