@@ -23,21 +23,29 @@ def _exp_floored(x: np.ndarray) -> np.ndarray:
     return np.exp(x, out=x)
 
 
-def reduce_forward(z: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
-    """``log Σ exp(z)`` along ``axis`` (the axis is removed), and the softmax weights ``exp(z − out)``.
+def reduce_forward(z: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``log Σ exp(z)`` along ``axis`` (the axis is removed), and its softmax kept unnormalised.
 
-    The weights are the whole gradient (`reduce_backward`), so they are kept rather than recomputed.
+    The softmax weights ``exps / total`` are the whole gradient (`reduce_backward`); they
+    are returned as ``exps = exp(z − peak)`` and ``total`` (the sum, ``axis`` kept) so the
+    backward pass divides the small upstream gradient by ``total`` instead of every weight.
     """
     peak = z.max(axis=axis, keepdims=True)
-    weights = np.subtract(z, peak)
-    _exp_floored(weights)
-    total = weights.sum(axis=axis, keepdims=True)
-    weights /= total
-    return (peak + np.log(total)).squeeze(axis), weights
+    exps = np.subtract(z, peak)
+    _exp_floored(exps)
+    total = exps.sum(axis=axis, keepdims=True)
+    return (peak + np.log(total)).squeeze(axis), exps, total
 
 
-def reduce_operands(operands: list[np.ndarray], sign: float) -> tuple[np.ndarray, list[np.ndarray]]:
-    """``sign·log Σ_i exp(sign·operands[i])`` (smooth max for sign 1, min for -1) and each operand's weight.
+def reduce_backward(exps: np.ndarray, total: np.ndarray, grad: np.ndarray, axis: int) -> np.ndarray:
+    """Gradient of `reduce_forward` wrt ``z``: the softmax weights times the upstream gradient."""
+    return (np.expand_dims(grad, axis) / total) * exps
+
+
+def reduce_operands(operands: list[np.ndarray], sign: float) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
+    """``sign·log Σ_i exp(sign·operands[i])``: smooth max (sign 1) or min (sign -1), and its softmax.
+
+    The softmax is kept unnormalised: each operand's ``exp(sign·(operand − extreme))`` and their sum.
 
     The same value as `reduce_forward` over the stacked operands, without building the
     stack (one full copy of every operand) or negating it: the shift is the elementwise
@@ -47,21 +55,23 @@ def reduce_operands(operands: list[np.ndarray], sign: float) -> tuple[np.ndarray
     peak = pick(operands[0], operands[1])
     for operand in operands[2:]:
         pick(peak, operand, out=peak)
-    weights = []
+    exps = []
     total = np.zeros_like(peak)
     for operand in operands:
-        w = np.subtract(operand, peak) if sign > 0 else np.subtract(peak, operand)
-        _exp_floored(w)
-        total += w
-        weights.append(w)
-    for w in weights:
-        w /= total
-    return peak + sign * np.log(total), weights
+        e = np.subtract(operand, peak) if sign > 0 else np.subtract(peak, operand)
+        _exp_floored(e)
+        total += e
+        exps.append(e)
+    out = np.log(total)
+    out *= sign
+    out += peak
+    return out, exps, total
 
 
-def reduce_backward(weights: np.ndarray, grad: np.ndarray, axis: int) -> np.ndarray:
-    """Gradient of `reduce_forward` wrt ``z``: the softmax weights times the upstream gradient."""
-    return np.expand_dims(grad, axis) * weights
+def operands_backward(exps: list[np.ndarray], total: np.ndarray, grad: np.ndarray) -> list[np.ndarray]:
+    """Gradients of `reduce_operands` wrt each operand: ``grad · exps[i] / total``."""
+    scale = grad / total
+    return [scale * e for e in exps]
 
 
 def logaddexp_backward(

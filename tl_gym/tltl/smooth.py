@@ -44,10 +44,12 @@ from tl_gym.tltl.ast import (
     Implies,
     Next,
     Not,
+    Num,
     Or,
     Predicate,
     Then,
     Until,
+    Var,
 )
 from tl_gym.tltl.expressions import evaluate_with_gradient
 from tl_gym.tltl.trace import Trace, check_rho_max, is_torch, prepare
@@ -55,6 +57,13 @@ from tl_gym.tltl.trace import Trace, check_rho_max, is_torch, prepare
 _INF = 1e300  # stands for +∞ in β-scaled units
 _MAX_QUADRATIC_ELEMENTS = 1 << 22  # cap on T²·N per chunk of a quadratic U/T
 FORMS = ("nested", "linear")
+# Position-0 values are smoothed in chunks of trajectories of about this many values each (1 MiB
+# per float64 array): a chunk's temporaries stay in cache and their memory is reused, where
+# whole-batch temporaries would page-fault fresh memory at every node. Measured on φ1, N = 10,000,
+# T = 200: see docs/speed.md.
+_CHUNK_ELEMENTS = 1 << 17
+_MIN_CHUNK_ROWS = 16
+_N_ARGS = 9  # non-tensor arguments of the autograd Function
 
 _Key = tuple[Formula, bool]
 _Backward = Callable[[np.ndarray], None]
@@ -75,8 +84,10 @@ class _Smoother:
     evaluated at position 0 only has shape ``(1, N)``.
     """
 
-    def __init__(self, signals: dict[str, np.ndarray], n: int, length: int, beta: float, top: float, form: str):
+    def __init__(self, signals: dict[str, np.ndarray], n: int, length: int, beta: float, top: float, form: str,
+                 magnitudes: dict[str, float]):
         self.signals = signals
+        self.magnitudes = magnitudes  # max |signal| over the whole batch: bounds every chunk and prefix
         self.n = n
         self.length = length
         self.beta = beta
@@ -110,6 +121,17 @@ class _Smoother:
         key = (node, first_only)
         self.grads[key] = grad if key not in self.grads else self.grads[key] + grad
 
+    def accumulate(self, name: str, grad: np.ndarray, scale: float) -> None:
+        """Add ``scale · grad`` to the signal's gradient over its first ``len(grad)`` positions."""
+        target = self.signal_grads.get(name)
+        if target is None and len(grad) == self.length:
+            self.signal_grads[name] = grad * scale  # a fresh array, owned here
+            return
+        if target is None:
+            target = self.signal_grads[name] = np.zeros((self.length, self.n))
+        part = target[: len(grad)]
+        part += grad if scale == 1.0 else grad * scale
+
     def send_signals(self, grads: dict[str, np.ndarray], rows: slice = slice(None)) -> None:
         for name, grad in grads.items():
             target = self.signal_grads.setdefault(name, np.zeros((self.length, self.n)))
@@ -127,7 +149,7 @@ class _Smoother:
 
     def on_prefix(self, length: int) -> _Smoother:
         signals = {k: v[:length] for k, v in self.signals.items()}
-        return _Smoother(signals, self.n, length, self.beta, self.top, self.form)
+        return _Smoother(signals, self.n, length, self.beta, self.top, self.form, self.magnitudes)
 
     # rules: each returns (value, backward) ----------------------------------------------
     def constant(self, node: Constant, first_only: bool) -> tuple[np.ndarray, _Backward]:
@@ -135,28 +157,55 @@ class _Smoother:
         return value, lambda g: None
 
     def predicate(self, node: Predicate, first_only: bool) -> tuple[np.ndarray, _Backward]:
-        lhs, lhs_grad = evaluate_with_gradient(node.lhs, self.signals)
-        rhs, rhs_grad = evaluate_with_gradient(node.rhs, self.signals)
+        slopes = _linear_slopes(node)
+        if slopes is not None:
+            return self._linear_predicate(node, slopes, first_only)
+        rows = 1 if first_only else self.length
+        signals = {k: v[:rows] for k, v in self.signals.items()} if first_only else self.signals
+        lhs, lhs_grad = evaluate_with_gradient(node.lhs, signals)
+        rhs, rhs_grad = evaluate_with_gradient(node.rhs, signals)
+        sign = -1.0 if node.op in ("<", "<=") else 1.0  # the margin is sign · (lhs − rhs)
         with np.errstate(all="ignore"):
-            value = np.broadcast_to(rhs - lhs if node.op in ("<", "<=") else lhs - rhs, (self.length, self.n))
-        # a NaN or inf makes the sum non-finite: one cheap pass clears almost every call
-        with np.errstate(all="ignore"):
-            suspicious = not np.isfinite(np.sum(value))
-        if suspicious and not np.isfinite(value).all():
-            t, i = np.argwhere(~np.isfinite(value))[0]
+            margin = np.broadcast_to(np.subtract(lhs, rhs) if sign > 0 else np.subtract(rhs, lhs), (rows, self.n))
+            # a NaN or inf makes the sum non-finite: one cheap pass clears almost every call
+            suspicious = not np.isfinite(np.sum(margin))
+        if suspicious and not np.isfinite(margin).all():
+            t, i = np.argwhere(~np.isfinite(margin))[0]
             raise TraceError(f"predicate {str(node)!r} is NaN or infinite at trajectory {i}, position {t}")
-        sign = -1.0 if node.op in ("<", "<=") else 1.0  # d value / d lhs
-        z = self.beta * (value[:1] if first_only else value)
+        z = margin * self.beta
 
         def backward(g: np.ndarray) -> None:
-            if len(g) == self.length:
-                scale = self.beta * g
-            else:  # position 0 only
-                scale = np.zeros((self.length, self.n))
-                scale[: len(g)] = self.beta * g
-            shape = scale.shape
-            self.send_signals({k: np.broadcast_to(v, shape) for k, v in lhs_grad(sign * scale).items()})
-            self.send_signals({k: np.broadcast_to(v, shape) for k, v in rhs_grad(-sign * scale).items()})
+            scale = g * (sign * self.beta)  # the gradient wrt lhs; wrt rhs it is the negative
+            for grads, direction in ((lhs_grad(scale), 1.0), (rhs_grad(scale), -1.0)):
+                for name, grad in grads.items():
+                    self.accumulate(name, np.broadcast_to(grad, g.shape), direction)
+
+        return z, backward
+
+    def _linear_predicate(
+        self, node: Predicate, slopes: dict[str, float], first_only: bool
+    ) -> tuple[np.ndarray, _Backward]:
+        """A predicate between signals and numbers (``x < 5``, ``x > y``), the common case, in few passes.
+
+        Two passes forward (on row 0 only when that is all that is asked), one or two per signal backward.
+        """
+        rows = 1 if first_only else self.length
+        lhs, rhs = (self.signals[e.name][:rows] if isinstance(e, Var) else e.value for e in (node.lhs, node.rhs))
+        with np.errstate(all="ignore"):
+            margin = np.subtract(rhs, lhs) if node.op in ("<", "<=") else np.subtract(lhs, rhs)
+        bound = sum(self.magnitudes[e.name] if isinstance(e, Var) else abs(e.value) for e in (node.lhs, node.rhs))
+        if not bound < 1e307 and not np.isfinite(margin).all():  # the signals are finite: only overflow is left
+            t, i = np.argwhere(~np.isfinite(np.broadcast_to(margin, (rows, self.n))))[0]
+            raise TraceError(f"predicate {str(node)!r} is NaN or infinite at trajectory {i}, position {t}")
+        if isinstance(margin, np.ndarray):  # a fresh array: scale it in place
+            margin *= self.beta
+        z = np.broadcast_to(margin, (rows, self.n))  # broadcast: two numbers, e.g. ``1 < 2``
+        if np.ndim(margin) < 2:
+            z = z * self.beta
+
+        def backward(g: np.ndarray) -> None:
+            for name, slope in slopes.items():
+                self.accumulate(name, g, slope * self.beta)
 
         return z, backward
 
@@ -165,11 +214,11 @@ class _Smoother:
 
     def _nary(self, node: And | Or, first_only: bool, sign: float) -> tuple[np.ndarray, _Backward]:
         """``sign·lse(sign·children)``: smooth max (sign = 1) or min (sign = -1)."""
-        out, weights = lse.reduce_operands([self(c, first_only) for c in node.operands], sign)
+        out, exps, total = lse.reduce_operands([self(c, first_only) for c in node.operands], sign)
 
         def backward(g: np.ndarray) -> None:
-            for child, w in zip(node.operands, weights):
-                self.send(child, first_only, g * w)
+            for child, g_child in zip(node.operands, lse.operands_backward(exps, total, g)):
+                self.send(child, first_only, g_child)
 
         return out, backward
 
@@ -206,7 +255,7 @@ class _Smoother:
     def _over_time(self, node: Eventually | Always, first_only: bool, sign: float) -> tuple[np.ndarray, _Backward]:
         child = sign * self(node.child)
         if first_only:
-            reduced, softmax = lse.reduce_forward(child, 0)
+            reduced, exps, total = lse.reduce_forward(child, 0)
             out = reduced[None]
         else:
             out = lse.suffix_forward(child)
@@ -214,7 +263,7 @@ class _Smoother:
         def backward(g: np.ndarray) -> None:
             g = sign * g  # gradient wrt `out`
             if first_only:
-                g_child = lse.reduce_backward(softmax, g[0], 0)
+                g_child = lse.reduce_backward(exps, total, g[0], 0)
             else:
                 g_child = lse.suffix_backward(child, out, g)
             self.send(node.child, False, sign * g_child)
@@ -253,11 +302,11 @@ class _Smoother:
         prefix = lse.prefix_forward(left)
         inner = sign * np.concatenate([self.full(-_INF, 1), prefix[:-1]])
         terms = _smin2(right, inner)
-        reduced, softmax = lse.reduce_forward(terms, 0)
+        reduced, exps, total = lse.reduce_forward(terms, 0)
         out = reduced[None]
 
         def backward(g: np.ndarray) -> None:
-            g_terms = lse.reduce_backward(softmax, g[0], 0)
+            g_terms = lse.reduce_backward(exps, total, g[0], 0)
             g_right, g_inner = _smin2_backward(right, inner, terms, g_terms)
             g_prefix = np.zeros_like(prefix)
             g_prefix[:-1] = sign * g_inner[1:]
@@ -350,10 +399,10 @@ def _quadratic_from_matrix(
     inner = sign * suffix
     later = np.tri(length, length, -1, dtype=bool)[:, :, None]  # [t, t'] where t' < t: excluded
     terms = np.where(later, -_INF, _smin2(right[None], inner))
-    out, softmax = lse.reduce_forward(terms, 1)
+    out, exps, total = lse.reduce_forward(terms, 1)
     if grad is None:
         return out, None
-    g_terms = np.where(later, 0.0, lse.reduce_backward(softmax, grad, 1))
+    g_terms = np.where(later, 0.0, lse.reduce_backward(exps, total, grad, 1))
     g_right, g_inner = _smin2_backward(right[None], inner, terms, g_terms)
     g_matrix = lse.suffix_backward(matrix, suffix, sign * g_inner)
     return out, (g_matrix, g_right.sum(axis=0))
@@ -374,6 +423,18 @@ _RULES: dict[type, Callable[[_Smoother, Any, bool], tuple[np.ndarray, _Backward]
 }
 
 
+def _linear_slopes(node: Predicate) -> dict[str, float] | None:
+    """D margin / d signal for a predicate whose sides are each a signal or a number, else None."""
+    if not all(isinstance(side, (Var, Num)) for side in (node.lhs, node.rhs)):
+        return None
+    sign = -1.0 if node.op in ("<", "<=") else 1.0  # the margin is sign · (lhs − rhs)
+    slopes: dict[str, float] = {}
+    for side, slope in ((node.lhs, sign), (node.rhs, -sign)):
+        if isinstance(side, Var):
+            slopes[side.name] = slopes.get(side.name, 0.0) + slope
+    return {name: slope for name, slope in slopes.items() if slope}
+
+
 def _to_rho(z: np.ndarray, beta: float) -> np.ndarray:
     with np.errstate(invalid="ignore"):
         return np.where(np.abs(z) >= _INF / 2, np.sign(z) * np.inf, z / beta)
@@ -387,11 +448,44 @@ def _check(beta: float, rho_max: float, form: str) -> None:
         raise ValueError(f"form must be one of {FORMS}, got {form!r}")
 
 
-def _evaluate(formula: Formula, signals: dict[str, np.ndarray], n: int, length: int,
-              beta: float, rho_max: float, form: str, first_only: bool) -> tuple[_Smoother, np.ndarray]:
+def _evaluate(formula: Formula, signals: dict[str, np.ndarray], n: int, length: int, beta: float, rho_max: float,
+              form: str, first_only: bool, magnitudes: dict[str, float]) -> tuple[_Smoother, np.ndarray]:
     top = min(beta * rho_max, _INF) if math.isfinite(rho_max) else _INF
-    smoother = _Smoother(signals, n, length, float(beta), top, form)
+    smoother = _Smoother(signals, n, length, float(beta), top, form, magnitudes)
     return smoother, smoother(formula, first_only)
+
+
+def _chunks(n: int, length: int) -> list[slice]:
+    """Groups of trajectories of about `_CHUNK_ELEMENTS` values each."""
+    rows = max(_MIN_CHUNK_ROWS, _CHUNK_ELEMENTS // length)
+    return [slice(start, min(start + rows, n)) for start in range(0, n, rows)]
+
+
+def _at_position_zero(formula: Formula, signals: dict[str, np.ndarray], n: int, length: int, beta: float,
+                      rho_max: float, form: str, magnitudes: dict[str, float],
+                      jacobian: bool) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Smoothed values at position 0 in β units, shape ``(1, N)``, chunk by chunk of trajectories.
+
+    ``signals`` are ``(N, T)``. With ``jacobian``, also each value's gradient wrt its own
+    trajectory (``(N, T)`` per signal, in ρ units, zero where the value is ±∞). Trajectories
+    are independent, so this Jacobian is all a vector-Jacobian product at position 0 needs:
+    the backward pass is one multiplication, and the forward and backward work of a chunk
+    stays in cache instead of a tape of whole-batch arrays.
+    """
+    z = np.empty((1, n))
+    jac: dict[str, np.ndarray] = {}
+    for rows in _chunks(n, length):
+        part = {k: np.ascontiguousarray(v[rows].T) for k, v in signals.items()}
+        smoother, z_part = _evaluate(formula, part, rows.stop - rows.start, length, beta, rho_max, form, True,
+                                     magnitudes)
+        z[:, rows] = z_part
+        if jacobian:
+            unit = np.where(np.abs(z_part) >= _INF / 2, 0.0, 1.0 / beta)  # ±∞ results have zero gradient
+            for name, grad in smoother.backward((formula, True), unit).items():
+                if name not in jac:
+                    jac[name] = np.zeros((n, length))
+                jac[name][rows] = grad.T
+    return z, jac
 
 
 def _smooth(formula: Formula, trace: Trace, beta: float, rho_max: float, form: str, first_only: bool) -> Any:
@@ -406,15 +500,20 @@ def _smooth(formula: Formula, trace: Trace, beta: float, rho_max: float, form: s
         return torch.as_tensor(_smooth_numpy(formula, prepared, beta, rho_max, form, first_only), dtype=torch.float64)
     if any(is_torch(t) for t in tensors):
         out = _autograd_function()(formula, names, float(beta), rho_max, form, first_only, prepared.n,
-                                   prepared.length, *tensors)
+                                   prepared.length, prepared.magnitudes, *tensors)
         out = out[0] if first_only else out.T  # (N,) or (N, T)
         return out if prepared.batched else out[0]
     return _smooth_numpy(formula, prepared, beta, rho_max, form, first_only)
 
 
 def _smooth_numpy(formula: Formula, prepared: Any, beta: float, rho_max: float, form: str, first_only: bool) -> Any:
-    signals = {k: np.ascontiguousarray(v.T) for k, v in prepared.signals.items()}
-    _, z = _evaluate(formula, signals, prepared.n, prepared.length, beta, rho_max, form, first_only)
+    if first_only:
+        z, _ = _at_position_zero(formula, prepared.signals, prepared.n, prepared.length, beta, rho_max, form,
+                                 prepared.magnitudes, jacobian=False)
+    else:
+        signals = {k: np.ascontiguousarray(v.T) for k, v in prepared.signals.items()}
+        _, z = _evaluate(formula, signals, prepared.n, prepared.length, beta, rho_max, form, False,
+                         prepared.magnitudes)
     rho = _to_rho(z, beta)
     if first_only:
         return rho[0].copy() if prepared.batched else float(rho[0, 0])
@@ -434,25 +533,34 @@ def _autograd_function() -> Any:
     class SmoothRobustness(torch.autograd.Function):
         @staticmethod
         def forward(ctx: Any, formula: Formula, names: tuple[str, ...], beta: float, rho_max: float, form: str,
-                    first_only: bool, n: int, length: int, *tensors: Any) -> Any:
-            signals = {k: np.ascontiguousarray(t.detach().cpu().double().numpy().T) for k, t in zip(names, tensors)}
-            smoother, z = _evaluate(formula, signals, n, length, beta, rho_max, form, first_only)
-            ctx.smoother, ctx.root, ctx.z, ctx.beta, ctx.names = smoother, (formula, first_only), z, beta, names
+                    first_only: bool, n: int, length: int, magnitudes: dict[str, float], *tensors: Any) -> Any:
+            arrays = [t.detach().cpu().double().numpy() for t in tensors]
+            wants_grad = any(ctx.needs_input_grad[_N_ARGS:])
+            if first_only:  # the gradient is computed now, chunk by chunk, as a per-trajectory Jacobian
+                z, ctx.jac = _at_position_zero(formula, dict(zip(names, arrays)), n, length, beta, rho_max, form,
+                                               magnitudes, jacobian=wants_grad)
+            else:
+                signals = {k: np.ascontiguousarray(a.T) for k, a in zip(names, arrays)}
+                ctx.smoother, z = _evaluate(formula, signals, n, length, beta, rho_max, form, False, magnitudes)
+            ctx.root, ctx.z, ctx.beta, ctx.names, ctx.first_only = (formula, first_only), z, beta, names, first_only
             ctx.meta = [(t.dtype, t.device) for t in tensors]
             return torch.from_numpy(_to_rho(z, beta)).to(dtype=tensors[0].dtype, device=tensors[0].device)
 
         @staticmethod
         def backward(ctx: Any, grad_out: Any) -> Any:
             g = grad_out.detach().cpu().double().numpy()
-            g = np.where(np.abs(ctx.z) >= _INF / 2, 0.0, g / ctx.beta)  # ±∞ results have zero gradient
-            grads = ctx.smoother.backward(ctx.root, g)
+            if ctx.first_only:
+                grads = {name: jac * g[0][:, None] for name, jac in ctx.jac.items()}
+            else:
+                g = np.where(np.abs(ctx.z) >= _INF / 2, 0.0, g / ctx.beta)  # ±∞ results have zero gradient
+                grads = {name: grad.T for name, grad in ctx.smoother.backward(ctx.root, g).items()}
             out = []
             for name, (dtype, device) in zip(ctx.names, ctx.meta):
                 grad = grads.get(name)
                 if grad is not None:
-                    grad = torch.from_numpy(np.ascontiguousarray(grad.T)).to(dtype=dtype, device=device)
+                    grad = torch.from_numpy(np.ascontiguousarray(grad)).to(dtype=dtype, device=device)
                 out.append(grad)
-            return (None,) * 8 + tuple(out)
+            return (None,) * _N_ARGS + tuple(out)
 
     _FUNCTION = SmoothRobustness
     return _FUNCTION.apply

@@ -1,0 +1,91 @@
+"""Shortcuts of the smoother give the general path's answers: chunks of trajectories, the
+per-trajectory Jacobian at position 0, and predicates between signals and numbers."""
+
+import numpy as np
+import pytest
+import torch
+
+from tl_gym import TraceError, parse
+from tl_gym.tltl import smooth
+
+FORMULAS = [
+    "F(x > 1 & x < 3 & y > -1 & y < 1) & G(sqrt((x - 2)^2 + y^2) > 0.5)",  # φ1's shape
+    "(x > 0) U (y > 1)",
+    "(x > 0) T (y > 1) T (x < -1)",
+    "G(x > 1 -> X F(y < 0)) | !(x * y > 2)",
+    "sqrt(x^2 + y^2) > 1 & F(x > y) & (2 > 1)",  # a generic predicate at position 0 only
+    "X(x <= 0) & F(y >= x)",
+]
+BETA = 3.0
+
+
+def _trace(n: int = 37, length: int = 9, seed: int = 0) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return {"x": rng.normal(1.0, 1.5, (n, length)), "y": rng.normal(0.0, 1.5, (n, length))}
+
+
+def _value_and_grads(formula, trace, weights):
+    tensors = {k: torch.tensor(v, requires_grad=True) for k, v in trace.items()}
+    value = formula.smooth_robustness(tensors, BETA)
+    grads = torch.autograd.grad(value, list(tensors.values()), grad_outputs=torch.tensor(weights))
+    return value.detach().numpy(), [g.numpy() for g in grads]
+
+
+@pytest.mark.parametrize("text", FORMULAS)
+def test_chunks_of_trajectories_change_nothing(text, monkeypatch):
+    formula, trace = parse(text), _trace()
+    weights = np.random.default_rng(1).normal(size=37)  # negative upstream gradients too
+    whole_value, whole_grads = _value_and_grads(formula, trace, weights)
+    whole_numpy = formula.smooth_robustness(trace, BETA)
+    monkeypatch.setattr(smooth, "_CHUNK_ELEMENTS", 1)  # 16 trajectories per chunk: 16 + 16 + 5
+    assert [s.stop - s.start for s in smooth._chunks(37, 9)] == [16, 16, 5]
+    value, grads = _value_and_grads(formula, trace, weights)
+    np.testing.assert_allclose(value, whole_value, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(formula.smooth_robustness(trace, BETA), whole_numpy, rtol=1e-12, atol=1e-12)
+    for got, expected in zip(grads, whole_grads):
+        np.testing.assert_allclose(got, expected, rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("text", FORMULAS)
+def test_position_zero_jacobian_equals_the_tape_of_every_position(text):
+    """The eager per-trajectory Jacobian (position 0) against the recorded tape (every position)."""
+    formula, trace = parse(text), _trace(n=5)
+    weights = np.array([1.0, -2.0, 0.5, 0.0, 3.0])
+    value, grads = _value_and_grads(formula, trace, weights)
+    tensors = {k: torch.tensor(v, requires_grad=True) for k, v in trace.items()}
+    over_time = formula.smooth_robustness_over_time(tensors, BETA)
+    tape = torch.autograd.grad(over_time[:, 0], list(tensors.values()), grad_outputs=torch.tensor(weights))
+    np.testing.assert_allclose(value, over_time[:, 0].detach().numpy(), rtol=1e-9, atol=1e-12)
+    for got, expected in zip(grads, tape):
+        np.testing.assert_allclose(got, expected.numpy(), rtol=1e-9, atol=1e-12)
+
+
+def test_no_jacobian_without_grad_and_backward_can_repeat():
+    formula, trace = parse(FORMULAS[0]), _trace(n=4)
+    plain = formula.smooth_robustness({k: torch.tensor(v) for k, v in trace.items()}, BETA)
+    assert not plain.requires_grad
+    np.testing.assert_allclose(plain.numpy(), formula.smooth_robustness(trace, BETA), rtol=1e-12)
+    x = torch.tensor(trace["x"], requires_grad=True)
+    value = formula.smooth_robustness({"x": x, "y": torch.tensor(trace["y"])}, BETA).sum()
+    first = torch.autograd.grad(value, x, retain_graph=True)[0]
+    second = torch.autograd.grad(value, x)[0]
+    assert torch.equal(first, second) and first.abs().sum() > 0
+
+
+def test_signal_against_itself_and_number_against_number():
+    x = torch.tensor([[1.0, 2.0, 3.0]], requires_grad=True)
+    value = parse("F(x < x + 0)").smooth_robustness({"x": x}, BETA)  # generic path: x + 0 is arithmetic
+    assert value.item() == pytest.approx(0.0 + np.log(3) / BETA)
+    same = parse("G(x <= x)").smooth_robustness({"x": x}, BETA)  # linear path: the slopes cancel
+    assert same.item() == pytest.approx(-np.log(3) / BETA)
+    (grad,) = torch.autograd.grad(same, x, allow_unused=True)
+    assert grad is None or not grad.any()
+    assert parse("1 < 2").smooth_robustness({"x": [0.0, 5.0]}, BETA) == pytest.approx(1.0)
+
+
+def test_signal_versus_number_overflow_is_refused():
+    # x - (-1e308) overflows although x is finite: the magnitude bound must send it to the check
+    with pytest.raises(TraceError, match="position 0"):
+        parse("x > -1e308").smooth_robustness({"x": [1e308, 0.0]}, BETA)
+    with pytest.raises(TraceError, match="position 1"):
+        parse("G(x < 1e308)").smooth_robustness_over_time({"x": [0.0, -1e308]}, BETA)
