@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from tl_gym import TraceError, parse
+from tl_gym.tltl import trace as trace_module
 
 # F/G of a predicate over sqrt/exp/log take the extreme before the function (position 0 only);
 # robustness_over_time never takes the shortcut, so its entry 0 is the general path's value.
@@ -38,3 +39,26 @@ def test_signal_versus_number_skips_no_real_overflow():
     with pytest.raises(TraceError, match="position 0"):
         parse("x > -1e308").robustness({"x": [1e308, 0.0]})
     assert parse("x > 240").robustness({"x": [250.0, 0.0]}) == 10.0
+
+
+@pytest.mark.parametrize(
+    "text", ["F(x > 1 & y < 0) & G(sqrt(x^2 + y^2) > 0.1)", "(x > 0) T (y > 1) T (x < -1)", "G(x > 0 -> X F(y < 0))",
+             "(F x > 2) U (y > 1)"])
+def test_groups_of_trajectories_change_nothing(text, monkeypatch):
+    rng = np.random.default_rng(3)
+    trace = {"x": rng.normal(1, 1.5, (37, 9)), "y": rng.normal(0, 1.5, (37, 9))}
+    formula = parse(text)
+    whole = [formula.robustness(trace), formula.robustness_over_time(trace), formula.satisfied(trace)]
+    monkeypatch.setattr(trace_module, "CHUNK_ELEMENTS", 1)  # groups of 16 trajectories: 16 + 16 + 5
+    assert len(trace_module.chunks(37, 9)) == 3
+    grouped = [formula.robustness(trace), formula.robustness_over_time(trace), formula.satisfied(trace)]
+    for got, expected in zip(grouped, whole):
+        np.testing.assert_array_equal(got, expected)
+
+
+def test_errors_name_the_trajectory_of_the_whole_batch_not_of_its_group(monkeypatch):
+    monkeypatch.setattr(trace_module, "CHUNK_ELEMENTS", 1)
+    x = np.ones((37, 9))
+    x[20, 3] = -200.0
+    with pytest.raises(TraceError, match="trajectory 20, position 3"):
+        parse("F(sqrt(x + 100) > 1)").robustness({"x": x})

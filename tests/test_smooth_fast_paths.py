@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from tl_gym import TraceError, parse
-from tl_gym.tltl import smooth
+from tl_gym.tltl import trace as trace_module
 
 FORMULAS = [
     "F(x > 1 & x < 3 & y > -1 & y < 1) & G(sqrt((x - 2)^2 + y^2) > 0.5)",  # φ1's shape
@@ -37,8 +37,8 @@ def test_chunks_of_trajectories_change_nothing(text, monkeypatch):
     weights = np.random.default_rng(1).normal(size=37)  # negative upstream gradients too
     whole_value, whole_grads = _value_and_grads(formula, trace, weights)
     whole_numpy = formula.smooth_robustness(trace, BETA)
-    monkeypatch.setattr(smooth, "_CHUNK_ELEMENTS", 1)  # 16 trajectories per chunk: 16 + 16 + 5
-    assert [s.stop - s.start for s in smooth._chunks(37, 9)] == [16, 16, 5]
+    monkeypatch.setattr(trace_module, "CHUNK_ELEMENTS", 1)  # 16 trajectories per chunk: 16 + 16 + 5
+    assert [s.stop - s.start for s in trace_module.chunks(37, 9)] == [16, 16, 5]
     value, grads = _value_and_grads(formula, trace, weights)
     np.testing.assert_allclose(value, whole_value, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(formula.smooth_robustness(trace, BETA), whole_numpy, rtol=1e-12, atol=1e-12)
@@ -89,3 +89,14 @@ def test_signal_versus_number_overflow_is_refused():
         parse("x > -1e308").smooth_robustness({"x": [1e308, 0.0]}, BETA)
     with pytest.raises(TraceError, match="position 1"):
         parse("G(x < 1e308)").smooth_robustness_over_time({"x": [0.0, -1e308]}, BETA)
+
+
+def test_errors_name_the_trajectory_of_the_whole_batch_not_of_its_chunk(monkeypatch):
+    monkeypatch.setattr(trace_module, "CHUNK_ELEMENTS", 1)  # chunks of 16 trajectories
+    trace = _trace()
+    trace["x"][20, 3] = -200.0
+    for formula in (parse("F(sqrt(x + 100) > 1)"), parse("sqrt(x + 100) > 1")):
+        position = 3 if formula.is_temporal else 0
+        trace["x"][20, 0] = -200.0 if position == 0 else 1.0
+        with pytest.raises(TraceError, match=rf"trajectory 20, position {position}"):
+            formula.smooth_robustness(trace, BETA)

@@ -38,7 +38,7 @@ from tl_gym.tltl.ast import (
     Var,
 )
 from tl_gym.tltl.expressions import evaluate_expression
-from tl_gym.tltl.trace import Trace, check_rho_max, prepare
+from tl_gym.tltl.trace import Trace, check_rho_max, chunks, prepare
 
 
 @dataclass(frozen=True)
@@ -109,9 +109,11 @@ class _Evaluator:
     """
 
     def __init__(
-        self, alg: _Algebra, signals: dict[str, np.ndarray], n: int, length: int, magnitudes: dict[str, float]
+        self, alg: _Algebra, signals: dict[str, np.ndarray], n: int, length: int, magnitudes: dict[str, float],
+        first_row: int = 0,
     ):
         self.alg = alg
+        self.first_row = first_row  # index of this group's first trajectory in the caller's batch
         self.signals = signals
         self.magnitudes = magnitudes
         self.n = n
@@ -137,7 +139,7 @@ class _Evaluator:
     def on_prefix(self, node: Formula, length: int) -> np.ndarray:
         """Values of ``node`` at every position of the truncated trace s_0 … s_{length-1}."""
         signals = {k: v[:, :length] for k, v in self.signals.items()}
-        sub = _Evaluator(self.alg, signals, self.n, length, self.magnitudes)
+        sub = _Evaluator(self.alg, signals, self.n, length, self.magnitudes, self.first_row)
         return sub(node)
 
     # rules ----------------------------------------------------------------------------
@@ -159,7 +161,7 @@ class _Evaluator:
         if suspicious and not np.isfinite(margin).all():
             i, t = np.argwhere(~np.isfinite(margin))[0]
             raise TraceError(
-                f"predicate {str(node)!r} is NaN or infinite at trajectory {i}, position {t} "
+                f"predicate {str(node)!r} is NaN or infinite at trajectory {self.first_row + i}, position {t} "
                 "(its arithmetic is undefined there)"
             )
         return np.asarray(self.alg.predicate(margin, node.op), dtype=self.alg.dtype)
@@ -331,7 +333,17 @@ _RULES: dict[type, Callable[[_Evaluator, Any], np.ndarray]] = {
 
 def _evaluate(formula: Formula, trace: Trace, alg: _Algebra, first_only: bool) -> tuple[np.ndarray, bool]:
     prepared = prepare(formula.signals, trace)
-    values = _Evaluator(alg, prepared.signals, prepared.n, prepared.length, prepared.magnitudes)(formula, first_only)
+    groups = chunks(prepared.n, prepared.length)
+    values = None
+    for rows in groups:  # trajectories are independent: evaluate them group by group (see `chunks`)
+        signals = {k: v[rows] for k, v in prepared.signals.items()}
+        evaluator = _Evaluator(alg, signals, rows.stop - rows.start, prepared.length, prepared.magnitudes, rows.start)
+        part = evaluator(formula, first_only)
+        if len(groups) == 1:
+            return part, prepared.batched
+        if values is None:
+            values = np.empty((prepared.n, part.shape[1]), dtype=part.dtype)
+        values[rows] = part
     return values, prepared.batched
 
 

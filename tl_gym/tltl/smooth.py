@@ -52,17 +52,11 @@ from tl_gym.tltl.ast import (
     Var,
 )
 from tl_gym.tltl.expressions import evaluate_with_gradient
-from tl_gym.tltl.trace import Trace, check_rho_max, is_torch, prepare
+from tl_gym.tltl.trace import Trace, check_rho_max, chunks, is_torch, prepare
 
 _INF = 1e300  # stands for +∞ in β-scaled units
 _MAX_QUADRATIC_ELEMENTS = 1 << 22  # cap on T²·N per chunk of a quadratic U/T
 FORMS = ("nested", "linear")
-# Position-0 values are smoothed in chunks of trajectories of about this many values each (1 MiB
-# per float64 array): a chunk's temporaries stay in cache and their memory is reused, where
-# whole-batch temporaries would page-fault fresh memory at every node. Measured on φ1, N = 10,000,
-# T = 200: see docs/speed.md.
-_CHUNK_ELEMENTS = 1 << 17
-_MIN_CHUNK_ROWS = 16
 _N_ARGS = 9  # non-tensor arguments of the autograd Function
 
 _Key = tuple[Formula, bool]
@@ -85,8 +79,9 @@ class _Smoother:
     """
 
     def __init__(self, signals: dict[str, np.ndarray], n: int, length: int, beta: float, top: float, form: str,
-                 magnitudes: dict[str, float]):
+                 magnitudes: dict[str, float], first_row: int = 0):
         self.signals = signals
+        self.first_row = first_row  # index of this chunk's first trajectory in the caller's batch
         self.magnitudes = magnitudes  # max |signal| over the whole batch: bounds every chunk and prefix
         self.n = n
         self.length = length
@@ -115,6 +110,11 @@ class _Smoother:
         self.values[key] = value
         self.tape.append((key, backward))
         return value
+
+    def bad_value(self, node: Predicate, row: int, position: int) -> TraceError:
+        """The error for a NaN or infinite predicate value, naming the trajectory in the caller's batch."""
+        return TraceError(f"predicate {str(node)!r} is NaN or infinite at trajectory {self.first_row + row}, "
+                          f"position {position}")
 
     def send(self, node: Formula, first_only: bool, grad: np.ndarray) -> None:
         """Accumulate a gradient for a child's value."""
@@ -149,7 +149,7 @@ class _Smoother:
 
     def on_prefix(self, length: int) -> _Smoother:
         signals = {k: v[:length] for k, v in self.signals.items()}
-        return _Smoother(signals, self.n, length, self.beta, self.top, self.form, self.magnitudes)
+        return _Smoother(signals, self.n, length, self.beta, self.top, self.form, self.magnitudes, self.first_row)
 
     # rules: each returns (value, backward) ----------------------------------------------
     def constant(self, node: Constant, first_only: bool) -> tuple[np.ndarray, _Backward]:
@@ -171,7 +171,7 @@ class _Smoother:
             suspicious = not np.isfinite(np.sum(margin))
         if suspicious and not np.isfinite(margin).all():
             t, i = np.argwhere(~np.isfinite(margin))[0]
-            raise TraceError(f"predicate {str(node)!r} is NaN or infinite at trajectory {i}, position {t}")
+            raise self.bad_value(node, i, t)
         z = margin * self.beta
 
         def backward(g: np.ndarray) -> None:
@@ -196,7 +196,7 @@ class _Smoother:
         bound = sum(self.magnitudes[e.name] if isinstance(e, Var) else abs(e.value) for e in (node.lhs, node.rhs))
         if not bound < 1e307 and not np.isfinite(margin).all():  # the signals are finite: only overflow is left
             t, i = np.argwhere(~np.isfinite(np.broadcast_to(margin, (rows, self.n))))[0]
-            raise TraceError(f"predicate {str(node)!r} is NaN or infinite at trajectory {i}, position {t}")
+            raise self.bad_value(node, i, t)
         if isinstance(margin, np.ndarray):  # a fresh array: scale it in place
             margin *= self.beta
         z = np.broadcast_to(margin, (rows, self.n))  # broadcast: two numbers, e.g. ``1 < 2``
@@ -449,16 +449,11 @@ def _check(beta: float, rho_max: float, form: str) -> None:
 
 
 def _evaluate(formula: Formula, signals: dict[str, np.ndarray], n: int, length: int, beta: float, rho_max: float,
-              form: str, first_only: bool, magnitudes: dict[str, float]) -> tuple[_Smoother, np.ndarray]:
+              form: str, first_only: bool, magnitudes: dict[str, float],
+              first_row: int = 0) -> tuple[_Smoother, np.ndarray]:
     top = min(beta * rho_max, _INF) if math.isfinite(rho_max) else _INF
-    smoother = _Smoother(signals, n, length, float(beta), top, form, magnitudes)
+    smoother = _Smoother(signals, n, length, float(beta), top, form, magnitudes, first_row)
     return smoother, smoother(formula, first_only)
-
-
-def _chunks(n: int, length: int) -> list[slice]:
-    """Groups of trajectories of about `_CHUNK_ELEMENTS` values each."""
-    rows = max(_MIN_CHUNK_ROWS, _CHUNK_ELEMENTS // length)
-    return [slice(start, min(start + rows, n)) for start in range(0, n, rows)]
 
 
 def _at_position_zero(formula: Formula, signals: dict[str, np.ndarray], n: int, length: int, beta: float,
@@ -474,10 +469,10 @@ def _at_position_zero(formula: Formula, signals: dict[str, np.ndarray], n: int, 
     """
     z = np.empty((1, n))
     jac: dict[str, np.ndarray] = {}
-    for rows in _chunks(n, length):
+    for rows in chunks(n, length):
         part = {k: np.ascontiguousarray(v[rows].T) for k, v in signals.items()}
         smoother, z_part = _evaluate(formula, part, rows.stop - rows.start, length, beta, rho_max, form, True,
-                                     magnitudes)
+                                     magnitudes, first_row=rows.start)
         z[:, rows] = z_part
         if jacobian:
             unit = np.where(np.abs(z_part) >= _INF / 2, 0.0, 1.0 / beta)  # ±∞ results have zero gradient
