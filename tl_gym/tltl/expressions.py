@@ -51,6 +51,8 @@ def evaluate_expression(expr: Expr, signals: dict[str, Any], sample: Any) -> Any
                 return a * b
             if e.op == "/":
                 return a / b
+            if _is_square(a, b):
+                return a * a  # what pow does, without its general path
             return fns["pow"](np.float64(a) if isinstance(a, float) else a, b)
         if isinstance(e, Call):
             args = [ev(a) for a in e.args]
@@ -96,6 +98,8 @@ def evaluate_with_gradient(expr: Expr, signals: dict[str, np.ndarray]) -> tuple[
                     out = a * b
                 elif e.op == "/":
                     out = a / b
+                elif _is_square(a, b):
+                    out = a * a
                 else:
                     out = np.power(np.float64(a) if isinstance(a, float) else a, b)
 
@@ -116,9 +120,9 @@ def evaluate_with_gradient(expr: Expr, signals: dict[str, np.ndarray]) -> tuple[
                 with np.errstate(all="ignore"):
                     da, db = slopes()
                     if back_a is not None:
-                        back_a(grad * da, sink)
+                        back_a(grad if _is_one(da) else grad * da, sink)
                     if back_b is not None:
-                        back_b(grad * db, sink)
+                        back_b(grad if _is_one(db) else grad * db, sink)
 
             return out, (None if back_a is None and back_b is None else back_bin)
         if isinstance(e, Call):
@@ -161,6 +165,16 @@ def evaluate_with_gradient(expr: Expr, signals: dict[str, np.ndarray]) -> tuple[
         return sink
 
     return value, gradient
+
+
+def _is_square(base: Any, exponent: Any) -> bool:
+    """Whether ``base ^ exponent`` is an array squared (x·x is exact: pow's result, faster)."""
+    return np.ndim(base) > 0 and np.ndim(exponent) == 0 and exponent == 2.0
+
+
+def _is_one(slope: Any) -> bool:
+    """Whether a slope is the constant 1 (the gradient passes through unchanged; it is never mutated)."""
+    return isinstance(slope, float) and slope == 1.0
 
 
 def can_be_non_finite(expr: Expr) -> bool:

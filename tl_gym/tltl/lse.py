@@ -17,24 +17,38 @@ import numpy as np
 _EXP_FLOOR = -700.0
 
 
+_floor = np.full(0, _EXP_FLOOR)  # grown on demand; `np.maximum` against an array is twice as fast as against a scalar
+
+
+def _floor_like(x: np.ndarray) -> np.ndarray:
+    global _floor
+    if _floor.size < x.size:
+        _floor = np.full(x.size, _EXP_FLOOR)
+    return _floor[: x.size].reshape(x.shape)
+
+
 def _exp_floored(x: np.ndarray) -> np.ndarray:
     """``exp(x)`` in place, arguments clipped below at ``_EXP_FLOOR``."""
-    np.maximum(x, _EXP_FLOOR, out=x)
+    if x.flags.c_contiguous:
+        np.maximum(x, _floor_like(x), out=x)
+    else:
+        np.maximum(x, _EXP_FLOOR, out=x)
     return np.exp(x, out=x)
 
 
-def reduce_forward(z: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``log Σ exp(z)`` along ``axis`` (the axis is removed), and its softmax kept unnormalised.
+def reduce_forward(z: np.ndarray, axis: int, sign: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``sign·log Σ exp(sign·z)`` along ``axis`` (removed): smooth max (sign 1) or min (sign -1).
 
-    The softmax weights ``exps / total`` are the whole gradient (`reduce_backward`); they
-    are returned as ``exps = exp(z − peak)`` and ``total`` (the sum, ``axis`` kept) so the
-    backward pass divides the small upstream gradient by ``total`` instead of every weight.
+    Also returns the softmax, kept unnormalised: ``exps = exp(sign·(z − extreme))`` and
+    ``total``, their sum (``axis`` kept). The weights ``exps / total`` are the whole gradient
+    (`reduce_backward`, the same for both signs), and dividing the small upstream gradient by
+    ``total`` is cheaper than normalising every weight.
     """
-    peak = z.max(axis=axis, keepdims=True)
-    exps = np.subtract(z, peak)
+    peak = z.max(axis=axis, keepdims=True) if sign > 0 else z.min(axis=axis, keepdims=True)
+    exps = np.subtract(z, peak) if sign > 0 else np.subtract(peak, z)
     _exp_floored(exps)
     total = exps.sum(axis=axis, keepdims=True)
-    return (peak + np.log(total)).squeeze(axis), exps, total
+    return (peak + sign * np.log(total)).squeeze(axis), exps, total
 
 
 def reduce_backward(exps: np.ndarray, total: np.ndarray, grad: np.ndarray, axis: int) -> np.ndarray:
@@ -56,12 +70,12 @@ def reduce_operands(operands: list[np.ndarray], sign: float) -> tuple[np.ndarray
     for operand in operands[2:]:
         pick(peak, operand, out=peak)
     exps = []
-    total = np.zeros_like(peak)
     for operand in operands:
         e = np.subtract(operand, peak) if sign > 0 else np.subtract(peak, operand)
-        _exp_floored(e)
+        exps.append(_exp_floored(e))
+    total = exps[0] + exps[1]
+    for e in exps[2:]:
         total += e
-        exps.append(e)
     out = np.log(total)
     out *= sign
     out += peak

@@ -117,20 +117,30 @@ class _Smoother:
                           f"position {position}")
 
     def send(self, node: Formula, first_only: bool, grad: np.ndarray) -> None:
-        """Accumulate a gradient for a child's value."""
+        """Accumulate a gradient for a child's value.
+
+        The child's backward rule owns ``grad`` (and may scale it in place): senders pass
+        arrays that nothing else holds.
+        """
         key = (node, first_only)
         self.grads[key] = grad if key not in self.grads else self.grads[key] + grad
 
-    def accumulate(self, name: str, grad: np.ndarray, scale: float) -> None:
-        """Add ``scale · grad`` to the signal's gradient over its first ``len(grad)`` positions."""
+    def accumulate(self, name: str, grad: np.ndarray, scale: float, owned: bool = False) -> None:
+        """Add ``scale · grad`` to the signal's gradient over its first ``len(grad)`` positions.
+
+        ``owned``: nothing else holds ``grad``, so it may be scaled in place and kept.
+        """
+        if scale != 1.0:
+            grad = np.multiply(grad, scale, out=grad if owned else None)
+            owned = True
         target = self.signal_grads.get(name)
         if target is None and len(grad) == self.length:
-            self.signal_grads[name] = grad * scale  # a fresh array, owned here
+            self.signal_grads[name] = grad if owned else grad.copy()
             return
         if target is None:
             target = self.signal_grads[name] = np.zeros((self.length, self.n))
         part = target[: len(grad)]
-        part += grad if scale == 1.0 else grad * scale
+        part += grad
 
     def send_signals(self, grads: dict[str, np.ndarray], rows: slice = slice(None)) -> None:
         for name, grad in grads.items():
@@ -175,7 +185,7 @@ class _Smoother:
         z = margin * self.beta
 
         def backward(g: np.ndarray) -> None:
-            scale = g * (sign * self.beta)  # the gradient wrt lhs; wrt rhs it is the negative
+            scale = np.multiply(g, sign * self.beta, out=g)  # the gradient wrt lhs (wrt rhs: its negative)
             for grads, direction in ((lhs_grad(scale), 1.0), (rhs_grad(scale), -1.0)):
                 for name, grad in grads.items():
                     self.accumulate(name, np.broadcast_to(grad, g.shape), direction)
@@ -204,8 +214,8 @@ class _Smoother:
             z = z * self.beta
 
         def backward(g: np.ndarray) -> None:
-            for name, slope in slopes.items():
-                self.accumulate(name, g, slope * self.beta)
+            for i, (name, slope) in enumerate(slopes.items()):
+                self.accumulate(name, g, slope * self.beta, owned=i == len(slopes) - 1)  # the last use may own g
 
         return z, backward
 
@@ -253,19 +263,18 @@ class _Smoother:
         return out, backward
 
     def _over_time(self, node: Eventually | Always, first_only: bool, sign: float) -> tuple[np.ndarray, _Backward]:
+        if first_only:  # one reduction over time
+            reduced, exps, total = lse.reduce_forward(self(node.child), 0, sign)
+
+            def backward_first(g: np.ndarray) -> None:
+                self.send(node.child, False, lse.reduce_backward(exps, total, g[0], 0))
+
+            return reduced[None], backward_first
         child = sign * self(node.child)
-        if first_only:
-            reduced, exps, total = lse.reduce_forward(child, 0)
-            out = reduced[None]
-        else:
-            out = lse.suffix_forward(child)
+        out = lse.suffix_forward(child)
 
         def backward(g: np.ndarray) -> None:
-            g = sign * g  # gradient wrt `out`
-            if first_only:
-                g_child = lse.reduce_backward(exps, total, g[0], 0)
-            else:
-                g_child = lse.suffix_backward(child, out, g)
+            g_child = lse.suffix_backward(child, out, sign * g)  # `sign * g`: the gradient wrt `out`
             self.send(node.child, False, sign * g_child)
 
         return sign * out, backward

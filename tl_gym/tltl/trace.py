@@ -44,6 +44,11 @@ def is_torch(value: Any) -> bool:
     return type(value).__module__.startswith("torch")
 
 
+def _magnitude(low: float, high: float) -> float:
+    """The largest |x| from the extremes (two passes, no |x| copy); NaN if either is NaN."""
+    return float(np.max(np.abs([low, high])))
+
+
 def _first_bad(name: str, finite: np.ndarray, batched: bool) -> TraceError:
     bad = np.argwhere(~finite)[0]
     if batched:
@@ -86,13 +91,14 @@ def prepare(names: tuple[str, ...], trace: Trace, *, torch_ok: bool = False) -> 
         value = trace[name]
         if torch_ok and is_torch(value):
             array = value
-            magnitude = float(value.detach().abs().max()) if value.numel() else 0.0
+            low, high = value.detach().aminmax() if value.numel() else (0.0, 0.0)
+            magnitude = _magnitude(float(low), float(high))
         else:
             try:
                 array = np.asarray(value, dtype=np.float64)
             except (TypeError, ValueError) as exc:
                 raise TraceError(f"signal {name!r} is not numeric: {exc}") from None
-            magnitude = float(np.max(np.abs(array))) if array.size else 0.0
+            magnitude = _magnitude(float(array.min()), float(array.max())) if array.size else 0.0
         if array.ndim not in (1, 2) or array.shape[-1] == 0:
             raise TraceError(
                 f"signal {name!r} has shape {tuple(array.shape)}; expected (T,) or (N, T) with T >= 1"
