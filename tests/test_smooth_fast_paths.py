@@ -6,6 +6,7 @@ import pytest
 import torch
 
 from tl_gym import TraceError, parse
+from tl_gym.tltl import smooth
 from tl_gym.tltl import trace as trace_module
 
 FORMULAS = [
@@ -100,3 +101,25 @@ def test_errors_name_the_trajectory_of_the_whole_batch_not_of_its_chunk(monkeypa
         trace["x"][20, 0] = -200.0 if position == 0 else 1.0
         with pytest.raises(TraceError, match=rf"trajectory 20, position {position}"):
             formula.smooth_robustness(trace, BETA)
+
+
+def test_gradient_only_when_autograd_will_ask_for_it(monkeypatch):
+    formula, trace = parse(FORMULAS[0]), _trace(n=3)
+    asked = []
+    original = smooth._at_position_zero
+    monkeypatch.setattr(smooth, "_at_position_zero", lambda *a, **k: asked.append(k["jacobian"]) or original(*a, **k))
+    x = torch.tensor(trace["x"], requires_grad=True)
+    with torch.no_grad():
+        formula.smooth_robustness({"x": x, "y": torch.tensor(trace["y"])}, BETA)
+    formula.smooth_robustness({"x": x.detach(), "y": torch.tensor(trace["y"])}, BETA)
+    formula.smooth_robustness({"x": x, "y": torch.tensor(trace["y"])}, BETA)
+    assert asked == [False, False, True]
+
+
+def test_numpy_signal_beside_torch_signals():
+    formula, trace = parse(FORMULAS[0]), _trace(n=3)
+    x = torch.tensor(trace["x"], requires_grad=True)
+    value = formula.smooth_robustness({"x": x, "y": trace["y"]}, BETA)
+    np.testing.assert_allclose(value.detach().numpy(), formula.smooth_robustness(trace, BETA), rtol=1e-12)
+    value.sum().backward()
+    assert x.grad is not None and x.grad.shape == x.shape

@@ -57,7 +57,7 @@ from tl_gym.tltl.trace import Trace, check_rho_max, chunks, is_torch, prepare
 _INF = 1e300  # stands for +∞ in β-scaled units
 _MAX_QUADRATIC_ELEMENTS = 1 << 22  # cap on T²·N per chunk of a quadratic U/T
 FORMS = ("nested", "linear")
-_N_ARGS = 9  # non-tensor arguments of the autograd Function
+_N_ARGS = 10  # non-tensor arguments of the autograd Function
 
 _Key = tuple[Formula, bool]
 _Backward = Callable[[np.ndarray], None]
@@ -503,8 +503,12 @@ def _smooth(formula: Formula, trace: Trace, beta: float, rho_max: float, form: s
 
         return torch.as_tensor(_smooth_numpy(formula, prepared, beta, rho_max, form, first_only), dtype=torch.float64)
     if any(is_torch(t) for t in tensors):
+        import torch
+
+        tensors = [t if is_torch(t) else torch.as_tensor(t) for t in tensors]  # a numpy signal beside tensors
+        wants_grad = torch.is_grad_enabled() and any(t.requires_grad for t in tensors)
         out = _autograd_function()(formula, names, float(beta), rho_max, form, first_only, prepared.n,
-                                   prepared.length, prepared.magnitudes, *tensors)
+                                   prepared.length, prepared.magnitudes, wants_grad, *tensors)
         out = out[0] if first_only else out.T  # (N,) or (N, T)
         return out if prepared.batched else out[0]
     return _smooth_numpy(formula, prepared, beta, rho_max, form, first_only)
@@ -537,9 +541,9 @@ def _autograd_function() -> Any:
     class SmoothRobustness(torch.autograd.Function):
         @staticmethod
         def forward(ctx: Any, formula: Formula, names: tuple[str, ...], beta: float, rho_max: float, form: str,
-                    first_only: bool, n: int, length: int, magnitudes: dict[str, float], *tensors: Any) -> Any:
+                    first_only: bool, n: int, length: int, magnitudes: dict[str, float], wants_grad: bool,
+                    *tensors: Any) -> Any:
             arrays = [t.detach().cpu().double().numpy() for t in tensors]
-            wants_grad = any(ctx.needs_input_grad[_N_ARGS:])
             if first_only:  # the gradient is computed now, chunk by chunk, as a per-trajectory Jacobian
                 z, ctx.jac = _at_position_zero(formula, dict(zip(names, arrays)), n, length, beta, rho_max, form,
                                                magnitudes, jacobian=wants_grad)
