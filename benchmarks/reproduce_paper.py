@@ -185,8 +185,10 @@ def write_ablations(runs: Sequence[results.RunResult], docs: Path, context: Prov
         "",
         "Weights (`hybrid`, the default, against `importance` and the paper's literal `paper` form), the "
         "exploration schedule (a decaying floor on the policy's std, `exploration_floor`) against the default, "
-        "and task 2 with `no_revisit=\"strict\"` (Eq. 19 literally). "
-        "TLPS has no feedback-gain option (K_t = 0), so that ablation is not run.",
+        "fixed feedback gains (the paper keeps K_t fixed and learns k_t, C_t; the default is K_t = 0, open "
+        "loop; the `heading feedback K` arm steers against the heading, steering action −1.0·θ) and task 2 "
+        "with `no_revisit=\"strict\"` (Eq. 19 literally). Every TLPS arm changes one thing from the default, "
+        "so compare each with the `weights=hybrid` row.",
         "",
         context.markdown(),
         "",
