@@ -209,9 +209,9 @@ class _Smoother:
             raise self.bad_value(node, i, t)
         if isinstance(margin, np.ndarray):  # a fresh array: scale it in place
             margin *= self.beta
-        z = np.broadcast_to(margin, (rows, self.n))  # broadcast: two numbers, e.g. ``1 < 2``
-        if np.ndim(margin) < 2:
-            z = z * self.beta
+            z = margin
+        else:  # two numbers, e.g. ``1 < 2``
+            z = np.full((rows, self.n), margin * self.beta)
 
         def backward(g: np.ndarray) -> None:
             for i, (name, slope) in enumerate(slopes.items()):
@@ -433,7 +433,7 @@ _RULES: dict[type, Callable[[_Smoother, Any, bool], tuple[np.ndarray, _Backward]
 
 
 def _linear_slopes(node: Predicate) -> dict[str, float] | None:
-    """D margin / d signal for a predicate whose sides are each a signal or a number, else None."""
+    """Each signal's slope in the margin of a predicate whose sides are signals or numbers; else None."""
     if not all(isinstance(side, (Var, Num)) for side in (node.lhs, node.rhs)):
         return None
     sign = -1.0 if node.op in ("<", "<=") else 1.0  # the margin is sign · (lhs − rhs)
