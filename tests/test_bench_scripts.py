@@ -43,6 +43,18 @@ def test_quick_run_with_tl_gym_and_handwritten_only(tmp_path):
     text = out.read_text()
     assert "| formula | N | T | library | mode | traj/s | tl_gym × | note |" in text
     assert "Machine:" in text and "## Targets" in text
+    assert "the two calls alternated in one loop (N = 40" in text  # the drift-free ratio, at the largest N
+
+
+def test_alternated_timing_reports_both_calls_and_the_target():
+    task = task_formula("phi1")
+    x, y = bench.trajectories(8, 30, seed=2, tasks=[task])
+    exact_s, smooth_s = bench.interleaved(task, x, y, 9.0, rounds=2)
+    assert 0 < exact_s < 10 and 0 < smooth_s < 10
+    (line,) = bench.targets([], alternated=(8, 0.010, 0.060))
+    assert "**6.00×** (target ≤ 5×: not met)" in line
+    (line,) = bench.targets([], alternated=(8, 0.010, 0.040))
+    assert "**4.00×** (target ≤ 5×: met)" in line
 
 
 def test_a_disagreeing_library_is_reported_not_timed():
