@@ -151,6 +151,18 @@ class SB3Agent(Agent):
             "MultiInputPolicy" if isinstance(self.observation_space, gym.spaces.Dict) else "MlpPolicy"
         )
         self.model = self.algo_class(policy, self.sb3_env, seed=self.seed, verbose=0, device="cpu", **kwargs)
+        self._quiet_logger()
+
+    def _quiet_logger(self) -> None:
+        """Give the model a logger that writes nothing, unless the user asked for tensorboard logs.
+
+        Without one, every ``model.learn`` call (one per iteration here) makes a new empty
+        ``SB3-<time>`` folder in the temp directory, SB3's default.
+        """
+        if not self.config.algo_kwargs.get("tensorboard_log"):
+            from stable_baselines3.common.logger import Logger
+
+            self.model.set_logger(Logger(folder=None, output_formats=[]))
 
     def _update(self, iteration: int) -> dict[str, Any]:
         collector = _make_collector()
@@ -193,6 +205,7 @@ class SB3Agent(Agent):
 
             raise IncompatibleSaveError(f"the file holds no {SB3_MEMBER} member")
         self.model = self.algo_class.load(io.BytesIO(files[SB3_MEMBER]), env=self.sb3_env, device="cpu")
+        self._quiet_logger()
 
 
 @contextlib.contextmanager

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import tempfile
+
 import numpy as np
 import pytest
 from stable_baselines3 import PPO, SAC
@@ -31,6 +33,19 @@ def test_ppo_learns_reports_saves_and_loads(tmp_path):
     assert loaded.evaluate(4, seed=3)["robustness"].tolist() == agent.evaluate(4, seed=3)["robustness"].tolist()
     loaded.learn(1)
     assert loaded.history[-1]["iteration"] == 3 and loaded.history[-1]["env_steps"] == 2400
+
+
+def test_learning_leaves_no_sb3_log_folders(tmp_path, monkeypatch):
+    """SB3's default logger makes an empty SB3-<time> folder in the temp directory per learn() call."""
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    monkeypatch.delenv("SB3_LOGDIR", raising=False)
+    agent = SB3Agent("ppo", "TLCarNav-v0", seed=0, steps_per_iteration=400, n_envs=2, batch_size=100, n_epochs=1)
+    agent.learn(2)
+    Agent.load(agent.save(tmp_path / "a.zip")).learn(1)
+    assert not list(tmp_path.glob("SB3-*"))
+    logged = SB3Agent("ppo", "TLCarNav-v0", seed=0, steps_per_iteration=400, n_envs=2, batch_size=100, n_epochs=1,
+                      tensorboard_log=str(tmp_path / "tb"))
+    assert logged.model.tensorboard_log == str(tmp_path / "tb") and not logged.model._custom_logger
 
 
 def test_off_policy_algorithm_by_class():
