@@ -333,18 +333,12 @@ _RULES: dict[type, Callable[[_Evaluator, Any], np.ndarray]] = {
 
 def _evaluate(formula: Formula, trace: Trace, alg: _Algebra, first_only: bool) -> tuple[np.ndarray, bool]:
     prepared = prepare(formula.signals, trace)
-    groups = chunks(prepared.n, prepared.length)
-    values = None
-    for rows in groups:  # trajectories are independent: evaluate them group by group (see `chunks`)
-        signals = {k: v[rows] for k, v in prepared.signals.items()}
-        evaluator = _Evaluator(alg, signals, rows.stop - rows.start, prepared.length, prepared.magnitudes, rows.start)
-        part = evaluator(formula, first_only)
-        if len(groups) == 1:
-            return part, prepared.batched
-        if values is None:
-            values = np.empty((prepared.n, part.shape[1]), dtype=part.dtype)
-        values[rows] = part
-    return values, prepared.batched
+    parts = [  # trajectories are independent: evaluate them group by group (see `chunks`)
+        _Evaluator(alg, {k: v[rows] for k, v in prepared.signals.items()}, rows.stop - rows.start,
+                   prepared.length, prepared.magnitudes, rows.start)(formula, first_only)
+        for rows in chunks(prepared.n, prepared.length)
+    ]
+    return (parts[0] if len(parts) == 1 else np.concatenate(parts)), prepared.batched
 
 
 def robustness_over_time(formula: Formula, trace: Trace, rho_max: float = math.inf) -> np.ndarray:

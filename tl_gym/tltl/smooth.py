@@ -142,11 +142,6 @@ class _Smoother:
         part = target[: len(grad)]
         part += grad
 
-    def send_signals(self, grads: dict[str, np.ndarray], rows: slice = slice(None)) -> None:
-        for name, grad in grads.items():
-            target = self.signal_grads.setdefault(name, np.zeros((self.length, self.n)))
-            target[rows] += grad
-
     def backward(self, root: _Key, grad: np.ndarray) -> dict[str, np.ndarray]:
         """Gradients of ``Σ grad · value(root)`` wrt the signals, shape ``(T, N)`` each."""
         self.grads = {root: grad}
@@ -374,8 +369,8 @@ class _Smoother:
             g_full[: len(g)] = g
             _, (g_matrix, g_right) = _quadratic_from_matrix(matrix, right, sign, g_full)
             for t_prime, sub in enumerate(subs, start=1):
-                grads = sub.backward((node.left, False), sign * g_matrix[:t_prime, t_prime])
-                self.send_signals(grads, slice(0, t_prime))
+                for name, grad in sub.backward((node.left, False), sign * g_matrix[:t_prime, t_prime]).items():
+                    self.accumulate(name, grad, 1.0)  # positions 0 … t'-1
             self.send(node.right, False, g_right)
 
         return out, backward
