@@ -366,6 +366,10 @@ def interleaved(task: Task, x: np.ndarray, y: np.ndarray, beta: float, rounds: i
     return best[0], best[1]
 
 
+def _met(ok: bool) -> str:
+    return "met" if ok else "not met"
+
+
 def targets(rows: list[Row], alternated: tuple[int, float, float] | None = None) -> list[str]:
     """The issue's speed targets, each with the measured numbers and whether it is met.
 
@@ -385,18 +389,18 @@ def targets(rows: list[Row], alternated: tuple[int, float, float] | None = None)
             lines.append(
                 f"- exact {task}, N = {n_big:,}, T = 200: tl_gym {n_big / ours:.3g} s, hand-written numpy "
                 f"{n_big / hand:.3g} s: **{slow:.2f}×** the hand-written time (target ≤ 1.5×: "
-                f"{'met' if slow <= 1.5 else 'not met'})."
+                f"{_met(slow <= 1.5)})."
             )
         peer = rate(task, n_big, 200, "rtamt", "exact")
         if ours and peer:
             lines.append(
                 f"- exact {task}, T = 200: tl_gym {ours:,.0f} traj/s vs rtamt {peer:,.1f} traj/s: "
-                f"**{ours / peer:,.0f}×** (target ≥ 1,000×: {'met' if ours / peer >= 1000 else 'not met'})."
+                f"**{ours / peer:,.0f}×** (target ≥ 1,000×: {_met(ours / peer >= 1000)})."
             )
         smooth = rate(task, n_big, 200, TL_GYM, "smooth+grad")
         if ours and smooth:
             slow = ours / smooth
-            verdict = f" (target ≤ 5×: {'met' if slow <= 5 else 'not met'})" if task == "phi1" else " (reported)"
+            verdict = f" (target ≤ 5×: {_met(slow <= 5)})" if task == "phi1" else " (reported)"
             lines.append(
                 f"- smoothed {task} with gradient, N = {n_big:,}, T = 200: {smooth:,.0f} traj/s, "
                 f"**{slow:.2f}×** the exact time{verdict}."
@@ -406,7 +410,7 @@ def targets(rows: list[Row], alternated: tuple[int, float, float] | None = None)
             lines.append(
                 f"- the same, the two calls alternated in one loop (N = {n_alt:,}, best of each): exact "
                 f"{exact_s * 1e3:.1f} ms, smoothed with gradient {smooth_s * 1e3:.1f} ms: "
-                f"**{smooth_s / exact_s:.2f}×** (target ≤ 5×: {'met' if smooth_s / exact_s <= 5 else 'not met'})."
+                f"**{smooth_s / exact_s:.2f}×** (target ≤ 5×: {_met(smooth_s / exact_s <= 5)})."
             )
         linear = rate(task, n_big, 200, TL_GYM, SMOOTH_LINEAR)
         if ours and linear:
@@ -418,7 +422,7 @@ def targets(rows: list[Row], alternated: tuple[int, float, float] | None = None)
         if smooth and stlcg:
             lines.append(
                 f"- smoothed {task} with gradient vs stlcg++: {smooth:,.0f} vs {stlcg:,.1f} traj/s: "
-                f"**{smooth / stlcg:,.0f}×** (target ≥ 100×: {'met' if smooth / stlcg >= 100 else 'not met'})."
+                f"**{smooth / stlcg:,.0f}×** (target ≥ 100×: {_met(smooth / stlcg >= 100)})."
             )
     lines.extend(linearity(rows))
     return lines
