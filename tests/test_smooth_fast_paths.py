@@ -123,3 +123,12 @@ def test_numpy_signal_beside_torch_signals():
     np.testing.assert_allclose(value.detach().numpy(), formula.smooth_robustness(trace, BETA), rtol=1e-12)
     value.sum().backward()
     assert x.grad is not None and x.grad.shape == x.shape
+
+
+def test_gradient_of_a_single_state_through_a_reversed_scan():
+    """A suffix scan's gradient on one trajectory of one state is a reversed view; torch refuses
+    negative strides, and numpy calls such an array contiguous (found by hypothesis)."""
+    x = torch.zeros((1, 1), dtype=torch.float64, requires_grad=True)
+    values = parse("X((0 < 0) T (x < 0))").smooth_robustness_over_time({"x": x}, 0.5, 5.0, form="linear")
+    values.sum().backward()
+    assert x.grad is not None and x.grad.shape == (1, 1) and torch.isfinite(x.grad).all()

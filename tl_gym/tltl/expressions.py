@@ -67,104 +67,156 @@ def evaluate_expression(expr: Expr, signals: dict[str, Any], sample: Any) -> Any
     return ev(expr)
 
 
-def evaluate_with_gradient(expr: Expr, signals: dict[str, np.ndarray]) -> tuple[Any, Any]:
-    """Value of ``expr`` on numpy signals, and the map from an upstream gradient to the signals' gradients.
+GradientTerm = tuple[str, Any, float, bool]  # (signal, array, coefficient, owned): coefficient · array
 
-    The gradients come as a dict name -> array, summed over every use of the signal.
+
+def evaluate_with_gradient(expr: Expr, signals: dict[str, np.ndarray]) -> tuple[Any, Any]:
+    """Value of ``expr`` on numpy signals, and its vector-Jacobian product.
+
+    The second result maps ``(grad, coef, owned)`` — the upstream gradient is ``coef · grad``;
+    ``owned``: nothing else holds ``grad``, so it may be overwritten — to a list of terms
+    ``(signal, array, coefficient, owned)``, one per use of a signal, whose sum
+    ``coefficient · array`` is the gradient wrt the signals. Scalar factors (β, the 2 of a
+    square, the ½ of a square root) travel as coefficients instead of whole-array passes.
 
     ``min``/``max`` pass the gradient to the first operand attaining the extreme;
     ``abs`` has gradient 0 at 0 (subgradients, as torch does).
     """
+    _Back = Any  # (grad, coef, owned, terms) -> None
 
-    def ev(e: Expr) -> tuple[Any, Any]:
-        # returns (value, backward) where backward(grad, sink) accumulates into sink
+    def product(grad: Any, factor: Any, owned: bool) -> Any:
+        """``grad · factor``, in place when ``grad`` is owned and already has the result's shape."""
+        if owned and np.shape(grad) == np.broadcast_shapes(np.shape(grad), np.shape(factor)):
+            return np.multiply(grad, factor, out=grad)
+        return grad * factor
+
+    def quotient(grad: Any, divisor: Any, owned: bool) -> Any:
+        if owned and np.shape(grad) == np.broadcast_shapes(np.shape(grad), np.shape(divisor)):
+            return np.divide(grad, divisor, out=grad)
+        return grad / divisor
+
+    def ev(e: Expr) -> tuple[Any, _Back | None]:
         if isinstance(e, Var):
-            def back_var(grad: Any, sink: dict[str, Any]) -> None:
-                sink[e.name] = grad if e.name not in sink else sink[e.name] + grad
+            def back_var(grad: Any, coef: float, owned: bool, terms: list[GradientTerm]) -> None:
+                terms.append((e.name, grad, coef, owned))
             return signals[e.name], back_var
         if isinstance(e, Num):
             return np.float64(e.value), None
         if isinstance(e, Neg):
             value, back = ev(e.operand)
-            return -value, (None if back is None else lambda g, s: back(-g, s))
+            if back is None:
+                return -value, None
+            return -value, lambda g, c, o, t: back(g, -c, o, t)
         if isinstance(e, BinOp):
-            (a, back_a), (b, back_b) = ev(e.left), ev(e.right)
-            with np.errstate(all="ignore"):
-                if e.op == "+":
-                    out = a + b
-                elif e.op == "-":
-                    out = a - b
-                elif e.op == "*":
-                    out = a * b
-                elif e.op == "/":
-                    out = a / b
-                elif _is_square(a, b):
-                    out = a * a
-                else:
-                    out = np.power(np.float64(a) if isinstance(a, float) else a, b)
-
-            def slopes() -> tuple[Any, Any]:
-                # derivatives are computed only when a gradient is asked for
-                if e.op == "+":
-                    return 1.0, 1.0
-                if e.op == "-":
-                    return 1.0, -1.0
-                if e.op == "*":
-                    return b, a
-                if e.op == "/":
-                    return 1.0 / b, -out / b
-                da = (2.0 * a if b == 2.0 else b * np.power(a, b - 1.0)) if back_a is not None else 0.0
-                return da, (out * np.log(a) if back_b is not None else 0.0)
-
-            def back_bin(grad: Any, sink: dict[str, Any]) -> None:
-                with np.errstate(all="ignore"):
-                    da, db = slopes()
-                    if back_a is not None:
-                        back_a(grad if _is_one(da) else grad * da, sink)
-                    if back_b is not None:
-                        back_b(grad if _is_one(db) else grad * db, sink)
-
-            return out, (None if back_a is None and back_b is None else back_bin)
+            return binary(e)
         if isinstance(e, Call):
-            parts = [ev(a) for a in e.args]
-            values = [p[0] for p in parts]
-            pick = None
+            return call(e)
+        raise TypeError(f"no evaluation rule for expression node {type(e).__name__}")
+
+    def binary(e: BinOp) -> tuple[Any, _Back | None]:
+        (a, back_a), (b, back_b) = ev(e.left), ev(e.right)
+        if back_a is None and back_b is None:
+            return _apply(e.op, a, b), None
+        out = _apply(e.op, a, b)
+        scalar_a, scalar_b = np.ndim(a) == 0, np.ndim(b) == 0
+
+        def back(grad: Any, coef: float, owned: bool, terms: list[GradientTerm]) -> None:
+            both = back_a is not None and back_b is not None  # then the two sides share ``grad``
+            with np.errstate(all="ignore"):
+                if e.op in ("+", "-"):
+                    if back_a is not None:
+                        back_a(grad, coef, owned and not both, terms)
+                    if back_b is not None:
+                        back_b(grad, coef if e.op == "+" else -coef, owned and not both, terms)
+                elif e.op == "*":
+                    if back_a is not None:
+                        if scalar_b:
+                            back_a(grad, coef * float(b), owned and not both, terms)
+                        else:
+                            back_a(product(grad, b, owned and not both), coef, True, terms)
+                    if back_b is not None:
+                        if scalar_a:
+                            back_b(grad, coef * float(a), owned, terms)
+                        else:
+                            back_b(product(grad, a, owned), coef, True, terms)
+                elif e.op == "/":
+                    if back_b is not None:  # d(a/b)/db = −out / b
+                        back_b(quotient(product(grad, out, False), b, True), -coef, True, terms)
+                    if back_a is not None:
+                        if scalar_b:
+                            back_a(grad, coef / float(b), owned, terms)
+                        else:
+                            back_a(quotient(grad, b, owned), coef, True, terms)
+                else:  # power
+                    if back_b is not None:  # d(a^b)/db = out · log a
+                        back_b(product(product(grad, out, False), np.log(a), True), coef, True, terms)
+                    if back_a is not None:
+                        if _is_square(a, b):
+                            back_a(product(grad, a, owned), 2.0 * coef, True, terms)
+                        else:
+                            back_a(product(grad, b * np.power(a, b - 1.0), owned), coef, True, terms)
+
+        return out, back
+
+    def call(e: Call) -> tuple[Any, _Back | None]:
+        parts = [ev(a) for a in e.args]
+        values = [p[0] for p in parts]
+        with np.errstate(all="ignore"):
+            if e.func in ("min", "max"):
+                stacked = np.stack(np.broadcast_arrays(*values))
+                pick = stacked.argmin(0) if e.func == "min" else stacked.argmax(0)
+                out = np.take_along_axis(stacked, pick[None], 0)[0]
+            else:
+                x = values[0]
+                x = np.float64(x) if isinstance(x, float) else x
+                out = {"abs": np.abs, "sqrt": np.sqrt, "exp": np.exp, "log": np.log}[e.func](x)
+        if all(p[1] is None for p in parts):
+            return out, None
+
+        def back(grad: Any, coef: float, owned: bool, terms: list[GradientTerm]) -> None:
             with np.errstate(all="ignore"):
                 if e.func in ("min", "max"):
-                    stacked = np.stack(np.broadcast_arrays(*values))
-                    pick = stacked.argmin(0) if e.func == "min" else stacked.argmax(0)
-                    out = np.take_along_axis(stacked, pick[None], 0)[0]
-                else:
-                    x = values[0]
-                    x = np.float64(x) if isinstance(x, float) else x
-                    out = {"abs": np.abs, "sqrt": np.sqrt, "exp": np.exp, "log": np.log}[e.func](x)
+                    for i, (_, back_i) in enumerate(parts):
+                        if back_i is not None:
+                            back_i(grad * (pick == i), coef, True, terms)
+                    return
+                x, back_x = values[0], parts[0][1]
+                if e.func == "sqrt":
+                    back_x(quotient(grad, out, owned), 0.5 * coef, True, terms)
+                elif e.func == "exp":
+                    back_x(product(grad, out, owned), coef, True, terms)
+                elif e.func == "log":
+                    back_x(quotient(grad, x, owned), coef, True, terms)
+                else:  # abs
+                    back_x(product(grad, np.sign(x), owned), coef, True, terms)
 
-            def call_slopes() -> list[Any]:
-                if pick is not None:
-                    return [(pick == i).astype(np.float64) for i in range(len(values))]
-                x = values[0]
-                slope = {"abs": lambda: np.sign(x), "sqrt": lambda: 0.5 / out, "exp": lambda: out,
-                         "log": lambda: 1.0 / x}[e.func]()
-                return [slope]
-
-            def back_call(grad: Any, sink: dict[str, Any]) -> None:
-                with np.errstate(all="ignore"):
-                    for (_, back), slope in zip(parts, call_slopes()):
-                        if back is not None:
-                            back(grad * slope, sink)
-
-            return out, (None if all(p[1] is None for p in parts) else back_call)
-        raise TypeError(f"no evaluation rule for expression node {type(e).__name__}")
+        return out, back
 
     value, back = ev(expr)
 
-    def gradient(grad: Any) -> dict[str, Any]:
-        sink: dict[str, Any] = {}
+    def gradient(grad: Any, coef: float = 1.0, owned: bool = False) -> list[GradientTerm]:
+        terms: list[GradientTerm] = []
         if back is not None:
-            back(grad, sink)
-        return sink
+            back(grad, coef, owned, terms)
+        return terms
 
     return value, gradient
+
+
+def _apply(op: str, a: Any, b: Any) -> Any:
+    """``a op b`` for numpy operands (numbers stay numpy scalars: 0/0 is NaN, not an exception)."""
+    with np.errstate(all="ignore"):
+        if op == "+":
+            return a + b
+        if op == "-":
+            return a - b
+        if op == "*":
+            return a * b
+        if op == "/":
+            return a / b
+        if _is_square(a, b):
+            return a * a
+        return np.power(np.float64(a) if isinstance(a, float) else a, b)
 
 
 def _is_square(base: Any, exponent: Any) -> bool:

@@ -31,21 +31,26 @@ def _exp_floored(x: np.ndarray) -> np.ndarray:
     """``exp(x)`` in place, arguments clipped below at ``_EXP_FLOOR``."""
     if x.flags.c_contiguous:
         np.maximum(x, _floor_like(x), out=x)
+    elif x.flags.f_contiguous:
+        np.maximum(x, _floor_like(x.T).T, out=x)
     else:
         np.maximum(x, _EXP_FLOOR, out=x)
     return np.exp(x, out=x)
 
 
-def reduce_forward(z: np.ndarray, axis: int, sign: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def reduce_forward(z: np.ndarray, axis: int, sign: float = 1.0,
+                   spare: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``sign·log Σ exp(sign·z)`` along ``axis`` (removed): smooth max (sign 1) or min (sign -1).
 
     Also returns the softmax, kept unnormalised: ``exps = exp(sign·(z − extreme))`` and
     ``total``, their sum (``axis`` kept). The weights ``exps / total`` are the whole gradient
     (`reduce_backward`, the same for both signs), and dividing the small upstream gradient by
-    ``total`` is cheaper than normalising every weight.
+    ``total`` is cheaper than normalising every weight. ``spare``: ``z`` is needed no more,
+    so ``exps`` may take its memory.
     """
     peak = z.max(axis=axis, keepdims=True) if sign > 0 else z.min(axis=axis, keepdims=True)
-    exps = np.subtract(z, peak) if sign > 0 else np.subtract(peak, z)
+    into = z if spare else None
+    exps = np.subtract(z, peak, out=into) if sign > 0 else np.subtract(peak, z, out=into)
     _exp_floored(exps)
     total = exps.sum(axis=axis, keepdims=True)
     return (peak + sign * np.log(total)).squeeze(axis), exps, total
@@ -56,10 +61,12 @@ def reduce_backward(exps: np.ndarray, total: np.ndarray, grad: np.ndarray, axis:
     return (np.expand_dims(grad, axis) / total) * exps
 
 
-def reduce_operands(operands: list[np.ndarray], sign: float) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
+def reduce_operands(operands: list[np.ndarray], sign: float,
+                    spare: list[bool] | None = None) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
     """``sign·log Σ_i exp(sign·operands[i])``: smooth max (sign 1) or min (sign -1), and its softmax.
 
     The softmax is kept unnormalised: each operand's ``exp(sign·(operand − extreme))`` and their sum.
+    ``spare[i]``: operand i is needed no more, so its weights may take its memory.
 
     The same value as `reduce_forward` over the stacked operands, without building the
     stack (one full copy of every operand) or negating it: the shift is the elementwise
@@ -70,16 +77,15 @@ def reduce_operands(operands: list[np.ndarray], sign: float) -> tuple[np.ndarray
     for operand in operands[2:]:
         pick(peak, operand, out=peak)
     exps = []
-    for operand in operands:
-        e = np.subtract(operand, peak) if sign > 0 else np.subtract(peak, operand)
+    for i, operand in enumerate(operands):
+        into = operand if spare is not None and spare[i] and operand.shape == peak.shape else None
+        e = np.subtract(operand, peak, out=into) if sign > 0 else np.subtract(peak, operand, out=into)
         exps.append(_exp_floored(e))
     total = exps[0] + exps[1]
     for e in exps[2:]:
         total += e
     out = np.log(total)
-    out *= sign
-    out += peak
-    return out, exps, total
+    return (np.add(peak, out, out=out) if sign > 0 else np.subtract(peak, out, out=out)), exps, total
 
 
 def operands_backward(exps: list[np.ndarray], total: np.ndarray, grad: np.ndarray) -> list[np.ndarray]:

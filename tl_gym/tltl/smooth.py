@@ -27,7 +27,9 @@ A ``U``/``T`` needed only at position 0 stays linear in both forms.
 
 from __future__ import annotations
 
+import functools
 import math
+from collections import Counter
 from collections.abc import Callable
 from typing import Any
 
@@ -79,8 +81,9 @@ class _Smoother:
     """
 
     def __init__(self, signals: dict[str, np.ndarray], n: int, length: int, beta: float, top: float, form: str,
-                 magnitudes: dict[str, float], first_row: int = 0):
+                 magnitudes: dict[str, float], occurrences: Counter[Formula], first_row: int = 0):
         self.signals = signals
+        self.occurrences = occurrences  # how often each sub-formula occurs in the formula being smoothed
         self.first_row = first_row  # index of this chunk's first trajectory in the caller's batch
         self.magnitudes = magnitudes  # max |signal| over the whole batch: bounds every chunk and prefix
         self.n = n
@@ -89,6 +92,8 @@ class _Smoother:
         self.top = top  # ρ_max in β units
         self.form = form
         self.values: dict[_Key, np.ndarray] = {}  # a repeated sub-formula is smoothed once
+        self.retained: set[_Key] = set()  # nodes whose backward rule reads their own value
+        self.scaled_signals: dict[str, np.ndarray] = {}  # β · signal, shared by the linear predicates
         self.tape: list[tuple[_Key, _Backward]] = []
         self.grads: dict[_Key, np.ndarray] = {}
         self.signal_grads: dict[str, np.ndarray] = {}
@@ -110,6 +115,14 @@ class _Smoother:
         self.values[key] = value
         self.tape.append((key, backward))
         return value
+
+    def spare(self, node: Formula, first_only: bool = False) -> bool:
+        """Whether the caller may overwrite this child's value.
+
+        True when the child occurs once in the formula (so this caller is its only reader) and its
+        own backward rule does not read it. The caller must not read it in its backward rule either.
+        """
+        return self.occurrences[node] == 1 and (node, first_only) not in self.retained
 
     def bad_value(self, node: Predicate, row: int, position: int) -> TraceError:
         """The error for a NaN or infinite predicate value, naming the trajectory in the caller's batch."""
@@ -152,9 +165,17 @@ class _Smoother:
                 backward(g)
         return self.signal_grads
 
+    def scaled(self, name: str) -> np.ndarray:
+        """β · the signal, computed once per evaluation."""
+        out = self.scaled_signals.get(name)
+        if out is None:
+            out = self.scaled_signals[name] = self.signals[name] * self.beta
+        return out
+
     def on_prefix(self, length: int) -> _Smoother:
         signals = {k: v[:length] for k, v in self.signals.items()}
-        return _Smoother(signals, self.n, length, self.beta, self.top, self.form, self.magnitudes, self.first_row)
+        return _Smoother(signals, self.n, length, self.beta, self.top, self.form, self.magnitudes, self.occurrences,
+                         self.first_row)
 
     # rules: each returns (value, backward) ----------------------------------------------
     def constant(self, node: Constant, first_only: bool) -> tuple[np.ndarray, _Backward]:
@@ -180,10 +201,13 @@ class _Smoother:
         z = margin * self.beta
 
         def backward(g: np.ndarray) -> None:
-            scale = np.multiply(g, sign * self.beta, out=g)  # the gradient wrt lhs (wrt rhs: its negative)
-            for grads, direction in ((lhs_grad(scale), 1.0), (rhs_grad(scale), -1.0)):
-                for name, grad in grads.items():
-                    self.accumulate(name, np.broadcast_to(grad, g.shape), direction)
+            # the gradient wrt lhs is sign·β·g (wrt rhs: its negative); ``g`` is this rule's own
+            terms = rhs_grad(g, -sign * self.beta)
+            terms += lhs_grad(g, sign * self.beta, owned=not terms)
+            for name, grad, coef, owned in terms:
+                if np.shape(grad) != g.shape:
+                    grad, owned = np.broadcast_to(grad, g.shape), False
+                self.accumulate(name, grad, coef, owned)
 
         return z, backward
 
@@ -195,18 +219,24 @@ class _Smoother:
         Two passes forward (on row 0 only when that is all that is asked), one or two per signal backward.
         """
         rows = 1 if first_only else self.length
-        lhs, rhs = (self.signals[e.name][:rows] if isinstance(e, Var) else e.value for e in (node.lhs, node.rhs))
-        with np.errstate(all="ignore"):
-            margin = np.subtract(rhs, lhs) if node.op in ("<", "<=") else np.subtract(lhs, rhs)
         bound = sum(self.magnitudes[e.name] if isinstance(e, Var) else abs(e.value) for e in (node.lhs, node.rhs))
-        if not bound < 1e307 and not np.isfinite(margin).all():  # the signals are finite: only overflow is left
-            t, i = np.argwhere(~np.isfinite(np.broadcast_to(margin, (rows, self.n))))[0]
-            raise self.bad_value(node, i, t)
-        if isinstance(margin, np.ndarray):  # a fresh array: scale it in place
-            margin *= self.beta
-            z = margin
-        else:  # two numbers, e.g. ``1 < 2``
-            z = np.full((rows, self.n), margin * self.beta)
+        low, high = (node.lhs, node.rhs) if node.op in ("<", "<=") else (node.rhs, node.lhs)  # z = β·(high − low)
+        if rows == self.length and bound * self.beta < 1e307 and (isinstance(low, Var) or isinstance(high, Var)):
+            # one pass: β·signal is shared by every linear predicate on the signal
+            high_z, low_z = (self.scaled(e.name) if isinstance(e, Var) else e.value * self.beta for e in (high, low))
+            z = np.subtract(high_z, low_z)
+        else:
+            high_v, low_v = (self.signals[e.name][:rows] if isinstance(e, Var) else e.value for e in (high, low))
+            with np.errstate(all="ignore"):
+                margin = np.subtract(high_v, low_v)
+            if not bound < 1e307 and not np.isfinite(margin).all():  # the signals are finite: only overflow is left
+                t, i = np.argwhere(~np.isfinite(np.broadcast_to(margin, (rows, self.n))))[0]
+                raise self.bad_value(node, i, t)
+            if isinstance(margin, np.ndarray):  # a fresh array: scale it in place
+                margin *= self.beta
+                z = margin
+            else:  # two numbers, e.g. ``1 < 2``
+                z = np.full((rows, self.n), margin * self.beta)
 
         def backward(g: np.ndarray) -> None:
             for i, (name, slope) in enumerate(slopes.items()):
@@ -219,11 +249,22 @@ class _Smoother:
 
     def _nary(self, node: And | Or, first_only: bool, sign: float) -> tuple[np.ndarray, _Backward]:
         """``sign·lse(sign·children)``: smooth max (sign = 1) or min (sign = -1)."""
-        out, exps, total = lse.reduce_operands([self(c, first_only) for c in node.operands], sign)
+        values = [self(c, first_only) for c in node.operands]
+        out, exps, total = lse.reduce_operands(values, sign, [self.spare(c, first_only) for c in node.operands])
+        by_signal, others = _group_linear_operands(node.operands, exps)
 
         def backward(g: np.ndarray) -> None:
-            for child, g_child in zip(node.operands, lse.operands_backward(exps, total, g)):
-                self.send(child, first_only, g_child)
+            # The weights of the operands are exps / total. A linear predicate's gradient is its weight
+            # times slope·β per signal: those of one signal are summed first, then scaled once.
+            all_linear = not others
+            scale = np.multiply(g, self.beta, out=g) if all_linear else g  # ``g`` is this rule's own
+            scale = np.divide(scale, total, out=scale)
+            for name, terms in by_signal.items():
+                (first_exps, first_slope), rest = terms[0], terms[1:]
+                combined = _combine(first_exps, first_slope, rest, scale)
+                self.accumulate(name, combined, first_slope if all_linear else first_slope * self.beta, owned=True)
+            for child, e in others:
+                self.send(child, first_only, scale * e)
 
         return out, backward
 
@@ -236,6 +277,7 @@ class _Smoother:
     def implies(self, node: Implies, first_only: bool) -> tuple[np.ndarray, _Backward]:
         neg_left, right = -self(node.left, first_only), self(node.right, first_only)
         out = np.logaddexp(neg_left, right)
+        self.retained.add((node, first_only))
 
         def backward(g: np.ndarray) -> None:
             g_left, g_right = lse.logaddexp_backward(neg_left, right, out, g)
@@ -259,7 +301,7 @@ class _Smoother:
 
     def _over_time(self, node: Eventually | Always, first_only: bool, sign: float) -> tuple[np.ndarray, _Backward]:
         if first_only:  # one reduction over time
-            reduced, exps, total = lse.reduce_forward(self(node.child), 0, sign)
+            reduced, exps, total = lse.reduce_forward(self(node.child), 0, sign, self.spare(node.child))
 
             def backward_first(g: np.ndarray) -> None:
                 self.send(node.child, False, lse.reduce_backward(exps, total, g[0], 0))
@@ -326,6 +368,7 @@ class _Smoother:
         later = np.concatenate([right_suffix[1:], self.full(-_INF, 1)])
         inner = _smin2(left, later)
         out = lse.suffix_forward(inner)
+        self.retained.add((node, False))
 
         def backward(g: np.ndarray) -> None:
             g_inner = lse.suffix_backward(inner, out, g)
@@ -427,6 +470,46 @@ _RULES: dict[type, Callable[[_Smoother, Any, bool], tuple[np.ndarray, _Backward]
 }
 
 
+def _group_linear_operands(
+    operands: tuple[Formula, ...], exps: list[np.ndarray]
+) -> tuple[dict[str, list[tuple[np.ndarray, float]]], list[tuple[Formula, np.ndarray]]]:
+    """Split an n-ary node's operands: linear predicates, as (weight, slope) terms per signal, and the rest."""
+    by_signal: dict[str, list[tuple[np.ndarray, float]]] = {}
+    others: list[tuple[Formula, np.ndarray]] = []
+    for operand, e in zip(operands, exps):
+        slopes = _linear_slopes(operand) if isinstance(operand, Predicate) else None
+        if slopes is None:
+            others.append((operand, e))
+            continue
+        for name, slope in slopes.items():  # a predicate between numbers has none: no gradient
+            by_signal.setdefault(name, []).append((e, slope))
+    return by_signal, others
+
+
+def _combine(first: np.ndarray, first_slope: float, rest: list[tuple[np.ndarray, float]],
+             scale: np.ndarray) -> np.ndarray:
+    """``scale · (first + Σ (slope / first_slope) · e)`` over ``rest``: a fresh array."""
+    if not rest:
+        return np.multiply(first, scale)
+    combined: np.ndarray | None = None
+    for e, slope in rest:
+        ratio = slope / first_slope
+        if combined is None and ratio in (1.0, -1.0):
+            combined = np.add(first, e) if ratio > 0 else np.subtract(first, e)
+            continue
+        if combined is None:
+            combined = first.copy()
+        if ratio == 1.0:
+            combined += e
+        elif ratio == -1.0:
+            combined -= e
+        else:
+            combined += ratio * e
+    assert combined is not None
+    combined *= scale
+    return combined
+
+
 def _linear_slopes(node: Predicate) -> dict[str, float] | None:
     """Each signal's slope in the margin of a predicate whose sides are signals or numbers; else None."""
     if not all(isinstance(side, (Var, Num)) for side in (node.lhs, node.rhs)):
@@ -437,6 +520,12 @@ def _linear_slopes(node: Predicate) -> dict[str, float] | None:
         if isinstance(side, Var):
             slopes[side.name] = slopes.get(side.name, 0.0) + slope
     return {name: slope for name, slope in slopes.items() if slope}
+
+
+@functools.lru_cache(maxsize=64)
+def _occurrences(formula: Formula) -> Counter[Formula]:
+    """How often each sub-formula occurs in ``formula`` (a value used once may be overwritten by its user)."""
+    return Counter(formula.walk())
 
 
 def _to_rho(z: np.ndarray, beta: float) -> np.ndarray:
@@ -456,7 +545,7 @@ def _evaluate(formula: Formula, signals: dict[str, np.ndarray], n: int, length: 
               form: str, first_only: bool, magnitudes: dict[str, float],
               first_row: int = 0) -> tuple[_Smoother, np.ndarray]:
     top = min(beta * rho_max, _INF) if math.isfinite(rho_max) else _INF
-    smoother = _Smoother(signals, n, length, float(beta), top, form, magnitudes, first_row)
+    smoother = _Smoother(signals, n, length, float(beta), top, form, magnitudes, _occurrences(formula), first_row)
     return smoother, smoother(formula, first_only)
 
 
@@ -473,8 +562,12 @@ def _at_position_zero(formula: Formula, signals: dict[str, np.ndarray], n: int, 
     """
     z = np.empty((1, n))
     jac: dict[str, np.ndarray] = {}
+    signals = {k: np.ascontiguousarray(v) for k, v in signals.items()}  # a no-op for the usual (N, T) arrays
     for rows in chunks(n, length):
-        part = {k: np.ascontiguousarray(v[rows].T) for k, v in signals.items()}
+        # Time-major views without a copy: column-major (T, n) arrays, whose results numpy keeps
+        # column-major, so reductions over time read contiguous memory and the Jacobian's rows
+        # are written back without a transpose.
+        part = {k: v[rows].T for k, v in signals.items()}
         smoother, z_part = _evaluate(formula, part, rows.stop - rows.start, length, beta, rho_max, form, True,
                                      magnitudes, first_row=rows.start)
         z[:, rows] = z_part
@@ -542,6 +635,8 @@ def _autograd_function() -> Any:
             if first_only:  # the gradient is computed now, chunk by chunk, as a per-trajectory Jacobian
                 z, ctx.jac = _at_position_zero(formula, dict(zip(names, arrays)), n, length, beta, rho_max, form,
                                                magnitudes, jacobian=wants_grad)
+                ctx.recompute = (formula, n, length, beta, rho_max, form, magnitudes)
+                ctx.save_for_backward(*tensors)  # a repeated backward recomputes the Jacobian from them
             else:
                 signals = {k: np.ascontiguousarray(a.T) for k, a in zip(names, arrays)}
                 ctx.smoother, z = _evaluate(formula, signals, n, length, beta, rho_max, form, False, magnitudes)
@@ -553,7 +648,7 @@ def _autograd_function() -> Any:
         def backward(ctx: Any, grad_out: Any) -> Any:
             g = grad_out.detach().cpu().double().numpy()
             if ctx.first_only:
-                grads = {name: jac * g[0][:, None] for name, jac in ctx.jac.items()}
+                grads = _hand_over(ctx, g[0][:, None])
             else:
                 g = np.where(np.abs(ctx.z) >= _INF / 2, 0.0, g / ctx.beta)  # ±∞ results have zero gradient
                 grads = {name: grad.T for name, grad in ctx.smoother.backward(ctx.root, g).items()}
@@ -561,12 +656,41 @@ def _autograd_function() -> Any:
             for name, (dtype, device) in zip(ctx.names, ctx.meta):
                 grad = grads.get(name)
                 if grad is not None:
-                    grad = torch.from_numpy(np.ascontiguousarray(grad)).to(dtype=dtype, device=device)
+                    grad = torch.from_numpy(_plain(grad)).to(dtype=dtype, device=device)
                 out.append(grad)
             return (None,) * _N_ARGS + tuple(out)
 
     _FUNCTION = SmoothRobustness
     return _FUNCTION.apply
+
+
+def _plain(array: np.ndarray) -> np.ndarray:
+    """``array`` C-contiguous with no negative stride, as `torch.from_numpy` needs.
+
+    numpy calls a reversed array with a dimension of size 1 contiguous; torch refuses it.
+    """
+    if array.flags.c_contiguous and min(array.strides, default=0) >= 0:
+        return array
+    return np.array(array, order="C")
+
+
+def _hand_over(ctx: Any, scale: np.ndarray) -> dict[str, np.ndarray]:
+    """The position-0 Jacobian times ``scale`` (one weight per trajectory), computed in place.
+
+    The first backward takes the Jacobian over (no copy: torch may keep the array as
+    ``.grad``); a repeated one (``retain_graph=True``) recomputes it from the saved inputs.
+    """
+    jac = ctx.jac
+    if jac is None:
+        formula, n, length, beta, rho_max, form, magnitudes = ctx.recompute
+        arrays = [t.detach().cpu().double().numpy() for t in ctx.saved_tensors]
+        _, jac = _at_position_zero(formula, dict(zip(ctx.names, arrays)), n, length, beta, rho_max, form,
+                                   magnitudes, jacobian=True)
+    ctx.jac = None
+    if not (scale == 1.0).all():  # ``values.sum().backward()`` sends ones: nothing to scale
+        for grad in jac.values():
+            grad *= scale
+    return jac
 
 
 def smooth_robustness(
