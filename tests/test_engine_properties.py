@@ -206,10 +206,14 @@ def test_autograd_equals_finite_differences(formula, trace, beta, form):
 
     value = at_zero(*tensors)
     assume(bool(torch.isfinite(value).all()) and value.requires_grad)
+    # finite differences of a value v carry a rounding error of about ulp(v) / eps: beyond 1e4 it
+    # exceeds gradcheck's tolerance whatever the gradient (e.g. exp(z^2/4) at z = 8 is 8.9e6)
+    assume(float(value.detach().abs().max()) < 1e4)
     assert torch.autograd.gradcheck(at_zero, tensors, eps=1e-6, atol=1e-6, rtol=1e-4)
 
     over_time = formula.smooth_robustness_over_time(dict(zip(S.SIGNALS, tensors)), beta, rho_max, form=form)
     finite = torch.isfinite(over_time.detach())  # (`T` at the last position is −∞, with no gradient)
+    finite &= over_time.detach().abs() < 1e4
 
     def every_position(*signals):
         values = formula.smooth_robustness_over_time(dict(zip(S.SIGNALS, signals)), beta, rho_max, form=form)
