@@ -126,6 +126,14 @@ def check_defined(formula: Formula, trace: Mapping[str, Sequence[float]]) -> Non
                     raise UndefinedPredicate(f"{node} is undefined at position {t}")
 
 
+def largest_margin(formula: Formula, trace: Mapping[str, Sequence[float]]) -> float:
+    """The largest |margin| of any predicate at any position of a (T,) trace."""
+    length = len(next(iter(trace.values())))
+    margins = [abs(margin(node, _state(trace, t)))
+               for node in formula.walk() if isinstance(node, Predicate) for t in range(length)]
+    return max(margins, default=0.0)
+
+
 def _state(trace: Mapping[str, Sequence[float]], t: int) -> dict[str, float]:
     return {name: float(values[t]) for name, values in trace.items()}
 

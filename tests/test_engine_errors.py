@@ -187,3 +187,30 @@ def test_mixed_infinite_margin_raises_trace_error(method):
     """A margin of [-inf, +inf] (x · log 0 with x of both signs): TraceError, no numpy warning (engine bug 6)."""
     with pytest.raises(TraceError, match="position 0"):
         _evaluators(parse("F(x < x * log(0))"))[method]({"x": [1.0, -1.0]})
+
+
+@pytest.mark.parametrize("text", ["x < 1e300", "x / 1e-300 > 0"])
+def test_smoothing_refuses_values_beyond_its_range(text):
+    """Finite predicate values with |β·ρ| ≥ 5e299 cannot be told from ±∞ in β units: refused, named.
+
+    The exact robustness still answers them (found by hypothesis: a value of 9e307 came back as inf).
+    """
+    formula = parse(f"F({text})")
+    trace = {"x": [3.0, 2.0, 1.0]}
+    assert math.isfinite(formula.robustness(trace))
+    with pytest.raises(TraceError, match=r"at trajectory 0, position 0: too large to smooth"):
+        formula.smooth_robustness(trace, 1.0)
+
+
+def test_value_range_skips_checks_only_where_values_are_known_finite():
+    from tl_gym.tltl.expressions import value_range
+
+    sides = parse("sqrt((x - 150)^2 + (y - 150)^2) > 40 & log(x) > 0 & 1 / y > 0 & abs(x) * 2 > min(x, -y)")
+    predicates = [p for p in sides.walk() if type(p).__name__ == "Predicate"]
+    magnitudes = {"x": 300.0, "y": 300.0}
+    low, high = value_range(predicates[0].lhs, magnitudes)
+    assert low == 0.0 and high == pytest.approx(math.sqrt(2) * 450)
+    assert value_range(predicates[1].lhs, magnitudes) is None  # log of a value that may be <= 0
+    assert value_range(predicates[2].lhs, magnitudes) is None  # division by a value that may be 0
+    assert value_range(predicates[3].lhs, magnitudes) == (0.0, 600.0)
+    assert value_range(predicates[3].rhs, magnitudes) == (-300.0, 300.0)

@@ -35,9 +35,8 @@ from tl_gym.tltl.ast import (
     Predicate,
     Then,
     Until,
-    Var,
 )
-from tl_gym.tltl.expressions import evaluate_expression
+from tl_gym.tltl.expressions import evaluate_expression, value_range
 from tl_gym.tltl.trace import Trace, check_rho_max, chunks, prepare
 
 
@@ -167,16 +166,11 @@ class _Evaluator:
         return np.asarray(self.alg.predicate(margin, node.op), dtype=self.alg.dtype)
 
     def _cannot_overflow(self, node: Predicate) -> bool:
-        """Whether the margin is a difference of signals and numbers too small to overflow."""
-        bound = 0.0
-        for side in (node.lhs, node.rhs):
-            if isinstance(side, Var):
-                bound += self.magnitudes[side.name]
-            elif isinstance(side, Num):
-                bound += abs(side.value)
-            else:
-                return False
-        return bound < 1e307
+        """Whether the margin is known finite from the signals' magnitudes (`value_range`)."""
+        sides = [value_range(side, self.magnitudes) for side in (node.lhs, node.rhs)]
+        return all(side is not None for side in sides) and sum(
+            max(abs(low), abs(high)) for low, high in sides  # type: ignore[misc]
+        ) < 1e307
 
     def not_(self, node: Not, first_only: bool) -> np.ndarray:
         return self.alg.negate(self(node.child, first_only))

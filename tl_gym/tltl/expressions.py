@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from functools import reduce
 from typing import Any
 
@@ -242,3 +243,65 @@ def can_be_non_finite(expr: Expr) -> bool:
     if isinstance(expr, BinOp):
         return expr.op in ("/", "^") or can_be_non_finite(expr.left) or can_be_non_finite(expr.right)
     return True
+
+
+def value_range(expr: Expr, magnitudes: dict[str, float]) -> tuple[float, float] | None:
+    """An interval holding every value of ``expr`` when each signal s has |s| ≤ ``magnitudes[s]``.
+
+    None when the arithmetic may be undefined or overflow there (a division by an interval
+    holding 0, the log or square root of one reaching below 0, a general power, a bound
+    beyond 1e300). Evaluators use it to skip the NaN and range checks of a predicate whose
+    values are known to be finite, e.g. ``sqrt((x - 150)^2 + (y - 150)^2)`` on finite signals.
+    """
+    def rng(e: Expr) -> tuple[float, float] | None:
+        if isinstance(e, Var):
+            m = magnitudes[e.name]
+            return -m, m
+        if isinstance(e, Num):
+            return e.value, e.value
+        if isinstance(e, Neg):
+            inner = rng(e.operand)
+            return None if inner is None else (-inner[1], -inner[0])
+        if isinstance(e, BinOp):
+            a, b = rng(e.left), rng(e.right)
+            if a is None or b is None:
+                return None
+            if e.op == "+":
+                return a[0] + b[0], a[1] + b[1]
+            if e.op == "-":
+                return a[0] - b[1], a[1] - b[0]
+            if e.op == "*":
+                corners = [x * y for x in a for y in b]
+                return min(corners), max(corners)
+            if e.op == "/":
+                if b[0] <= 0.0 <= b[1]:
+                    return None
+                corners = [x / y for x in a for y in b]
+                return min(corners), max(corners)
+            if b == (2.0, 2.0):  # a square
+                top = max(a[0] * a[0], a[1] * a[1])
+                return (0.0 if a[0] <= 0.0 <= a[1] else min(a[0] * a[0], a[1] * a[1])), top
+            return None
+        if isinstance(e, Call):
+            args = [rng(a) for a in e.args]
+            if any(a is None for a in args):
+                return None
+            if e.func in ("min", "max"):
+                pick = min if e.func == "min" else max
+                return pick(a[0] for a in args), pick(a[1] for a in args)  # type: ignore[index]
+            (low, high), = args  # type: ignore[misc]
+            if e.func == "abs":
+                return (0.0 if low <= 0.0 <= high else min(abs(low), abs(high))), max(abs(low), abs(high))
+            if e.func == "sqrt":
+                return None if low < 0.0 else (math.sqrt(low), math.sqrt(high))
+            if e.func == "log":
+                return None if low <= 0.0 else (math.log(low), math.log(high))
+            if e.func == "exp":
+                return None if high > 690.0 else (math.exp(low), math.exp(high))
+        return None
+
+    with np.errstate(all="ignore"):
+        out = rng(expr)
+    if out is None or not (-1e300 < out[0] <= out[1] < 1e300):
+        return None
+    return out

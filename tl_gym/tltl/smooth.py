@@ -53,7 +53,7 @@ from tl_gym.tltl.ast import (
     Until,
     Var,
 )
-from tl_gym.tltl.expressions import evaluate_with_gradient
+from tl_gym.tltl.expressions import evaluate_with_gradient, value_range
 from tl_gym.tltl.trace import Trace, check_rho_max, chunks, is_torch, prepare
 
 _INF = 1e300  # stands for +∞ in β-scaled units
@@ -124,6 +124,24 @@ class _Smoother:
         """
         return self.occurrences[node] == 1 and (node, first_only) not in self.retained
 
+    def margin_bound(self, node: Predicate) -> float:
+        """A bound on |margin| of the predicate over the whole batch (inf: unknown, maybe undefined)."""
+        sides = [value_range(side, self.magnitudes) for side in (node.lhs, node.rhs)]
+        if any(side is None for side in sides):
+            return math.inf
+        return sum(max(abs(low), abs(high)) for low, high in sides)  # type: ignore[misc]
+
+    def check_range(self, node: Predicate, margin: np.ndarray) -> None:
+        """Refuse finite predicate values too large for β units (±`_INF` stands for ±∞ there)."""
+        with np.errstate(over="ignore"):
+            too_large = np.abs(margin) * self.beta >= _INF / 2
+        if too_large.any():
+            t, i = np.argwhere(too_large)[0]
+            raise TraceError(
+                f"predicate {str(node)!r} is {margin[t, i]:.3g} at trajectory {self.first_row + i}, position {t}: "
+                f"too large to smooth (|β · value| must stay below {_INF / 2:.0e}; β = {self.beta:g})"
+            )
+
     def bad_value(self, node: Predicate, row: int, position: int) -> TraceError:
         """The error for a NaN or infinite predicate value, naming the trajectory in the caller's batch."""
         return TraceError(f"predicate {str(node)!r} is NaN or infinite at trajectory {self.first_row + row}, "
@@ -193,11 +211,14 @@ class _Smoother:
         sign = -1.0 if node.op in ("<", "<=") else 1.0  # the margin is sign · (lhs − rhs)
         with np.errstate(all="ignore"):
             margin = np.broadcast_to(np.subtract(lhs, rhs) if sign > 0 else np.subtract(rhs, lhs), (rows, self.n))
-            # a NaN or inf makes the sum non-finite: one cheap pass clears almost every call
-            suspicious = not np.isfinite(np.sum(margin))
-        if suspicious and not np.isfinite(margin).all():
-            t, i = np.argwhere(~np.isfinite(margin))[0]
-            raise self.bad_value(node, i, t)
+        if self.margin_bound(node) * self.beta >= _INF / 2:  # possibly undefined or too large: look
+            with np.errstate(all="ignore"):
+                # a NaN or inf makes the sum non-finite: one cheap pass clears almost every call
+                suspicious = not np.isfinite(np.sum(margin))
+            if suspicious and not np.isfinite(margin).all():
+                t, i = np.argwhere(~np.isfinite(margin))[0]
+                raise self.bad_value(node, i, t)
+            self.check_range(node, margin)
         z = margin * self.beta
 
         def backward(g: np.ndarray) -> None:
@@ -219,9 +240,9 @@ class _Smoother:
         Two passes forward (on row 0 only when that is all that is asked), one or two per signal backward.
         """
         rows = 1 if first_only else self.length
-        bound = sum(self.magnitudes[e.name] if isinstance(e, Var) else abs(e.value) for e in (node.lhs, node.rhs))
+        bound = self.margin_bound(node)
         low, high = (node.lhs, node.rhs) if node.op in ("<", "<=") else (node.rhs, node.lhs)  # z = β·(high − low)
-        if rows == self.length and bound * self.beta < 1e307 and (isinstance(low, Var) or isinstance(high, Var)):
+        if rows == self.length and bound * self.beta < _INF / 2 and (isinstance(low, Var) or isinstance(high, Var)):
             # one pass: β·signal is shared by every linear predicate on the signal
             high_z, low_z = (self.scaled(e.name) if isinstance(e, Var) else e.value * self.beta for e in (high, low))
             z = np.subtract(high_z, low_z)
@@ -232,6 +253,8 @@ class _Smoother:
             if not bound < 1e307 and not np.isfinite(margin).all():  # the signals are finite: only overflow is left
                 t, i = np.argwhere(~np.isfinite(np.broadcast_to(margin, (rows, self.n))))[0]
                 raise self.bad_value(node, i, t)
+            if bound * self.beta >= _INF / 2:
+                self.check_range(node, np.broadcast_to(margin, (rows, self.n)))
             if isinstance(margin, np.ndarray):  # a fresh array: scale it in place
                 margin *= self.beta
                 z = margin
