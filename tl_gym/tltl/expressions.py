@@ -96,6 +96,22 @@ def evaluate_with_gradient(expr: Expr, signals: dict[str, np.ndarray]) -> tuple[
             return np.divide(grad, divisor, out=grad)
         return grad / divisor
 
+    # Intermediate arrays that nothing reads again, by id (held here, so an id is never reused while
+    # listed): the operation that consumes one may write its result into it.
+    spare: dict[int, np.ndarray] = {}
+
+    def release(value: Any) -> None:
+        if isinstance(value, np.ndarray):
+            spare[id(value)] = value
+
+    def into(*operands: Any, shape: tuple[int, ...], keep: tuple[Any, ...] = ()) -> Any:
+        """A spare operand of the result's shape to write the result into (None: a new array)."""
+        for operand in operands:
+            if (id(operand) in spare and operand.shape == shape and operand.dtype == np.float64
+                    and not any(operand is k for k in keep)):
+                return spare.pop(id(operand))
+        return None
+
     def ev(e: Expr) -> tuple[Any, _Back | None]:
         if isinstance(e, Var):
             def back_var(grad: Any, coef: float, owned: bool, terms: list[GradientTerm]) -> None:
@@ -105,9 +121,11 @@ def evaluate_with_gradient(expr: Expr, signals: dict[str, np.ndarray]) -> tuple[
             return np.float64(e.value), None
         if isinstance(e, Neg):
             value, back = ev(e.operand)
+            out = np.negative(value, out=into(value, shape=np.shape(value)))
+            release(out)
             if back is None:
-                return -value, None
-            return -value, lambda g, c, o, t: back(g, -c, o, t)
+                return out, None
+            return out, lambda g, c, o, t: back(g, -c, o, t)
         if isinstance(e, BinOp):
             return binary(e)
         if isinstance(e, Call):
@@ -118,8 +136,12 @@ def evaluate_with_gradient(expr: Expr, signals: dict[str, np.ndarray]) -> tuple[
         (a, back_a), (b, back_b) = ev(e.left), ev(e.right)
         if back_a is None and back_b is None:
             return _apply(e.op, a, b), None
-        out = _apply(e.op, a, b)
         scalar_a, scalar_b = np.ndim(a) == 0, np.ndim(b) == 0
+        # what this operation's backward reads: the other factor of a product, the divisor, the base
+        keep = {"*": (b if back_a else None, a if back_b else None), "/": (b,), "+": (), "-": ()}.get(e.op, (a, b))
+        out = _apply(e.op, a, b, into(a, b, shape=np.broadcast_shapes(np.shape(a), np.shape(b)), keep=keep))
+        if back_b is None or e.op in ("+", "-", "*"):  # a quotient's or a power's backward wrt b reads the result
+            release(out)
 
         def back(grad: Any, coef: float, owned: bool, terms: list[GradientTerm]) -> None:
             both = back_a is not None and back_b is not None  # then the two sides share ``grad``
@@ -170,7 +192,11 @@ def evaluate_with_gradient(expr: Expr, signals: dict[str, np.ndarray]) -> tuple[
             else:
                 x = values[0]
                 x = np.float64(x) if isinstance(x, float) else x
-                out = {"abs": np.abs, "sqrt": np.sqrt, "exp": np.exp, "log": np.log}[e.func](x)
+                reads_out = e.func in ("sqrt", "exp")  # their backward reads the result, the others the argument
+                target = into(x, shape=np.shape(x)) if reads_out else None
+                out = {"abs": np.abs, "sqrt": np.sqrt, "exp": np.exp, "log": np.log}[e.func](x, out=target)
+        if e.func in ("min", "max") or not reads_out:
+            release(out)
         if all(p[1] is None for p in parts):
             return out, None
 
@@ -204,20 +230,20 @@ def evaluate_with_gradient(expr: Expr, signals: dict[str, np.ndarray]) -> tuple[
     return value, gradient
 
 
-def _apply(op: str, a: Any, b: Any) -> Any:
+def _apply(op: str, a: Any, b: Any, out: np.ndarray | None = None) -> Any:
     """``a op b`` for numpy operands (numbers stay numpy scalars: 0/0 is NaN, not an exception)."""
     with np.errstate(all="ignore"):
         if op == "+":
-            return a + b
+            return np.add(a, b, out=out)
         if op == "-":
-            return a - b
+            return np.subtract(a, b, out=out)
         if op == "*":
-            return a * b
+            return np.multiply(a, b, out=out)
         if op == "/":
-            return a / b
+            return np.divide(a, b, out=out)
         if _is_square(a, b):
-            return a * a
-        return np.power(np.float64(a) if isinstance(a, float) else a, b)
+            return np.multiply(a, a, out=out)
+        return np.power(np.float64(a) if isinstance(a, float) else a, b, out=out)
 
 
 def _is_square(base: Any, exponent: Any) -> bool:

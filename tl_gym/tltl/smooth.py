@@ -210,7 +210,8 @@ class _Smoother:
         rhs, rhs_grad = evaluate_with_gradient(node.rhs, signals)
         sign = -1.0 if node.op in ("<", "<=") else 1.0  # the margin is sign · (lhs − rhs)
         with np.errstate(all="ignore"):
-            margin = np.broadcast_to(np.subtract(lhs, rhs) if sign > 0 else np.subtract(rhs, lhs), (rows, self.n))
+            difference = np.subtract(lhs, rhs) if sign > 0 else np.subtract(rhs, lhs)
+        margin = np.broadcast_to(difference, (rows, self.n))
         if self.margin_bound(node) * self.beta >= _INF / 2:  # possibly undefined or too large: look
             with np.errstate(all="ignore"):
                 # a NaN or inf makes the sum non-finite: one cheap pass clears almost every call
@@ -219,7 +220,10 @@ class _Smoother:
                 t, i = np.argwhere(~np.isfinite(margin))[0]
                 raise self.bad_value(node, i, t)
             self.check_range(node, margin)
-        z = margin * self.beta
+        if isinstance(difference, np.ndarray) and difference.shape == margin.shape:  # a fresh array: scale in place
+            z = np.multiply(difference, self.beta, out=difference)
+        else:
+            z = margin * self.beta
 
         def backward(g: np.ndarray) -> None:
             # the gradient wrt lhs is sign·β·g (wrt rhs: its negative); ``g`` is this rule's own
