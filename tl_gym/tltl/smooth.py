@@ -600,10 +600,13 @@ def _at_position_zero(formula: Formula, signals: dict[str, np.ndarray], n: int, 
         z[:, rows] = z_part
         if jacobian:
             unit = np.where(np.abs(z_part) >= _INF / 2, 0.0, 1.0 / beta)  # ±∞ results have zero gradient
-            for name, grad in smoother.backward((formula, True), unit).items():
-                if name not in jac:
-                    jac[name] = np.zeros((n, length))
-                jac[name][rows] = grad.T
+            grads = smoother.backward((formula, True), unit)
+            for name in grads.keys() - jac.keys():  # not written yet: no np.zeros pass over the whole batch
+                jac[name] = np.empty((n, length))
+                jac[name][: rows.start] = 0.0
+            for name, target in jac.items():
+                grad = grads.get(name)
+                target[rows] = 0.0 if grad is None else grad.T
     return z, jac
 
 
