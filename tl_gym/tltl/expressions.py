@@ -145,86 +145,85 @@ def evaluate_with_gradient(expr: Expr, signals: dict[str, np.ndarray]) -> tuple[
 
         def back(grad: Any, coef: float, owned: bool, terms: list[GradientTerm]) -> None:
             both = back_a is not None and back_b is not None  # then the two sides share ``grad``
-            with np.errstate(all="ignore"):
-                if e.op in ("+", "-"):
-                    if back_a is not None:
-                        back_a(grad, coef, owned and not both, terms)
-                    if back_b is not None:
-                        back_b(grad, coef if e.op == "+" else -coef, owned and not both, terms)
-                elif e.op == "*":
-                    if back_a is not None:
-                        if scalar_b:
-                            back_a(grad, coef * float(b), owned and not both, terms)
-                        else:
-                            back_a(product(grad, b, owned and not both), coef, True, terms)
-                    if back_b is not None:
-                        if scalar_a:
-                            back_b(grad, coef * float(a), owned, terms)
-                        else:
-                            back_b(product(grad, a, owned), coef, True, terms)
-                elif e.op == "/":
-                    if back_b is not None:  # d(a/b)/db = −out / b
-                        back_b(quotient(product(grad, out, False), b, True), -coef, True, terms)
-                    if back_a is not None:
-                        if scalar_b:
-                            back_a(grad, coef / float(b), owned, terms)
-                        else:
-                            back_a(quotient(grad, b, owned), coef, True, terms)
-                else:  # power
-                    if back_b is not None:  # d(a^b)/db = out · log a
-                        back_b(product(product(grad, out, False), np.log(a), True), coef, True, terms)
-                    if back_a is not None:
-                        if _is_square(a, b):
-                            back_a(product(grad, a, owned), 2.0 * coef, True, terms)
-                        else:
-                            back_a(product(grad, b * np.power(a, b - 1.0), owned), coef, True, terms)
+            if e.op in ("+", "-"):
+                if back_a is not None:
+                    back_a(grad, coef, owned and not both, terms)
+                if back_b is not None:
+                    back_b(grad, coef if e.op == "+" else -coef, owned and not both, terms)
+            elif e.op == "*":
+                if back_a is not None:
+                    if scalar_b:
+                        back_a(grad, coef * float(b), owned and not both, terms)
+                    else:
+                        back_a(product(grad, b, owned and not both), coef, True, terms)
+                if back_b is not None:
+                    if scalar_a:
+                        back_b(grad, coef * float(a), owned, terms)
+                    else:
+                        back_b(product(grad, a, owned), coef, True, terms)
+            elif e.op == "/":
+                if back_b is not None:  # d(a/b)/db = −out / b
+                    back_b(quotient(product(grad, out, False), b, True), -coef, True, terms)
+                if back_a is not None:
+                    if scalar_b:
+                        back_a(grad, coef / float(b), owned, terms)
+                    else:
+                        back_a(quotient(grad, b, owned), coef, True, terms)
+            else:  # power
+                if back_b is not None:  # d(a^b)/db = out · log a
+                    back_b(product(product(grad, out, False), np.log(a), True), coef, True, terms)
+                if back_a is not None:
+                    if _is_square(a, b):
+                        back_a(product(grad, a, owned), 2.0 * coef, True, terms)
+                    else:
+                        back_a(product(grad, b * np.power(a, b - 1.0), owned), coef, True, terms)
 
         return out, back
 
     def call(e: Call) -> tuple[Any, _Back | None]:
         parts = [ev(a) for a in e.args]
         values = [p[0] for p in parts]
-        with np.errstate(all="ignore"):
-            if e.func in ("min", "max"):
-                stacked = np.stack(np.broadcast_arrays(*values))
-                pick = stacked.argmin(0) if e.func == "min" else stacked.argmax(0)
-                out = np.take_along_axis(stacked, pick[None], 0)[0]
-            else:
-                x = values[0]
-                x = np.float64(x) if isinstance(x, float) else x
-                reads_out = e.func in ("sqrt", "exp")  # their backward reads the result, the others the argument
-                target = into(x, shape=np.shape(x)) if reads_out else None
-                out = {"abs": np.abs, "sqrt": np.sqrt, "exp": np.exp, "log": np.log}[e.func](x, out=target)
+        if e.func in ("min", "max"):
+            stacked = np.stack(np.broadcast_arrays(*values))
+            pick = stacked.argmin(0) if e.func == "min" else stacked.argmax(0)
+            out = np.take_along_axis(stacked, pick[None], 0)[0]
+        else:
+            x = values[0]
+            x = np.float64(x) if isinstance(x, float) else x
+            reads_out = e.func in ("sqrt", "exp")  # their backward reads the result, the others the argument
+            target = into(x, shape=np.shape(x)) if reads_out else None
+            out = {"abs": np.abs, "sqrt": np.sqrt, "exp": np.exp, "log": np.log}[e.func](x, out=target)
         if e.func in ("min", "max") or not reads_out:
             release(out)
         if all(p[1] is None for p in parts):
             return out, None
 
         def back(grad: Any, coef: float, owned: bool, terms: list[GradientTerm]) -> None:
-            with np.errstate(all="ignore"):
-                if e.func in ("min", "max"):
-                    for i, (_, back_i) in enumerate(parts):
-                        if back_i is not None:
-                            back_i(grad * (pick == i), coef, True, terms)
-                    return
-                x, back_x = values[0], parts[0][1]
-                if e.func == "sqrt":
-                    back_x(quotient(grad, out, owned), 0.5 * coef, True, terms)
-                elif e.func == "exp":
-                    back_x(product(grad, out, owned), coef, True, terms)
-                elif e.func == "log":
-                    back_x(quotient(grad, x, owned), coef, True, terms)
-                else:  # abs
-                    back_x(product(grad, np.sign(x), owned), coef, True, terms)
+            if e.func in ("min", "max"):
+                for i, (_, back_i) in enumerate(parts):
+                    if back_i is not None:
+                        back_i(grad * (pick == i), coef, True, terms)
+                return
+            x, back_x = values[0], parts[0][1]
+            if e.func == "sqrt":
+                back_x(quotient(grad, out, owned), 0.5 * coef, True, terms)
+            elif e.func == "exp":
+                back_x(product(grad, out, owned), coef, True, terms)
+            elif e.func == "log":
+                back_x(quotient(grad, x, owned), coef, True, terms)
+            else:  # abs
+                back_x(product(grad, np.sign(x), owned), coef, True, terms)
 
         return out, back
 
-    value, back = ev(expr)
+    with np.errstate(all="ignore"):  # undefined arithmetic is the caller's to find and refuse
+        value, back = ev(expr)
 
     def gradient(grad: Any, coef: float = 1.0, owned: bool = False) -> list[GradientTerm]:
         terms: list[GradientTerm] = []
         if back is not None:
-            back(grad, coef, owned, terms)
+            with np.errstate(all="ignore"):
+                back(grad, coef, owned, terms)
         return terms
 
     return value, gradient
@@ -232,18 +231,17 @@ def evaluate_with_gradient(expr: Expr, signals: dict[str, np.ndarray]) -> tuple[
 
 def _apply(op: str, a: Any, b: Any, out: np.ndarray | None = None) -> Any:
     """``a op b`` for numpy operands (numbers stay numpy scalars: 0/0 is NaN, not an exception)."""
-    with np.errstate(all="ignore"):
-        if op == "+":
-            return np.add(a, b, out=out)
-        if op == "-":
-            return np.subtract(a, b, out=out)
-        if op == "*":
-            return np.multiply(a, b, out=out)
-        if op == "/":
-            return np.divide(a, b, out=out)
-        if _is_square(a, b):
-            return np.multiply(a, a, out=out)
-        return np.power(np.float64(a) if isinstance(a, float) else a, b, out=out)
+    if op == "+":
+        return np.add(a, b, out=out)
+    if op == "-":
+        return np.subtract(a, b, out=out)
+    if op == "*":
+        return np.multiply(a, b, out=out)
+    if op == "/":
+        return np.divide(a, b, out=out)
+    if _is_square(a, b):
+        return np.multiply(a, a, out=out)
+    return np.power(np.float64(a) if isinstance(a, float) else a, b, out=out)
 
 
 def _is_square(base: Any, exponent: Any) -> bool:

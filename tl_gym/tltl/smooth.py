@@ -126,10 +126,7 @@ class _Smoother:
 
     def margin_bound(self, node: Predicate) -> float:
         """A bound on |margin| of the predicate over the whole batch (inf: unknown, maybe undefined)."""
-        sides = [value_range(side, self.magnitudes) for side in (node.lhs, node.rhs)]
-        if any(side is None for side in sides):
-            return math.inf
-        return sum(max(abs(low), abs(high)) for low, high in sides)  # type: ignore[misc]
+        return _margin_bound(node, tuple(self.magnitudes.items()))
 
     def check_range(self, node: Predicate, margin: np.ndarray) -> None:
         """Refuse finite predicate values too large for β units (±`_INF` stands for ±∞ there)."""
@@ -537,6 +534,15 @@ def _combine(first: np.ndarray, first_slope: float, rest: list[tuple[np.ndarray,
     return combined
 
 
+@functools.lru_cache(maxsize=1024)
+def _margin_bound(node: Predicate, magnitudes: tuple[tuple[str, float], ...]) -> float:
+    sides = [value_range(side, dict(magnitudes)) for side in (node.lhs, node.rhs)]
+    if any(side is None for side in sides):
+        return math.inf
+    return sum(max(abs(low), abs(high)) for low, high in sides)  # type: ignore[misc]
+
+
+@functools.lru_cache(maxsize=1024)
 def _linear_slopes(node: Predicate) -> dict[str, float] | None:
     """Each signal's slope in the margin of a predicate whose sides are signals or numbers; else None."""
     if not all(isinstance(side, (Var, Num)) for side in (node.lhs, node.rhs)):
