@@ -88,12 +88,6 @@ def reduce_operands(operands: list[np.ndarray], sign: float,
     return (np.add(peak, out, out=out) if sign > 0 else np.subtract(peak, out, out=out)), exps, total
 
 
-def operands_backward(exps: list[np.ndarray], total: np.ndarray, grad: np.ndarray) -> list[np.ndarray]:
-    """Gradients of `reduce_operands` wrt each operand: ``grad · exps[i] / total``."""
-    scale = grad / total
-    return [scale * e for e in exps]
-
-
 def logaddexp_backward(
     a: np.ndarray, b: np.ndarray, out: np.ndarray, grad: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
