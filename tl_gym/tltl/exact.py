@@ -36,7 +36,7 @@ from tl_gym.tltl.ast import (
     Then,
     Until,
 )
-from tl_gym.tltl.expressions import evaluate_expression, value_range
+from tl_gym.tltl.expressions import evaluate_expression, margin_bound
 from tl_gym.tltl.trace import Trace, check_rho_max, chunks, prepare
 
 
@@ -166,11 +166,8 @@ class _Evaluator:
         return np.asarray(self.alg.predicate(margin, node.op), dtype=self.alg.dtype)
 
     def _cannot_overflow(self, node: Predicate) -> bool:
-        """Whether the margin is known finite from the signals' magnitudes (`value_range`)."""
-        sides = [value_range(side, self.magnitudes) for side in (node.lhs, node.rhs)]
-        return all(side is not None for side in sides) and sum(
-            max(abs(low), abs(high)) for low, high in sides  # type: ignore[misc]
-        ) < 1e307
+        """Whether the margin is known finite from the signals' magnitudes (`margin_bound`)."""
+        return margin_bound(node.lhs, node.rhs, tuple(self.magnitudes.items())) < 1e307
 
     def not_(self, node: Not, first_only: bool) -> np.ndarray:
         return self.alg.negate(self(node.child, first_only))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from functools import reduce
 from typing import Any
@@ -329,3 +330,15 @@ def value_range(expr: Expr, magnitudes: dict[str, float]) -> tuple[float, float]
     if out is None or not (-1e300 < out[0] <= out[1] < 1e300):
         return None
     return out
+
+
+@functools.lru_cache(maxsize=4096)
+def margin_bound(lhs: Expr, rhs: Expr, magnitudes: tuple[tuple[str, float], ...]) -> float:
+    """A bound on |lhs − rhs| from the signals' magnitudes (``(name, max |value|)`` pairs); inf if unknown.
+
+    Cached: a formula's predicates are bounded once per batch, not once per group of trajectories.
+    """
+    sides = [value_range(side, dict(magnitudes)) for side in (lhs, rhs)]
+    if any(side is None for side in sides):
+        return math.inf
+    return sum(max(abs(low), abs(high)) for low, high in sides)  # type: ignore[misc]

@@ -53,7 +53,7 @@ from tl_gym.tltl.ast import (
     Until,
     Var,
 )
-from tl_gym.tltl.expressions import evaluate_with_gradient, value_range
+from tl_gym.tltl.expressions import evaluate_with_gradient, margin_bound
 from tl_gym.tltl.trace import Trace, check_rho_max, chunks, is_torch, prepare
 
 _INF = 1e300  # stands for +∞ in β-scaled units
@@ -126,7 +126,7 @@ class _Smoother:
 
     def margin_bound(self, node: Predicate) -> float:
         """A bound on |margin| of the predicate over the whole batch (inf: unknown, maybe undefined)."""
-        return _margin_bound(node, tuple(self.magnitudes.items()))
+        return margin_bound(node.lhs, node.rhs, tuple(self.magnitudes.items()))
 
     def check_range(self, node: Predicate, margin: np.ndarray) -> None:
         """Refuse finite predicate values too large for β units (±`_INF` stands for ±∞ there)."""
@@ -532,14 +532,6 @@ def _combine(first: np.ndarray, first_slope: float, rest: list[tuple[np.ndarray,
     assert combined is not None
     combined *= scale
     return combined
-
-
-@functools.lru_cache(maxsize=1024)
-def _margin_bound(node: Predicate, magnitudes: tuple[tuple[str, float], ...]) -> float:
-    sides = [value_range(side, dict(magnitudes)) for side in (node.lhs, node.rhs)]
-    if any(side is None for side in sides):
-        return math.inf
-    return sum(max(abs(low), abs(high)) for low, high in sides)  # type: ignore[misc]
 
 
 @functools.lru_cache(maxsize=1024)
