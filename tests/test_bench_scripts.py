@@ -34,7 +34,9 @@ def test_quick_run_with_tl_gym_and_handwritten_only(tmp_path):
     out = tmp_path / "speed.md"
     rows = bench.main(["--quick", "--tasks", "phi1", "phi2", "--peers", "--out", str(out)])
     hand = [r for r in rows if r.library == bench.HANDWRITTEN]
-    assert {(r.task, r.n) for r in hand} == {("phi1", 1), ("phi1", 40), ("phi2", 1), ("phi2", 40)}
+    assert {(r.task, r.n, r.mode) for r in hand} == {
+        (task, n, "exact") for task in ("phi1", "phi2") for n in (1, 40)
+    } | {("phi1", n, "smooth+grad") for n in (1, 40)}
     # a row is timed only after its values matched tl_gym's
     assert all(r.per_second and r.per_second > 0 and r.note == "" for r in hand)
     ours = [r for r in rows if r.library == bench.TL_GYM]
@@ -43,17 +45,18 @@ def test_quick_run_with_tl_gym_and_handwritten_only(tmp_path):
     text = out.read_text()
     assert "| formula | N | T | library | mode | traj/s | tl_gym × | note |" in text
     assert "Machine:" in text and "## Targets" in text
-    assert "the two calls alternated in one loop (N = 40" in text  # the drift-free ratio, at the largest N
+    assert "the calls alternated in one loop (N = 40" in text  # the drift-free ratio, at the largest N
+    assert "hand-written numpy smoothed phi1 with gradient" in text
 
 
-def test_alternated_timing_reports_both_calls_and_the_target():
+def test_alternated_timing_reports_the_calls_and_the_target():
     task = task_formula("phi1")
     x, y = bench.trajectories(8, 30, seed=2, tasks=[task])
-    exact_s, smooth_s = bench.interleaved(task, x, y, 9.0, rounds=2)
-    assert 0 < exact_s < 10 and 0 < smooth_s < 10
-    (line,) = bench.targets([], alternated=(8, 0.010, 0.060))
-    assert "**6.00×** (target ≤ 5×: not met)" in line
-    (line,) = bench.targets([], alternated=(8, 0.010, 0.040))
+    times = bench.interleaved(task, x, y, 9.0, rounds=2)
+    assert len(times) == 3 and all(0 < t < 10 for t in times)
+    (line,) = bench.targets([], alternated=(8, 0.010, 0.060, 0.045))
+    assert "**6.00×** (target ≤ 5×: not met)" in line and "45.0 ms (4.50× exact)" in line
+    (line,) = bench.targets([], alternated=(8, 0.010, 0.040, 0.035))
     assert "**4.00×** (target ≤ 5×: met)" in line
 
 
@@ -72,3 +75,18 @@ def test_bad_arguments_are_rejected():
         bench.parse_args(["--n", "0"])
     with pytest.raises(ValueError, match="unknown task 'phi3'"):
         task_formula("phi3")
+
+
+def test_handwritten_smooth_phi1_equals_tl_gym():
+    """The hand-written smoothed φ1 (the floor of the smoothed-speed target) is tl_gym's value and gradient."""
+    import torch
+
+    task = task_formula("phi1")
+    x, y = bench.trajectories(700, 30, seed=3, tasks=[task])  # two groups of rows
+    values, grad_x, grad_y = handwritten.smooth_phi1(task, x, y, 9.0)
+    xt, yt = torch.from_numpy(x).requires_grad_(True), torch.from_numpy(y).requires_grad_(True)
+    expected = task.formula.smooth_robustness({"x": xt, "y": yt}, 9.0)
+    expected.sum().backward()
+    np.testing.assert_allclose(values, expected.detach().numpy(), rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(grad_x, xt.grad.numpy(), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(grad_y, yt.grad.numpy(), rtol=1e-9, atol=1e-12)
