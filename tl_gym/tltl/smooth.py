@@ -548,6 +548,15 @@ def _linear_slopes(node: Predicate) -> dict[str, float] | None:
 
 
 @functools.lru_cache(maxsize=64)
+def _reductions_only(formula: Formula) -> bool:
+    """Whether every temporal operator is an F or G of a temporal-free formula (as in the paper's φ1)."""
+    return not any(
+        isinstance(node, (Next, Until, Then)) or (isinstance(node, (Eventually, Always)) and node.child.is_temporal)
+        for node in formula.walk()
+    )
+
+
+@functools.lru_cache(maxsize=64)
 def _occurrences(formula: Formula) -> Counter[Formula]:
     """How often each sub-formula occurs in ``formula`` (a value used once may be overwritten by its user)."""
     return Counter(formula.walk())
@@ -588,11 +597,13 @@ def _at_position_zero(formula: Formula, signals: dict[str, np.ndarray], n: int, 
     z = np.empty((1, n))
     jac: dict[str, np.ndarray] = {}
     signals = {k: np.ascontiguousarray(v) for k, v in signals.items()}  # a no-op for the usual (N, T) arrays
+    column_major = _reductions_only(formula)
     for rows in chunks(n, length):
-        # Time-major views without a copy: column-major (T, n) arrays, whose results numpy keeps
-        # column-major, so reductions over time read contiguous memory and the Jacobian's rows
-        # are written back without a transpose.
-        part = {k: v[rows].T for k, v in signals.items()}
+        # Time-major (T, n) arrays. Where time is only reduced (F and G over temporal-free formulas),
+        # views without a copy: column-major, which numpy keeps through elementwise work, so the
+        # reductions read contiguous memory and the Jacobian's rows go back without a transpose.
+        # Scans over time (X, U, T, nested F/G) run step by step along time: row-major copies.
+        part = {k: v[rows].T if column_major else np.ascontiguousarray(v[rows].T) for k, v in signals.items()}
         smoother, z_part = _evaluate(formula, part, rows.stop - rows.start, length, beta, rho_max, form, True,
                                      magnitudes, first_row=rows.start)
         z[:, rows] = z_part
