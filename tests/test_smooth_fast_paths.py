@@ -132,3 +132,18 @@ def test_gradient_of_a_single_state_through_a_reversed_scan():
     values = parse("X((0 < 0) T (x < 0))").smooth_robustness_over_time({"x": x}, 0.5, 5.0, form="linear")
     values.sum().backward()
     assert x.grad is not None and x.grad.shape == (1, 1) and torch.isfinite(x.grad).all()
+
+
+def test_column_major_groups_only_where_time_is_only_reduced():
+    """φ1 (F and G of temporal-free formulas) is smoothed on column-major views; scans get row-major copies."""
+    from tl_gym.envs.tasks import task_formula
+    from tl_gym.tltl.smooth import _reductions_only
+
+    assert _reductions_only(task_formula(1))
+    assert not _reductions_only(task_formula(2))
+    assert not _reductions_only(parse("F(x > 0 & X(x > 1))")) and not _reductions_only(parse("F G(x > 0)"))
+    x = np.random.default_rng(0).normal(size=(5, 7))
+    for text in ("F(x > 0) & G(x < 2)", "F(x > 0 U x > 1)"):  # one of each layout, same values as unbatched
+        formula = parse(text)
+        batched = formula.smooth_robustness({"x": x}, BETA)
+        np.testing.assert_allclose(batched, [formula.smooth_robustness({"x": row}, BETA) for row in x], rtol=1e-12)
