@@ -93,6 +93,10 @@ class _Smoother:
         self.form = form
         self.values: dict[_Key, np.ndarray] = {}  # a repeated sub-formula is smoothed once
         self.retained: set[_Key] = set()  # nodes whose backward rule reads their own value
+        # A node's gain: a factor its backward rule wants applied to the gradient it receives (β for a
+        # predicate, which is β·margin). Senders that compute the gradient from a small array (F and G at
+        # position 0) fold it in there; `send` applies it for the others.
+        self.gains: dict[_Key, float] = {}
         self.scaled_signals: dict[str, np.ndarray] = {}  # β · signal, shared by the linear predicates
         self.tape: list[tuple[_Key, _Backward]] = []
         self.grads: dict[_Key, np.ndarray] = {}
@@ -144,14 +148,23 @@ class _Smoother:
         return TraceError(f"predicate {str(node)!r} is NaN or infinite at trajectory {self.first_row + row}, "
                           f"position {position}")
 
-    def send(self, node: Formula, first_only: bool, grad: np.ndarray) -> None:
+    def send(self, node: Formula, first_only: bool, grad: np.ndarray, gained: bool = False) -> None:
         """Accumulate a gradient for a child's value.
 
         The child's backward rule owns ``grad`` (and may scale it in place): senders pass
-        arrays that nothing else holds.
+        arrays that nothing else holds. ``gained``: the sender already multiplied it by the
+        child's gain (`gain`).
         """
         key = (node, first_only)
+        if not gained:
+            factor = self.gains.get(key, 1.0)
+            if factor != 1.0:
+                grad = np.multiply(grad, factor, out=grad)
         self.grads[key] = grad if key not in self.grads else self.grads[key] + grad
+
+    def gain(self, node: Formula, first_only: bool = False) -> float:
+        """The factor to fold into a gradient sent to this child (1 for most nodes)."""
+        return self.gains.get((node, first_only), 1.0)
 
     def accumulate(self, name: str, grad: np.ndarray, scale: float, owned: bool = False) -> None:
         """Add ``scale · grad`` to the signal's gradient over its first ``len(grad)`` positions.
@@ -172,7 +185,8 @@ class _Smoother:
 
     def backward(self, root: _Key, grad: np.ndarray) -> dict[str, np.ndarray]:
         """Gradients of ``Σ grad · value(root)`` wrt the signals, shape ``(T, N)`` each."""
-        self.grads = {root: grad}
+        factor = self.gain(*root)
+        self.grads = {root: grad * factor if factor != 1.0 else grad}
         self.signal_grads = {}
         for key, backward in reversed(self.tape):  # parents were recorded after their children
             g = self.grads.pop(key, None)
@@ -222,10 +236,12 @@ class _Smoother:
         else:
             z = margin * self.beta
 
+        self.gains[(node, first_only)] = sign * self.beta
+
         def backward(g: np.ndarray) -> None:
-            # the gradient wrt lhs is sign·β·g (wrt rhs: its negative); ``g`` is this rule's own
-            terms = rhs_grad(g, -sign * self.beta)
-            terms += lhs_grad(g, sign * self.beta, owned=not terms)
+            # ``g`` arrives multiplied by the gain sign·β: it is the gradient wrt lhs (wrt rhs: its negative)
+            terms = rhs_grad(g, -1.0)
+            terms += lhs_grad(g, 1.0, owned=not terms)
             for name, grad, coef, owned in terms:
                 if np.shape(grad) != g.shape:
                     grad, owned = np.broadcast_to(grad, g.shape), False
@@ -262,14 +278,19 @@ class _Smoother:
             else:  # two numbers, e.g. ``1 < 2``
                 z = np.full((rows, self.n), margin * self.beta)
 
-        def backward(g: np.ndarray) -> None:
+        self.gains[(node, first_only)] = self.beta
+
+        def backward(g: np.ndarray) -> None:  # ``g`` arrives multiplied by the gain β
             for i, (name, slope) in enumerate(slopes.items()):
-                self.accumulate(name, g, slope * self.beta, owned=i == len(slopes) - 1)  # the last use may own g
+                self.accumulate(name, g, slope, owned=i == len(slopes) - 1)  # the last use may own g
 
         return z, backward
 
     def not_(self, node: Not, first_only: bool) -> tuple[np.ndarray, _Backward]:
-        return -self(node.child, first_only), lambda g: self.send(node.child, first_only, -g)
+        def backward(g: np.ndarray) -> None:
+            self.send(node.child, first_only, np.multiply(g, -self.gain(node.child, first_only), out=g), gained=True)
+
+        return -self(node.child, first_only), backward
 
     def _nary(self, node: And | Or, first_only: bool, sign: float) -> tuple[np.ndarray, _Backward]:
         """``sign·lse(sign·children)``: smooth max (sign = 1) or min (sign = -1)."""
@@ -277,12 +298,14 @@ class _Smoother:
         out, exps, total = lse.reduce_operands(values, sign, [self.spare(c, first_only) for c in node.operands])
         by_signal, others = _group_linear_operands(node.operands, exps)
 
+        all_linear = not others
+        if all_linear:  # every operand's gradient is a multiple of β: fold it upstream
+            self.gains[(node, first_only)] = self.beta
+
         def backward(g: np.ndarray) -> None:
             # The weights of the operands are exps / total. A linear predicate's gradient is its weight
             # times slope·β per signal: those of one signal are summed first, then scaled once.
-            all_linear = not others
-            scale = np.multiply(g, self.beta, out=g) if all_linear else g  # ``g`` is this rule's own
-            scale = np.divide(scale, total, out=scale)
+            scale = np.divide(g, total, out=g)  # ``g`` is this rule's own (times β when all are linear)
             for name, terms in by_signal.items():
                 (first_exps, first_slope), rest = terms[0], terms[1:]
                 combined = _combine(first_exps, first_slope, rest, scale)
@@ -327,8 +350,9 @@ class _Smoother:
         if first_only:  # one reduction over time
             reduced, exps, total = lse.reduce_forward(self(node.child), 0, sign, self.spare(node.child))
 
-            def backward_first(g: np.ndarray) -> None:
-                self.send(node.child, False, lse.reduce_backward(exps, total, g[0], 0))
+            def backward_first(g: np.ndarray) -> None:  # the child's gain goes into the per-trajectory factor
+                g_child = lse.reduce_backward(exps, total, g[0] * self.gain(node.child), 0)
+                self.send(node.child, False, g_child, gained=True)
 
             return reduced[None], backward_first
         child = sign * self(node.child)
