@@ -407,7 +407,12 @@ def targets(rows: list[Row], alternated: tuple[int, float, float, float] | None 
         smooth = rate(task, n_big, 200, TL_GYM, "smooth+grad")
         if ours and smooth:
             slow = ours / smooth
-            verdict = f" (target ≤ 5×: {_met(slow <= 5)})" if task == "phi1" else " (reported)"
+            if task != "phi1":
+                verdict = " (reported)"
+            elif alternated:  # two rows timed apart swing ±30 % on a shared VM: the alternated timing decides
+                verdict = " (rows timed apart; the verdict is the alternated timing below)"
+            else:
+                verdict = f" (target ≤ 5×: {_met(slow <= 5)})"
             lines.append(
                 f"- smoothed {task} with gradient, N = {n_big:,}, T = 200: {smooth:,.0f} traj/s, "
                 f"**{slow:.2f}×** the exact time{verdict}."
