@@ -47,6 +47,7 @@ def test_quick_run_with_tl_gym_and_handwritten_only(tmp_path):
     assert "Machine:" in text and "## Targets" in text
     assert "the calls alternated in one loop (N = 40" in text  # the drift-free ratio, at the largest N
     assert "hand-written numpy smoothed phi1 with gradient" in text
+    assert "the verdict is the alternated timing below" in text  # rows timed apart do not decide
 
 
 def test_alternated_timing_reports_the_calls_and_the_target():
