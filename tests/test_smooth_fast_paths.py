@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 import torch
 
+from tests import reference as ref
 from tl_gym import TraceError, parse
 from tl_gym.tltl import smooth
 from tl_gym.tltl import trace as trace_module
@@ -137,6 +138,7 @@ def test_gradient_of_a_single_state_through_a_reversed_scan():
 def test_column_major_groups_only_where_time_is_only_reduced():
     """φ1 (F and G of temporal-free formulas) is smoothed on column-major views; scans get row-major copies."""
     from tl_gym.envs.tasks import task_formula
+
     from tl_gym.tltl.smooth import _reductions_only
 
     assert _reductions_only(task_formula(1))
@@ -147,3 +149,22 @@ def test_column_major_groups_only_where_time_is_only_reduced():
         formula = parse(text)
         batched = formula.smooth_robustness({"x": x}, BETA)
         np.testing.assert_allclose(batched, [formula.smooth_robustness({"x": row}, BETA) for row in x], rtol=1e-12)
+
+
+def test_eventually_of_a_conjunction_skips_its_logarithm_and_keeps_its_values():
+    """F over & (and G over |) at position 0 reduces the operands' extreme, dividing by their softmax
+    total instead of taking its log: the values and gradients stay the nested smoothing's."""
+    rng = np.random.default_rng(4)
+    trace = {"x": rng.normal(size=(6, 9)), "y": rng.normal(size=(6, 9))}
+    for text, shared in (("F(x > 0 & y < 1)", "G(x > 0 | y < 1)"), ("G(x > 0 | y > x)", "F(x > 0 & y > x)")):
+        formula = parse(text)
+        reused = parse(f"{text} & {shared} & ({shared[2:-1]})")  # the inner formula read twice: no shortcut
+        for beta in (0.5, 9.0, 1e4):
+            tensors = {k: torch.tensor(v, requires_grad=True) for k, v in trace.items()}
+            value = formula.smooth_robustness(tensors, beta)
+            value.sum().backward()
+            expected = ref.smooth_robustness(formula, {k: v.tolist() for k, v in trace.items()}, beta)
+            np.testing.assert_allclose(value.detach().numpy(), expected, rtol=1e-9, atol=1e-12)
+            assert all(torch.isfinite(t.grad).all() for t in tensors.values())
+            np.testing.assert_allclose(reused.smooth_robustness(trace, beta), ref.smooth_robustness(
+                reused, {k: v.tolist() for k, v in trace.items()}, beta), rtol=1e-9, atol=1e-12)

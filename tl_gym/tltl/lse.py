@@ -38,8 +38,8 @@ def _exp_floored(x: np.ndarray) -> np.ndarray:
     return np.exp(x, out=x)
 
 
-def reduce_forward(z: np.ndarray, axis: int, sign: float = 1.0,
-                   spare: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def reduce_forward(z: np.ndarray, axis: int, sign: float = 1.0, spare: bool = False,
+                   divisor: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``sign·log Σ exp(sign·z)`` along ``axis`` (removed): smooth max (sign 1) or min (sign -1).
 
     Also returns the softmax, kept unnormalised: ``exps = exp(sign·(z − extreme))`` and
@@ -47,11 +47,17 @@ def reduce_forward(z: np.ndarray, axis: int, sign: float = 1.0,
     (`reduce_backward`, the same for both signs), and dividing the small upstream gradient by
     ``total`` is cheaper than normalising every weight. ``spare``: ``z`` is needed no more,
     so ``exps`` may take its memory.
+
+    ``divisor`` (shaped as ``z``, values in [1, n]): reduce ``z − log(divisor)`` instead, shifted by the
+    extreme of ``z``; for the max of a smooth min (or the min of a smooth max), whose terms are
+    ``peak ∓ log(total)``, this skips the logarithm.
     """
     peak = z.max(axis=axis, keepdims=True) if sign > 0 else z.min(axis=axis, keepdims=True)
     into = z if spare else None
     exps = np.subtract(z, peak, out=into) if sign > 0 else np.subtract(peak, z, out=into)
     _exp_floored(exps)
+    if divisor is not None:
+        np.divide(exps, divisor, out=exps)
     total = exps.sum(axis=axis, keepdims=True)
     return (peak + sign * np.log(total)).squeeze(axis), exps, total
 
@@ -61,12 +67,13 @@ def reduce_backward(exps: np.ndarray, total: np.ndarray, grad: np.ndarray, axis:
     return (np.expand_dims(grad, axis) / total) * exps
 
 
-def reduce_operands(operands: list[np.ndarray], sign: float,
-                    spare: list[bool] | None = None) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
+def reduce_operands(operands: list[np.ndarray], sign: float, spare: list[bool] | None = None,
+                    value: bool = True) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
     """``sign·log Σ_i exp(sign·operands[i])``: smooth max (sign 1) or min (sign -1), and its softmax.
 
     The softmax is kept unnormalised: each operand's ``exp(sign·(operand − extreme))`` and their sum.
     ``spare[i]``: operand i is needed no more, so its weights may take its memory.
+    ``value=False``: return the elementwise extreme instead of the value (``extreme + sign·log(total)``).
 
     The same value as `reduce_forward` over the stacked operands, without building the
     stack (one full copy of every operand) or negating it: the shift is the elementwise
@@ -84,6 +91,8 @@ def reduce_operands(operands: list[np.ndarray], sign: float,
     total = exps[0] + exps[1]
     for e in exps[2:]:
         total += e
+    if not value:
+        return peak, exps, total
     out = np.log(total)
     return (np.add(peak, out, out=out) if sign > 0 else np.subtract(peak, out, out=out)), exps, total
 

@@ -97,6 +97,10 @@ class _Smoother:
         # predicate, which is β·margin). Senders that compute the gradient from a small array (F and G at
         # position 0) fold it in there; `send` applies it for the others.
         self.gains: dict[_Key, float] = {}
+        # n-ary nodes whose only reader (F over &, G over |) takes their extreme and softmax total
+        # instead of their value: it divides by the total instead of taking its logarithm
+        self.parts_wanted: set[_Key] = set()
+        self.parts: dict[_Key, tuple[np.ndarray, np.ndarray]] = {}
         self.scaled_signals: dict[str, np.ndarray] = {}  # β · signal, shared by the linear predicates
         self.tape: list[tuple[_Key, _Backward]] = []
         self.grads: dict[_Key, np.ndarray] = {}
@@ -295,7 +299,12 @@ class _Smoother:
     def _nary(self, node: And | Or, first_only: bool, sign: float) -> tuple[np.ndarray, _Backward]:
         """``sign·lse(sign·children)``: smooth max (sign = 1) or min (sign = -1)."""
         values = [self(c, first_only) for c in node.operands]
-        out, exps, total = lse.reduce_operands(values, sign, [self.spare(c, first_only) for c in node.operands])
+        key = (node, first_only)
+        wanted = key in self.parts_wanted
+        out, exps, total = lse.reduce_operands(values, sign, [self.spare(c, first_only) for c in node.operands],
+                                               value=not wanted)
+        if wanted:  # ``out`` is the elementwise extreme; the reader computes with it (no value is cached)
+            self.parts[key] = (out, total)
         by_signal, others = _group_linear_operands(node.operands, exps)
 
         all_linear = not others
@@ -348,7 +357,14 @@ class _Smoother:
 
     def _over_time(self, node: Eventually | Always, first_only: bool, sign: float) -> tuple[np.ndarray, _Backward]:
         if first_only:  # one reduction over time
-            reduced, exps, total = lse.reduce_forward(self(node.child), 0, sign, self.spare(node.child))
+            if isinstance(node.child, And if sign > 0 else Or) and self.spare(node.child):
+                # the child is extreme ∓ log(total): reduce the extreme, dividing the weights by the total
+                self.parts_wanted.add((node.child, False))
+                self(node.child)
+                extreme, child_total = self.parts.pop((node.child, False))
+                reduced, exps, total = lse.reduce_forward(extreme, 0, sign, spare=True, divisor=child_total)
+            else:
+                reduced, exps, total = lse.reduce_forward(self(node.child), 0, sign, self.spare(node.child))
 
             def backward_first(g: np.ndarray) -> None:  # the child's gain goes into the per-trajectory factor
                 g_child = lse.reduce_backward(exps, total, g[0] * self.gain(node.child), 0)
