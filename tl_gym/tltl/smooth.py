@@ -12,11 +12,25 @@ torch sees the whole evaluation as one autograd Function. This keeps the per-cal
 cost to a few whole-array numpy passes per node — the trust-region step of TLPS
 calls it dozens of times per iteration.
 
+Whole-array passes are what the evaluation costs (numpy's exp is the floor), so the
+rules save them where the algebra allows, each without changing a value:
+
+* a node's *gain* (β for a predicate) is folded into the per-trajectory factor of
+  the F or G above it, not multiplied into a whole array (`_Smoother.send`);
+* a value read by one parent only (`_Smoother.spare`) lends its memory to that
+  parent's softmax weights;
+* ``&``/``|`` of linear predicates sum their weights per signal before scaling;
+* F over ``&`` (G over ``|``) at position 0 reduces the operands' extreme and
+  divides by their softmax total, instead of taking the total's logarithm;
+* at position 0 the per-trajectory Jacobian is computed group by group during the
+  forward pass and handed to torch without a copy (`_hand_over`).
+
 Numerics. Values are kept in β-scaled units ``z = β·ρ``, where smoothing is a plain
 log-sum-exp, and ±∞ (``true`` with ρ_max = ∞, ``X φ`` at the last state, an empty
 max/min) is represented by ±``_INF`` = ±1e300. All arithmetic stays finite, so
 neither values nor gradients can be NaN for β in (0, 1e6]; results beyond
-±``_INF``/2 are reported as ±∞ with zero gradient.
+±``_INF``/2 are reported as ±∞ with zero gradient, and a predicate whose β-scaled
+value reaches ±``_INF``/2 is refused (`_Smoother.check_range`).
 
 Cost. O(N·T) per node, except ``U``/``T`` evaluated at every position (when nested
 under another temporal operator): the prescribed nesting makes their inner
