@@ -86,17 +86,6 @@ def evaluate_with_gradient(expr: Expr, signals: dict[str, np.ndarray]) -> tuple[
     """
     _Back = Any  # (grad, coef, owned, terms) -> None
 
-    def product(grad: Any, factor: Any, owned: bool) -> Any:
-        """``grad · factor``, in place when ``grad`` is owned and already has the result's shape."""
-        if owned and np.shape(grad) == np.broadcast_shapes(np.shape(grad), np.shape(factor)):
-            return np.multiply(grad, factor, out=grad)
-        return grad * factor
-
-    def quotient(grad: Any, divisor: Any, owned: bool) -> Any:
-        if owned and np.shape(grad) == np.broadcast_shapes(np.shape(grad), np.shape(divisor)):
-            return np.divide(grad, divisor, out=grad)
-        return grad / divisor
-
     # Intermediate arrays that nothing reads again, by id (held here, so an id is never reused while
     # listed): the operation that consumes one may write its result into it.
     spare: dict[int, np.ndarray] = {}
@@ -156,28 +145,29 @@ def evaluate_with_gradient(expr: Expr, signals: dict[str, np.ndarray]) -> tuple[
                     if scalar_b:
                         back_a(grad, coef * float(b), owned and not both, terms)
                     else:
-                        back_a(product(grad, b, owned and not both), coef, True, terms)
+                        back_a(_on_grad(np.multiply, grad, b, owned and not both), coef, True, terms)
                 if back_b is not None:
                     if scalar_a:
                         back_b(grad, coef * float(a), owned, terms)
                     else:
-                        back_b(product(grad, a, owned), coef, True, terms)
+                        back_b(_on_grad(np.multiply, grad, a, owned), coef, True, terms)
             elif e.op == "/":
                 if back_b is not None:  # d(a/b)/db = −out / b
-                    back_b(quotient(product(grad, out, False), b, True), -coef, True, terms)
+                    back_b(_on_grad(np.divide, _on_grad(np.multiply, grad, out, False), b, True), -coef, True, terms)
                 if back_a is not None:
                     if scalar_b:
                         back_a(grad, coef / float(b), owned, terms)
                     else:
-                        back_a(quotient(grad, b, owned), coef, True, terms)
+                        back_a(_on_grad(np.divide, grad, b, owned), coef, True, terms)
             else:  # power
                 if back_b is not None:  # d(a^b)/db = out · log a
-                    back_b(product(product(grad, out, False), np.log(a), True), coef, True, terms)
+                    slope = _on_grad(np.multiply, grad, out, False)
+                    back_b(_on_grad(np.multiply, slope, np.log(a), True), coef, True, terms)
                 if back_a is not None:
                     if _is_square(a, b):
-                        back_a(product(grad, a, owned), 2.0 * coef, True, terms)
+                        back_a(_on_grad(np.multiply, grad, a, owned), 2.0 * coef, True, terms)
                     else:
-                        back_a(product(grad, b * np.power(a, b - 1.0), owned), coef, True, terms)
+                        back_a(_on_grad(np.multiply, grad, b * np.power(a, b - 1.0), owned), coef, True, terms)
 
         return out, back
 
@@ -207,13 +197,13 @@ def evaluate_with_gradient(expr: Expr, signals: dict[str, np.ndarray]) -> tuple[
                 return
             x, back_x = values[0], parts[0][1]
             if e.func == "sqrt":
-                back_x(quotient(grad, out, owned), 0.5 * coef, True, terms)
+                back_x(_on_grad(np.divide, grad, out, owned), 0.5 * coef, True, terms)
             elif e.func == "exp":
-                back_x(product(grad, out, owned), coef, True, terms)
+                back_x(_on_grad(np.multiply, grad, out, owned), coef, True, terms)
             elif e.func == "log":
-                back_x(quotient(grad, x, owned), coef, True, terms)
+                back_x(_on_grad(np.divide, grad, x, owned), coef, True, terms)
             else:  # abs
-                back_x(product(grad, np.sign(x), owned), coef, True, terms)
+                back_x(_on_grad(np.multiply, grad, np.sign(x), owned), coef, True, terms)
 
         return out, back
 
@@ -250,9 +240,11 @@ def _is_square(base: Any, exponent: Any) -> bool:
     return np.ndim(base) > 0 and np.ndim(exponent) == 0 and exponent == 2.0
 
 
-def _is_one(slope: Any) -> bool:
-    """Whether a slope is the constant 1 (the gradient passes through unchanged; it is never mutated)."""
-    return isinstance(slope, float) and slope == 1.0
+def _on_grad(ufunc: np.ufunc, grad: Any, other: Any, owned: bool) -> Any:
+    """``ufunc(grad, other)`` (a product or quotient), in place when ``grad`` is owned and has the result's shape."""
+    if owned and np.shape(grad) == np.broadcast_shapes(np.shape(grad), np.shape(other)):
+        return ufunc(grad, other, out=grad)
+    return ufunc(grad, other)
 
 
 def can_be_non_finite(expr: Expr) -> bool:
