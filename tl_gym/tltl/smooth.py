@@ -726,9 +726,12 @@ def _autograd_function() -> Any:
                     *tensors: Any) -> Any:
             arrays = [t.detach().cpu().double().numpy() for t in tensors]
             if first_only:  # the gradient is computed now, chunk by chunk, as a per-trajectory Jacobian
-                z, ctx.jac = _at_position_zero(formula, dict(zip(names, arrays)), n, length, beta, rho_max, form,
-                                               magnitudes, jacobian=wants_grad)
-                ctx.recompute = (formula, n, length, beta, rho_max, form, magnitudes)
+                def at_zero(arrays: list[np.ndarray], jacobian: bool) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+                    return _at_position_zero(formula, dict(zip(names, arrays)), n, length, beta, rho_max, form,
+                                             magnitudes, jacobian=jacobian)
+
+                z, ctx.jac = at_zero(arrays, wants_grad)
+                ctx.at_zero = at_zero
                 ctx.save_for_backward(*tensors)  # a repeated backward recomputes the Jacobian from them
             else:
                 signals = {k: np.ascontiguousarray(a.T) for k, a in zip(names, arrays)}
@@ -775,10 +778,7 @@ def _hand_over(ctx: Any, scale: np.ndarray) -> dict[str, np.ndarray]:
     """
     jac = ctx.jac
     if jac is None:
-        formula, n, length, beta, rho_max, form, magnitudes = ctx.recompute
-        arrays = [t.detach().cpu().double().numpy() for t in ctx.saved_tensors]
-        _, jac = _at_position_zero(formula, dict(zip(ctx.names, arrays)), n, length, beta, rho_max, form,
-                                   magnitudes, jacobian=True)
+        _, jac = ctx.at_zero([t.detach().cpu().double().numpy() for t in ctx.saved_tensors], True)
     ctx.jac = None
     if not (scale == 1.0).all():  # ``values.sum().backward()`` sends ones: nothing to scale
         for grad in jac.values():
