@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 
 from tl_gym import TraceError, UnknownSignalError, parse
 from tl_gym.logic import F, G, T, U, X, signal
-from tl_gym.tltl.ast import Constant, Formula
-from tl_gym.tltl.online import PrefixMonitor, is_incremental
+from tl_gym.tltl.ast import Always, Constant, Eventually, Formula
+from tl_gym.tltl.online import PrefixMonitor, is_incremental, outside_fragment
 
 a, b = signal("a"), signal("b")
 
@@ -67,6 +67,7 @@ never_again = st.one_of(
 )
 temporal_atoms = st.one_of(
     windowed, windowed.map(F), windowed.map(G), then_chains, never_again,
+    windowed.map(lambda f: F(G(f))), windowed.map(lambda f: G(F(f))), then_chains.map(lambda f: F(G(f))),
     st.tuples(state_formulas, state_formulas).map(lambda p: U(p[0], p[1])),
 )
 fragment = st.recursive(
@@ -82,7 +83,8 @@ fragment = st.recursive(
 # Outside the fragment: a temporal operator over a temporal operand.
 unbounded = st.one_of(then_chains, never_again, windowed.map(F), windowed.map(G))
 nested = st.one_of(
-    unbounded.map(F), unbounded.map(G), unbounded.map(X),
+    unbounded.filter(lambda f: not isinstance(f, Always)).map(F),
+    unbounded.filter(lambda f: not isinstance(f, Eventually)).map(G), unbounded.map(X),
     st.tuples(unbounded, fragment).map(lambda p: U(p[0], p[1])),
     st.tuples(fragment, unbounded).map(lambda p: U(p[0], p[1])),
     st.tuples(unbounded, fragment).map(lambda p: T(p[0], p[1])),
@@ -101,6 +103,8 @@ def _check_every_prefix(formula: Formula, trace: tuple, rho_max: float) -> Prefi
         got = monitor.update({"a": xs[t], "b": ys[t]})
         expected = formula.robustness({"a": xs[: t + 1], "b": ys[: t + 1]}, rho_max)
         assert got == pytest.approx(expected, rel=1e-12, abs=1e-12), (str(formula), t)
+        if monitor.incremental:  # the exported state alone gives the value
+            assert monitor.value_of_state(monitor.state()) == got, (str(formula), t)
     assert monitor.length == len(xs)
     return monitor
 
@@ -136,7 +140,9 @@ def test_fragment_membership():
     assert is_incremental(parse("a > 1 & (b < 0 T a > 2 T b > 3)"))
     assert is_incremental(parse("G((a > 1 & X a < 1) -> X G a < 1) & F(X X b > 0)"))
     assert not is_incremental(parse("G(a > 1 -> F b > 0)"))
-    assert not is_incremental(parse("F G a > 1"))
+    assert is_incremental(parse("F G a > 1"))  # on a finite trace: a > 1 at the last state
+    assert is_incremental(parse("G F (a > 1 U b > 0) & F G (a > 0 T b > 0)"))
+    assert not is_incremental(parse("F F G a > 1"))
     assert not is_incremental(parse("(F a > 1) T b > 0"))
 
 
@@ -189,3 +195,34 @@ def test_online_module_does_not_import_gymnasium():
         elif isinstance(node, ast.ImportFrom) and node.module:
             imported.add(node.module.split(".")[0])
     assert imported <= {"__future__", "math", "collections", "typing", "numpy", "tl_gym"}, imported
+
+
+@settings(max_examples=150, deadline=None)
+@given(fragment, traces, traces, st.integers(0, 8))
+def test_the_state_determines_every_later_value(formula, first, second, cut):
+    """Markov: a monitor restored from another's state at step t reports the same values afterwards."""
+    original = PrefixMonitor(formula)
+    states = list(zip(*first)) + list(zip(*second))
+    cut = min(cut, len(states) - 1)
+    for x, y in states[: cut + 1]:
+        original.update({"a": x, "b": y})
+    restored = PrefixMonitor(formula)
+    restored._root.load(original.state(), 0)
+    for x, y in states[cut + 1 :]:
+        assert restored._root.update({"a": x, "b": y}) == original.update({"a": x, "b": y}), str(formula)
+        assert restored.state() == original.state()
+
+
+def test_state_outside_the_fragment_names_the_culprit():
+    monitor = PrefixMonitor(parse("F(a > 1) & G(a > 2 -> F b < 0)"))
+    assert str(outside_fragment(monitor.formula)) == "G (a > 2 -> F b < 0)"
+    with pytest.raises(ValueError, match=r"'G \(a > 2 -> F b < 0\)' is outside the incremental fragment"):
+        monitor.state()
+    assert outside_fragment(parse("F(a > 1)")) is None
+
+
+def test_value_of_state_checks_the_length():
+    monitor = PrefixMonitor(parse("F(a > 1) & G(b < 0)"))
+    assert len(monitor.slots) == 2
+    with pytest.raises(ValueError, match="2 floats, got 3"):
+        monitor.value_of_state([0.0, 1.0, 2.0])

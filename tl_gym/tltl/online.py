@@ -166,10 +166,10 @@ def lookahead(formula: Formula) -> int | None:
     return None
 
 
-_Window = Callable[[list, int], float]  # (states s_k … s_{k+d} (fewer at the trace's end), index) -> value
+_WindowFn = Callable[[list, int], float]  # (states s_k … s_{k+d} (fewer at the trace's end), index) -> value
 
 
-def compile_window_formula(formula: Formula, rho_max: float) -> _Window:
+def compile_window_formula(formula: Formula, rho_max: float) -> _WindowFn:
     """Robustness at ``window[i]`` of a formula with bounded lookahead (see `lookahead`).
 
     ``X φ`` beyond the end of the window is −ρ_max, the value of ``X`` at the last state.
@@ -194,35 +194,124 @@ def compile_window_formula(formula: Formula, rho_max: float) -> _Window:
 
 
 # --------------------------------------------------------------------------- incremental nodes
+#
+# Every node keeps a small state from which its value is a pure function (`value`); `update`
+# is the transition. `export` and `load` write and read that state as flat floats, so that the
+# state can be shown to an agent (`PrefixMonitor.state`, the wrapper's ``observe_monitor``) and the
+# value recomputed from it (`PrefixMonitor.value_of_state`). Slots are typed by `Slot`.
+
+VALUE, SIGNAL, COUNT = "value", "signal", "count"
+
+
+class Slot(tuple):
+    """One float of a monitor's state: ``(kind, bound)``.
+
+    ``kind`` is ``"value"`` (a robustness value, possibly ±inf), ``"signal"`` (one signal of a
+    remembered state, finite) or ``"count"`` (an integer in ``[0, bound]``).
+    """
+
+    def __new__(cls, kind: str, bound: int = 0) -> Slot:
+        return super().__new__(cls, (kind, bound))
+
+    @property
+    def kind(self) -> str:
+        """``"value"``, ``"signal"`` or ``"count"``."""
+        return self[0]
+
+    @property
+    def bound(self) -> int:
+        """The largest count (``"count"`` slots; 0 otherwise)."""
+        return self[1]
 
 
 class _Node:
     """Robustness at position 0 of a growing prefix, for one node of the fragment."""
 
+    slots: list[Slot]
+
     def reset(self) -> None:
         raise NotImplementedError
 
     def update(self, s: State) -> float:
+        """Append one state; return the new value."""
         raise NotImplementedError
+
+    def value(self) -> float:
+        """The value of the prefix seen so far, from the state alone."""
+        raise NotImplementedError
+
+    def export(self, out: list[float]) -> None:
+        """Append the state's floats to ``out`` (``len(self.slots)`` of them)."""
+        raise NotImplementedError
+
+    def load(self, values: list[float], pos: int) -> int:
+        """Set the state from ``values[pos:]``; return the position after it."""
+        raise NotImplementedError
+
+
+class _Window:
+    """The last ``size`` states (oldest first), exported as ``size × len(names)`` signal slots."""
+
+    def __init__(self, names: tuple[str, ...], size: int):
+        self.names, self.size = names, size
+        self.states: deque[State] = deque(maxlen=size)
+
+    @property
+    def slots(self) -> list[Slot]:
+        return [Slot(SIGNAL)] * (self.size * len(self.names))
+
+    def export(self, out: list[float]) -> None:
+        for state in self.states:
+            out.extend(float(state[n]) for n in self.names)
+        out.extend([0.0] * ((self.size - len(self.states)) * len(self.names)))
+
+    def load(self, values: list[float], pos: int, count: int) -> int:
+        width = len(self.names)
+        self.states = deque(
+            ({n: values[pos + k * width + j] for j, n in enumerate(self.names)} for k in range(count)),
+            maxlen=self.size,
+        )
+        return pos + self.size * width
 
 
 class _AtStart(_Node):
     """A formula with lookahead d: judged on s_0 … s_d (truncated while the trace is shorter)."""
 
-    def __init__(self, fn: _Window, depth: int):
+    def __init__(self, fn: _WindowFn, depth: int, names: tuple[str, ...]):
         self.fn = fn
         self.depth = depth
-        self.states: list[State] = []
-        self.value = 0.0
+        self.window = _Window(names, depth + 1)
+        self.slots = [Slot(VALUE)] if depth == 0 else [Slot(COUNT, depth + 1), *self.window.slots]
+        self.first = 0.0
 
     def reset(self) -> None:
-        self.states = []
+        self.window.states.clear()
 
     def update(self, s: State) -> float:
-        if len(self.states) <= self.depth:
-            self.states.append(s)
-            self.value = self.fn(self.states, 0)
-        return self.value
+        if len(self.window.states) <= self.depth:
+            self.window.states.append(s)
+            self.first = self.fn(list(self.window.states), 0)
+        return self.first
+
+    def value(self) -> float:
+        return self.first
+
+    def export(self, out: list[float]) -> None:
+        if self.depth == 0:
+            out.append(self.first)
+            return
+        out.append(float(len(self.window.states)))
+        self.window.export(out)
+
+    def load(self, values: list[float], pos: int) -> int:
+        if self.depth == 0:
+            self.first = values[pos]
+            self.window.states = deque([{}], maxlen=1)  # s_0 seen: the value is final
+            return pos + 1
+        count = int(values[pos])
+        pos = self.window.load(values, pos + 1, count)
+        self.first = self.fn(list(self.window.states), 0) if count else 0.0
+        return pos
 
 
 class _Extremum(_Node):
@@ -232,30 +321,78 @@ class _Extremum(_Node):
     positions are judged on their truncated windows at every update (O(d²)).
     """
 
-    def __init__(self, fn: _Window, depth: int, is_max: bool):
+    def __init__(self, fn: _WindowFn, depth: int, is_max: bool, names: tuple[str, ...]):
         self.fn = fn
         self.depth = depth
         self.pick = max if is_max else min
         self.empty = -math.inf if is_max else math.inf
+        self.window = _Window(names, depth + 1)
+        self.slots = [Slot(VALUE)] + ([] if depth == 0 else [Slot(COUNT, depth + 1), *self.window.slots])
         self.reset()
 
     def reset(self) -> None:
-        self.window: deque[State] = deque(maxlen=self.depth + 1)
+        self.window.states.clear()
         self.final = self.empty
         self.count = 0
 
     def update(self, s: State) -> float:
-        self.window.append(s)
+        self.window.states.append(s)
         self.count += 1
-        states = list(self.window)
-        start = 0
         if self.count > self.depth:  # the window's first position is now final
-            self.final = self.pick(self.final, self.fn(states, 0))
-            start = 1
+            self.final = self.pick(self.final, self.fn(list(self.window.states), 0))
+        return self.value()
+
+    def value(self) -> float:
+        states = list(self.window.states)
         value = self.final
-        for i in range(start, len(states)):
+        for i in range(1 if self.count > self.depth else 0, len(states)):
             value = self.pick(value, self.fn(states, i))
         return value
+
+    def export(self, out: list[float]) -> None:
+        out.append(self.final)
+        if self.depth:
+            out.append(float(min(self.count, self.depth + 1)))
+            self.window.export(out)
+
+    def load(self, values: list[float], pos: int) -> int:
+        self.final = values[pos]
+        if self.depth == 0:  # the last state is folded into `final`
+            self.window.states = deque(maxlen=1)
+            self.count = 1
+            return pos + 1
+        self.count = int(values[pos + 1])
+        return self.window.load(values, pos + 2, self.count)
+
+
+class _AtEnd(_Node):
+    """``F G φ`` or ``G F φ``, for any φ: on a finite trace both are φ judged at the last state alone.
+
+    (The max over t of the min over t' ≥ t of φ(t') is bounded by φ(last), reached at
+    t = last; dually for ``G F``.) φ at the last state sees a one-state suffix.
+    """
+
+    def __init__(self, fn: _Scalar):
+        self.fn = fn
+        self.slots = [Slot(VALUE)]
+        self.last = 0.0
+
+    def reset(self) -> None:
+        self.last = 0.0
+
+    def update(self, s: State) -> float:
+        self.last = self.fn(s)
+        return self.last
+
+    def value(self) -> float:
+        return self.last
+
+    def export(self, out: list[float]) -> None:
+        out.append(self.last)
+
+    def load(self, values: list[float], pos: int) -> int:
+        self.last = values[pos]
+        return pos + 1
 
 
 class _NeverAgain(_Node):
@@ -268,43 +405,59 @@ class _NeverAgain(_Node):
     final positions, and the last ``max(d, 1)`` positions are judged directly.
     """
 
-    def __init__(self, a: _Window, depth: int, b: _Scalar, rho_max: float):
+    def __init__(self, a: _WindowFn, depth: int, b: _Scalar, rho_max: float, names: tuple[str, ...]):
         self.a, self.b = a, b
         self.depth = max(depth, 1)  # X G B at the last state is −ρ_max: that position is never final
         self.bottom = -float(rho_max)
+        self.window = _Window(names, self.depth + 1)
+        self.slots = [Slot(VALUE), Slot(VALUE), Slot(COUNT, self.depth + 1), *self.window.slots]
         self.reset()
 
     def reset(self) -> None:
-        self.window: deque[State] = deque(maxlen=self.depth + 1)
-        self.b_values: deque[float] = deque(maxlen=self.depth + 1)
+        self.window.states.clear()
+        self.b_values: deque[float] = deque(maxlen=self.depth + 1)  # B of the window's states
         self.final = math.inf  # min over final k of max(A_k, M_k)
         self.min_a = math.inf  # min over final k of A_k
         self.count = 0
 
     def update(self, s: State) -> float:
         c = self.b(s)
-        self.window.append(s)
+        self.window.states.append(s)
         self.b_values.append(c)
         self.count += 1
         if self.min_a < math.inf:
             self.final = min(self.final, max(self.min_a, c))
-        states, bs = list(self.window), list(self.b_values)
-        start = 0
         if self.count > self.depth:  # position t − depth becomes final
-            a_value = self.a(states, 0)
-            self.final = min(self.final, max(a_value, min(bs[1:])))
+            a_value = self.a(list(self.window.states), 0)
+            self.final = min(self.final, max(a_value, min(list(self.b_values)[1:])))
             self.min_a = min(self.min_a, a_value)
-            start = 1
+        return self.value()
+
+    def value(self) -> float:
+        states, bs = list(self.window.states), list(self.b_values)
         value = self.final
         last = len(states) - 1
-        for i in range(start, last + 1):
+        for i in range(1 if self.count > self.depth else 0, last + 1):
             later = min(bs[i + 1 :]) if i < last else self.bottom
             value = min(value, max(self.a(states, i), later))
         return value
 
+    def export(self, out: list[float]) -> None:
+        out.extend((self.final, self.min_a, float(min(self.count, self.depth + 1))))
+        self.window.export(out)
+
+    def load(self, values: list[float], pos: int) -> int:
+        self.final, self.min_a = values[pos], values[pos + 1]
+        self.count = int(values[pos + 2])
+        pos = self.window.load(values, pos + 3, self.count)
+        self.b_values = deque((self.b(x) for x in self.window.states), maxlen=self.depth + 1)
+        return pos
+
 
 class _Until(_Node):
     """``φ U ψ`` = max over t' of min(ψ(t'), min of φ before t')."""
+
+    slots = [Slot(VALUE), Slot(VALUE)]
 
     def __init__(self, left: _Scalar, right: _Scalar):
         self.left, self.right = left, right
@@ -321,6 +474,16 @@ class _Until(_Node):
         self.left_so_far = min(self.left_so_far, self.left(s))
         return self.best
 
+    def value(self) -> float:
+        return self.best
+
+    def export(self, out: list[float]) -> None:
+        out.extend((self.left_so_far, self.best))
+
+    def load(self, values: list[float], pos: int) -> int:
+        self.left_so_far, self.best = values[pos], values[pos + 1]
+        return pos + 2
+
 
 class _ThenChain(_Node):
     """``φ1 T (φ2 T (… T φm))`` = max over s1 < … < sm of min(φ1(s1), …, φm(sm)).
@@ -331,6 +494,7 @@ class _ThenChain(_Node):
 
     def __init__(self, fns: list[_Scalar]):
         self.fns = fns
+        self.slots = [Slot(VALUE)] * len(fns)
         self.reset()
 
     def reset(self) -> None:
@@ -346,6 +510,16 @@ class _ThenChain(_Node):
         best[0] = max(best[0], self.fns[0](s))
         return best[-1]
 
+    def value(self) -> float:
+        return self.best[-1]
+
+    def export(self, out: list[float]) -> None:
+        out.extend(self.best)
+
+    def load(self, values: list[float], pos: int) -> int:
+        self.best = list(values[pos : pos + len(self.fns)])
+        return pos + len(self.fns)
+
 
 class _Combine(_Node):
     """A Boolean connective over incremental children."""
@@ -353,13 +527,19 @@ class _Combine(_Node):
     def __init__(self, kind: type[Formula], children: list[_Node]):
         self.kind = kind
         self.children = children
+        self.slots = [slot for child in children for slot in child.slots]
 
     def reset(self) -> None:
         for child in self.children:
             child.reset()
 
     def update(self, s: State) -> float:
-        values = [child.update(s) for child in self.children]
+        return self._combine([child.update(s) for child in self.children])
+
+    def value(self) -> float:
+        return self._combine([child.value() for child in self.children])
+
+    def _combine(self, values: list[float]) -> float:
         if self.kind is Not:
             return -values[0]
         if self.kind is And:
@@ -367,6 +547,15 @@ class _Combine(_Node):
         if self.kind is Or:
             return max(values)
         return max(-values[0], values[1])  # Implies
+
+    def export(self, out: list[float]) -> None:
+        for child in self.children:
+            child.export(out)
+
+    def load(self, values: list[float], pos: int) -> int:
+        for child in self.children:
+            pos = child.load(values, pos)
+        return pos
 
 
 def _then_chain(formula: Formula) -> list[Formula] | None:
@@ -400,25 +589,29 @@ def _never_again_parts(child: Formula) -> tuple[Formula, Formula] | None:
     return None
 
 
-def _compile_incremental(formula: Formula, rho_max: float) -> _Node | None:
-    """The incremental monitor of ``formula``, or None outside the fragment."""
+def _compile_incremental(formula: Formula, rho_max: float, names: tuple[str, ...]) -> _Node | None:
+    """The incremental monitor of ``formula`` over the signals ``names``, or None outside the fragment."""
     depth = lookahead(formula)
     if depth is not None:
-        return _AtStart(compile_window_formula(formula, rho_max), depth)
+        return _AtStart(compile_window_formula(formula, rho_max), depth, names)
     if isinstance(formula, (Not, And, Or, Implies)):
-        children = [_compile_incremental(c, rho_max) for c in formula.children]
+        children = [_compile_incremental(c, rho_max, names) for c in formula.children]
         if any(c is None for c in children):
             return None
         return _Combine(type(formula), children)  # type: ignore[arg-type]
     if isinstance(formula, (Eventually, Always)):
-        depth = lookahead(formula.child)
+        inner = formula.child
+        if isinstance(inner, (Eventually, Always)) and type(inner) is not type(formula):
+            return _AtEnd(_at_last_state(inner.child, rho_max, names))  # F G φ, G F φ
+        depth = lookahead(inner)
         if depth is not None:
-            return _Extremum(compile_window_formula(formula.child, rho_max), depth, isinstance(formula, Eventually))
-        parts = _never_again_parts(formula.child) if isinstance(formula, Always) else None
+            return _Extremum(compile_window_formula(inner, rho_max), depth, isinstance(formula, Eventually), names)
+        parts = _never_again_parts(inner) if isinstance(formula, Always) else None
         if parts is not None:
             a, b = parts
             return _NeverAgain(
-                compile_window_formula(a, rho_max), lookahead(a) or 0, compile_state_formula(b, rho_max), rho_max
+                compile_window_formula(a, rho_max), lookahead(a) or 0, compile_state_formula(b, rho_max), rho_max,
+                names,
             )
         return None
     if isinstance(formula, Until):
@@ -433,9 +626,39 @@ def _compile_incremental(formula: Formula, rho_max: float) -> _Node | None:
     return None
 
 
+def _at_last_state(formula: Formula, rho_max: float, names: tuple[str, ...]) -> _Scalar:
+    """``formula`` judged on the one-state trace ``[s]``, as a closure of ``s``."""
+    if lookahead(formula) is not None:
+        fn = compile_window_formula(formula, rho_max)
+        return lambda s: fn([s], 0)
+    trace_names = names or ("_",)  # a formula of constants still needs a length
+    return lambda s: float(formula.robustness({n: np.array([s.get(n, 0.0)]) for n in trace_names}, rho_max))
+
+
 def is_incremental(formula: Formula) -> bool:
     """Whether `PrefixMonitor` updates ``formula`` in O(1) per state (see the module docstring)."""
-    return _compile_incremental(formula, math.inf) is not None
+    return _compile_incremental(formula, math.inf, formula.signals) is not None
+
+
+def outside_fragment(formula: Formula) -> Formula | None:
+    """The first sub-formula (in reading order) that keeps ``formula`` out of the incremental fragment.
+
+    None when ``formula`` is in the fragment. Boolean connectives are looked through, so the
+    culprit is the smallest temporal sub-formula that has no incremental monitor.
+
+    Example:
+        >>> from tl_gym import parse
+        >>> print(outside_fragment(parse("F(x > 1) & G(x > 2 -> F x < 0)")))
+        G (x > 2 -> F x < 0)
+    """
+    if is_incremental(formula):
+        return None
+    if isinstance(formula, (Not, And, Or, Implies)):
+        for child in formula.children:
+            culprit = outside_fragment(child)
+            if culprit is not None:
+                return culprit
+    return formula
 
 
 # --------------------------------------------------------------------------- the monitor
@@ -459,8 +682,9 @@ class PrefixMonitor:
         self.formula = formula
         self.rho_max = check_rho_max(rho_max)
         self._names = formula.signals
-        self._root = _compile_incremental(formula, self.rho_max)
+        self._root = _compile_incremental(formula, self.rho_max, self._names)
         self.incremental = self._root is not None
+        self._pure: _Node | None = None  # a second tree, for value_of_state
         self._history: np.ndarray = np.empty((len(self._names), 64), dtype=np.float64)
         self._length = 0
 
@@ -474,6 +698,47 @@ class PrefixMonitor:
         self._length = 0
         if self._root is not None:
             self._root.reset()
+
+    @property
+    def slots(self) -> list[Slot]:
+        """What each float of `state` is (empty outside the incremental fragment)."""
+        return [] if self._root is None else list(self._root.slots)
+
+    def state(self) -> list[float]:
+        """The monitor's state after the last `update`, as ``len(slots)`` floats (``value`` slots may be ±inf).
+
+        Together with the states still to come, it determines every later value of the monitor:
+        `value_of_state` recomputes the current one from it.
+
+        Raises:
+            ValueError: the formula is outside the incremental fragment (its state is the whole prefix).
+        """
+        if self._root is None:
+            raise ValueError(_outside_message(self.formula))
+        out: list[float] = []
+        self._root.export(out)
+        return out
+
+    def value_of_state(self, state: Any) -> float:
+        """The prefix robustness that a monitor in ``state`` (a `state` vector) reports: a pure function.
+
+        Example:
+            >>> from tl_gym import parse
+            >>> monitor = PrefixMonitor(parse("F(x > 2) & G(x < 5)"))
+            >>> [monitor.update({"x": v}) for v in (0.0, 3.0)]
+            [-2.0, 1.0]
+            >>> monitor.state(), monitor.value_of_state([1.0, 2.0])
+            ([1.0, 2.0], 1.0)
+        """
+        if self._root is None:
+            raise ValueError(_outside_message(self.formula))
+        values = [float(v) for v in np.asarray(state, dtype=np.float64).reshape(-1)]
+        if len(values) != len(self._root.slots):
+            raise ValueError(f"a state of this monitor has {len(self._root.slots)} floats, got {len(values)}")
+        if self._pure is None:
+            self._pure = _compile_incremental(self.formula, self.rho_max, self._names)
+        self._pure.load(values, 0)  # type: ignore[union-attr]
+        return self._pure.value()  # type: ignore[union-attr]
 
     def update(self, state: Mapping[str, Any]) -> float:
         """Append one state (signal name -> number) and return the prefix's robustness."""
@@ -500,3 +765,13 @@ class PrefixMonitor:
         if not self._names:  # a formula of constants still needs a length
             trace = {"_": np.zeros(self._length)}
         return float(self.formula.robustness(trace, self.rho_max))
+
+
+def _outside_message(formula: Formula) -> str:
+    culprit = outside_fragment(formula)
+    return (
+        f"{str(culprit)!r} is outside the incremental fragment of tl_gym.tltl.online, so the monitor has no "
+        f"finite state (only the whole prefix determines it); the fragment: Boolean combinations of X-only "
+        f"formulas, F/G of them, F G φ, G F φ, U of temporal-free operands, T chains of temporal-free "
+        f"operands and G(A | X G B)"
+    )
