@@ -15,6 +15,8 @@ from tl_gym.envs.tasks import Layout, make_layout, task_formula
 from tl_gym.wrapper import DEFAULT_CLIP, TLTLRewardWrapper
 
 RENDER_SIZE = (480, 480)
+#: Divisor of the monitor features (``observe_monitor=True``): a third of the 300-unit arena.
+CAR_MONITOR_SCALE = 100.0
 
 
 def observation_space(params: CarParams, layout: Layout) -> spaces.Box:
@@ -210,6 +212,8 @@ def make_car_env(
     reward_mode: str = "terminal",
     rho_max: float = math.inf,
     clip: float = DEFAULT_CLIP,
+    observe_monitor: bool = False,
+    monitor_scale: float = CAR_MONITOR_SCALE,
     **car_kwargs: Any,
 ) -> TLTLRewardWrapper:
     """The entry point of TLCarNav-v0: a `CarNavEnv` wrapped in `TLTLRewardWrapper` with its task's formula.
@@ -222,6 +226,10 @@ def make_car_env(
         reward_mode: ``"terminal"`` or ``"dense"`` (`TLTLRewardWrapper`).
         rho_max: robustness of ``true`` (and minus that of ``X φ`` at the last state).
         clip: bound of the rewards (`TLTLRewardWrapper`).
+        observe_monitor: append the task monitor's state to the observation (the Markov view,
+            `TLTLRewardWrapper`): 6 + 6 features for task 1, 6 + 45 for task 2.
+        monitor_scale: divisor of the monitor's robustness values and positions; 100 units,
+            a third of the arena, keeps them of order one.
         **car_kwargs: `CarNavEnv` arguments (``horizon``, ``dt``, layout overrides, ``render_mode`` …).
     """
     car = CarNavEnv(task=task, **car_kwargs)
@@ -232,7 +240,7 @@ def make_car_env(
     )
     return TLTLRewardWrapper(
         car, formula, signals={"x": 0, "y": 1}, reward=reward, beta=beta, reward_mode=reward_mode,
-        rho_max=rho_max, clip=clip,
+        rho_max=rho_max, clip=clip, observe_monitor=observe_monitor, monitor_scale=monitor_scale,
     )
 
 

@@ -17,11 +17,13 @@ import numpy as np
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
-from tl_gym.envs.car import ACTION_SPACE, RENDER_SIZE, observation_space
+from tl_gym.envs.car import ACTION_SPACE, CAR_MONITOR_SCALE, RENDER_SIZE, observation_space
 from tl_gym.envs.dynamics import CarParams, car_step, sample_episode_noise
 from tl_gym.envs.tasks import Layout, make_layout, task_formula
 
-from tl_gym.wrapper import DEFAULT_CLIP, REWARDS, check_positive
+from tl_gym.monitor_view import MonitorView, augment_space
+from tl_gym.tltl.online import PrefixMonitor
+from tl_gym.wrapper import DEFAULT_CLIP, MONITOR_KEY, REWARD_MODES, REWARDS, check_positive
 
 
 class CarNavVectorEnv(VectorEnv):
@@ -35,8 +37,9 @@ class CarNavVectorEnv(VectorEnv):
     and ``info`` uses the vector layout, arrays with ``_key`` masks: on the step that
     ends episodes, ``"robustness"``, ``"satisfied"``, ``"trace"`` (``{"x": (num_envs,
     T+1), "_x": mask, "y": ..., "_y": ...}``) and, with ``reward="smooth"``,
-    ``"smooth_robustness"``. Terminal rewards only (``reward_mode="terminal"``); for
-    dense rewards use ``vectorization_mode="sync"``.
+    ``"smooth_robustness"``. ``reward_mode="dense"`` and ``observe_monitor=True`` run one
+    online monitor per car (as the single env's wrapper does, with the same features and
+    rewards); they cost that monitor's Python update per car and step.
 
     Example:
         >>> import gymnasium as gym
@@ -66,6 +69,8 @@ class CarNavVectorEnv(VectorEnv):
         reward_mode: str = "terminal",
         rho_max: float = math.inf,
         clip: float = DEFAULT_CLIP,
+        observe_monitor: bool = False,
+        monitor_scale: float = CAR_MONITOR_SCALE,
         horizon: int = 200,
         dt: float = 0.5,
         wheelbase: float = 15.0,
@@ -84,11 +89,12 @@ class CarNavVectorEnv(VectorEnv):
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
         if reward not in REWARDS:
             raise ValueError(f"reward must be one of {REWARDS}, got {reward!r}")
-        if reward_mode != "terminal":
-            raise ValueError(
-                f"CarNavVectorEnv pays terminal rewards only, got reward_mode={reward_mode!r}; for dense rewards "
-                'use gym.make_vec("TLCarNav-v0", vectorization_mode="sync", reward_mode="dense")'
-            )
+        if reward_mode not in REWARD_MODES:
+            raise ValueError(f"reward_mode must be one of {REWARD_MODES}, got {reward_mode!r}")
+        if reward_mode == "dense" and reward == "smooth":
+            raise ValueError("reward_mode='dense' pays exact robustness increments; use reward='exact'")
+        if not isinstance(observe_monitor, bool):
+            raise TypeError(f"observe_monitor must be True or False, got {observe_monitor!r}")
         check_positive("beta", beta, allow_inf=False)
         check_positive("rho_max", rho_max, allow_inf=True)
         check_positive("clip", clip, allow_inf=False)
@@ -103,12 +109,26 @@ class CarNavVectorEnv(VectorEnv):
         )
         self.formula = task_formula(task, no_revisit, start=start, goals=goals, obstacle=obstacle, arena=arena)
         self.reward = reward
+        self.reward_mode = reward_mode
+        self.observe_monitor = observe_monitor
         self.beta = float(beta)
         self.rho_max = float(rho_max)
         self.clip = float(clip)
         self.render_mode = render_mode
 
         self.single_observation_space = observation_space(self.params, self.layout)
+        # one monitor per car, for dense rewards and the Markov view
+        self._views: list[MonitorView] = []
+        if reward_mode == "dense" or observe_monitor:
+            bounds = dict(zip(("x", "y"), zip(self.single_observation_space.low[:2],
+                                               self.single_observation_space.high[:2])))
+            self._views = [
+                MonitorView(PrefixMonitor(self.formula, self.rho_max), monitor_scale, self.clip, self.params.horizon,
+                            bounds)
+                for _ in range(self.num_envs)
+            ]
+        if observe_monitor:
+            self.single_observation_space = augment_space(self.single_observation_space, self._views[0], MONITOR_KEY)
         self.single_action_space = ACTION_SPACE
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
@@ -121,6 +141,7 @@ class CarNavVectorEnv(VectorEnv):
         # Every car has the same horizon and restarts on the same step, so one clock serves all.
         self._t = -1  # -1: never reset
         self._autoreset = False
+        self._paid = np.zeros(n)  # dense rewards paid so far in each car's episode
 
     # episodes ---------------------------------------------------------------------------------
     def _start_episodes(self) -> None:
@@ -129,6 +150,7 @@ class CarNavVectorEnv(VectorEnv):
         self._t = 0
         self._path[0] = self._state[:, :2]
         self._autoreset = False
+        self._paid[:] = 0.0
 
     @property
     def horizon(self) -> int:
@@ -150,7 +172,17 @@ class CarNavVectorEnv(VectorEnv):
         # as Env.reset: a seed re-creates a car's generator, None continues it
         self._rngs = [rng if s is None else seeding.np_random(s)[0] for rng, s in zip(self._rngs, seeds)]
         self._start_episodes()
-        return self._state.copy(), {}
+        return self._observe(), {}
+
+    def _observe(self) -> np.ndarray:
+        """The cars' observations; with ``observe_monitor``, each monitor updated with its car's position."""
+        if not self._views:
+            return self._state.copy()
+        t = self._t
+        features = [view.observe({"x": x, "y": y}, t) for view, (x, y) in zip(self._views, self._state[:, :2].tolist())]
+        if not self.observe_monitor:
+            return self._state.copy()
+        return np.concatenate([self._state, np.array(features)], axis=1)
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         if self._t < 0:
@@ -163,7 +195,7 @@ class CarNavVectorEnv(VectorEnv):
         done = np.zeros(n, dtype=bool)
         if self._autoreset:  # NEXT_STEP autoreset: every car restarts and ignores its action
             self._start_episodes()
-            return self._state.copy(), rewards, done, done.copy(), {}
+            return self._observe(), rewards, done, done.copy(), {}
         p = self.params
         t = self._t
         self._state = car_step(
@@ -172,11 +204,16 @@ class CarNavVectorEnv(VectorEnv):
         self._t = t = t + 1
         self._path[t] = self._state[:, :2]
         infos: dict[str, Any] = {}
+        obs = self._observe()
         if t >= p.horizon:
             self._autoreset = True
-            rewards = self._score(infos)
-            return self._state.copy(), rewards, done, ~done, infos
-        return self._state.copy(), rewards, done, done.copy(), infos
+            rewards = self._score(infos) - self._paid
+            return obs, rewards, done, ~done, infos
+        if self.reward_mode == "dense":
+            value = np.array([view.value for view in self._views])
+            rewards = np.clip(value, -self.clip, self.clip) - self._paid
+            self._paid += rewards
+        return obs, rewards, done, done.copy(), infos
 
     def _score(self, infos: dict[str, Any]) -> np.ndarray:
         """Rewards of the episodes that just ended (all of them), filling ``infos`` in the vector layout."""

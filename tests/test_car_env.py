@@ -315,8 +315,10 @@ def test_vector_env_autoreset_and_errors():
     obs, rewards, terminated, truncated, info = envs.step(np.ones((3, 2)))  # the autoreset step
     assert not truncated.any() and not terminated.any() and (rewards == 0).all() and info == {}
     np.testing.assert_array_equal(obs[:, 3:], 0.0)
-    with pytest.raises(ValueError, match="dense"):
-        CarNavVectorEnv(num_envs=2, reward_mode="dense")
+    with pytest.raises(ValueError, match="reward_mode must be one of"):
+        CarNavVectorEnv(num_envs=2, reward_mode="sparse")
+    with pytest.raises(ValueError, match="dense.*reward='exact'"):
+        CarNavVectorEnv(num_envs=2, reward_mode="dense", reward="smooth")
     with pytest.raises(ValueError, match="num_envs"):
         CarNavVectorEnv(num_envs=0)
 

@@ -13,6 +13,7 @@ import numpy as np
 from gymnasium import spaces
 
 from tl_gym.errors import TraceError, UnknownSignalError
+from tl_gym.monitor_view import MonitorView, augment, augment_space, split
 from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.online import PrefixMonitor
 from tl_gym.tltl.parser import parse
@@ -23,6 +24,8 @@ SignalMap = Union[Mapping[str, SignalSource], Callable[..., Mapping[str, Any]]]
 REWARDS = ("exact", "smooth")
 REWARD_MODES = ("terminal", "dense")
 DEFAULT_CLIP = 1e4
+#: The key of the monitor features in a Dict observation (``observe_monitor=True``).
+MONITOR_KEY = "monitor"
 
 
 class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -83,6 +86,9 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         reward_mode: str = "terminal",
         env_reward_weight: float = 0.0,
         clip: float = DEFAULT_CLIP,
+        observe_monitor: bool = False,
+        monitor_scale: float = 1.0,
+        horizon: int | None = None,
     ):
         """Check every argument, then wrap ``env``.
 
@@ -100,6 +106,14 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 default 1e4 leaves every finite robustness of TLCarNav-v0 untouched (its
                 positions stay within a few thousand units) and keeps rewards finite in
                 float32 buffers; lower it for agents sensitive to reward scale.
+            observe_monitor: append the online monitor's state to the observation (the Markov
+                view, `tl_gym.monitor_view`): a 1-D Box becomes a longer float64 Box, a Dict gets
+                the key ``"monitor"``. The formula must be in the incremental fragment.
+            monitor_scale: robustness values and remembered signals in the monitor features are
+                divided by it (> 0); the size of a typical robustness keeps them of order one.
+            horizon: the episode length ``T`` for the monitor's ``t / T`` feature; None reads it
+                from the env (``spec.max_episode_steps``, else a ``horizon`` attribute) and leaves
+                the feature out when neither exists.
 
         Raises:
             SpecError: ``spec`` does not parse.
@@ -121,12 +135,23 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if not isinstance(env, gym.Env):
             raise TypeError(f"env must be a gymnasium.Env, got {type(env).__name__}")
         reader = _SignalReader(formula.signals, signals, env.observation_space)
+        if not isinstance(observe_monitor, bool):
+            raise TypeError(f"observe_monitor must be True or False, got {observe_monitor!r}")
+        view = None
+        if observe_monitor:
+            horizon = _env_horizon(env) if horizon is None else horizon
+            view = MonitorView(PrefixMonitor(formula, rho_max), monitor_scale, clip, horizon,
+                               reader.bounds(env.observation_space))
+            observation_space = augment_space(env.observation_space, view, MONITOR_KEY)
 
         gym.utils.RecordConstructorArgs.__init__(
             self, spec=str(formula), signals=signals, reward=reward, beta=beta, rho_max=rho_max,
             reward_mode=reward_mode, env_reward_weight=env_reward_weight, clip=clip,
+            observe_monitor=observe_monitor, monitor_scale=monitor_scale, horizon=horizon,
         )
         gym.Wrapper.__init__(self, env)
+        if view is not None:
+            self.observation_space = observation_space
         self.formula = formula
         self.reward = reward
         self.beta = float(beta)
@@ -135,7 +160,12 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.env_reward_weight = float(env_reward_weight)
         self.clip = float(clip)
         self._reader = reader
-        self._monitor = PrefixMonitor(formula, self.rho_max) if reward_mode == "dense" else None
+        self.observe_monitor = observe_monitor
+        self.monitor_view = view
+        if view is not None:
+            self._monitor: PrefixMonitor | None = view.monitor
+        else:
+            self._monitor = PrefixMonitor(formula, self.rho_max) if reward_mode == "dense" else None
         self._rows: list[list[float]] = []
         self._paid = 0.0
         self._done = True
@@ -147,6 +177,9 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._rows = [row]
         self._paid = 0.0
         self._done = False
+        if self.monitor_view is not None:
+            features = self.monitor_view.observe(dict(zip(self._reader.names, row)), 0)
+            return augment(obs, features, MONITOR_KEY), info
         if self._monitor is not None:
             self._monitor.reset()
             self._monitor.update(dict(zip(self._reader.names, row)))
@@ -159,12 +192,18 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         row = self._reader.read(obs, info, len(self._rows))
         self._rows.append(row)
         reward = 0.0
+        value = None
+        if self.monitor_view is not None:
+            features = self.monitor_view.observe(dict(zip(self._reader.names, row)), len(self._rows) - 1)
+            obs = augment(obs, features, MONITOR_KEY)
+            value = self.monitor_view.value
         if terminated or truncated:
             self._done = True
             reward = self._terminal_reward(info)
-        elif self._monitor is not None:
-            target = self._clipped(self._monitor.update(dict(zip(self._reader.names, row))))
-            reward = target - self._paid
+        elif self.reward_mode == "dense":
+            if value is None:
+                value = self._monitor.update(dict(zip(self._reader.names, row)))  # type: ignore[union-attr]
+            reward = self._clipped(value) - self._paid
             self._paid += reward
         if self.env_reward_weight:
             reward += self.env_reward_weight * float(env_reward)
@@ -199,6 +238,25 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def _clipped(self, value: float) -> float:
         return min(max(value, -self.clip), self.clip)
+
+    # The Markov view ----------------------------------------------------------------------
+    def monitor_features(self, obs: Any) -> np.ndarray:
+        """The monitor features of an observation of this wrapper (``observe_monitor=True``)."""
+        if self.monitor_view is None:
+            raise ValueError("the wrapper was made without observe_monitor=True: its observations hold no monitor")
+        return split(obs, self.monitor_view, MONITOR_KEY)
+
+    def dense_reward(self, obs_before: Any, obs_after: Any) -> float:
+        """The ``reward_mode="dense"`` reward of a step, recomputed from its two observations alone.
+
+        A pure function of the augmented observations (``observe_monitor=True``): with the
+        monitor's state in the observation, the dense reward is Markov. It equals what
+        `step` pays in dense mode (env reward excluded), up to the rounding of ``monitor_scale``.
+        """
+        view = self.monitor_view
+        if view is None:
+            raise ValueError("the wrapper was made without observe_monitor=True: its observations hold no monitor")
+        return view.dense_reward(split(obs_before, view, MONITOR_KEY), split(obs_after, view, MONITOR_KEY))
 
 
 # --------------------------------------------------------------------------- argument checks
@@ -311,6 +369,15 @@ class _SignalReader:
             f"signal {name!r}: expected an index, a key, a (key, index) tuple or a callable, got {source!r}"
         )
 
+    def bounds(self, space: spaces.Space) -> dict[str, tuple[float, float]]:
+        """``(low, high)`` of the signals read by index from a Box (others are unbounded)."""
+        out: dict[str, tuple[float, float]] = {}
+        for name, getter in zip(self.names, self._getters):
+            if isinstance(getter, _KeyGetter):
+                box = space if getter.key is None else space.spaces[getter.key]  # type: ignore[attr-defined]
+                out[name] = (float(box.low[getter.index]), float(box.high[getter.index]))
+        return out
+
     def first(self, obs: Any, info: dict) -> list[float]:
         """Read s_0; on the first call, check what callables return."""
         if self._pending_check:
@@ -386,3 +453,15 @@ def _check_scalar(name: str, value: Any) -> None:
             f"signal {name!r} must be one real number, got an array of shape {np.shape(value)} "
             f"and dtype {np.asarray(value).dtype}"
         )
+
+
+def _env_horizon(env: gym.Env) -> int | None:
+    """The env's episode length: ``spec.max_episode_steps``, else a ``horizon`` attribute, else None."""
+    steps = getattr(env.spec, "max_episode_steps", None) if env.spec is not None else None
+    if isinstance(steps, (int, np.integer)) and not isinstance(steps, bool):
+        return int(steps)
+    try:
+        horizon = env.get_wrapper_attr("horizon")
+    except AttributeError:
+        return None
+    return int(horizon) if isinstance(horizon, (int, np.integer)) and not isinstance(horizon, bool) else None

@@ -1,0 +1,157 @@
+"""The Markov view (``observe_monitor=True``): the monitor's state in the observation makes rewards Markov."""
+
+import math
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium import spaces
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import tl_gym
+from tl_gym import TLTLRewardWrapper, parse
+from tl_gym.monitor_view import MonitorView
+from tl_gym.tltl.online import PrefixMonitor
+
+from .test_online import fragment
+from .test_wrapper import Scripted
+
+values = st.floats(-3, 3, allow_nan=False, width=32)
+episodes = st.integers(1, 10).flatmap(lambda n: st.lists(st.tuples(values, values, values), min_size=n + 1,
+                                                          max_size=n + 1))
+
+
+@settings(max_examples=200, deadline=None)
+@given(fragment, episodes, st.sampled_from([math.inf, 5.0]), st.sampled_from([1e4, 2.0]), st.booleans())
+def test_dense_reward_is_a_function_of_the_augmented_observations(formula, rows, rho_max, clip, dict_obs):
+    env = TLTLRewardWrapper(Scripted(rows, dict_obs=dict_obs), formula, signals=SIGNALS[dict_obs], rho_max=rho_max,
+                            clip=clip, reward_mode="dense", observe_monitor=True, monitor_scale=0.5)
+    obs, _ = env.reset(seed=0)
+    assert env.observation_space.contains(obs)
+    total = 0.0
+    for t in range(1, len(rows)):
+        after, reward, terminated, truncated, info = env.step(np.zeros(1, dtype=np.float32))
+        assert env.observation_space.contains(after)
+        raw = after if dict_obs else after[:3]
+        expected_raw = {"pos": np.array(rows[t][:2]), "speed": np.array(rows[t][2:])} if dict_obs else rows[t]
+        if dict_obs:
+            assert all(np.array_equal(raw[key], expected_raw[key]) for key in ("pos", "speed"))
+        else:
+            assert np.array_equal(raw, np.asarray(expected_raw, dtype=np.float64))  # raw first, unchanged
+        assert env.dense_reward(obs, after) == pytest.approx(reward, rel=1e-9, abs=1e-9), (str(formula), t)
+        total += reward
+        obs = after
+    assert truncated
+    assert total == pytest.approx(min(max(info["robustness"], -clip), clip), rel=1e-9, abs=1e-9)
+
+
+SIGNALS = {False: {"a": 0, "b": 1}, True: {"a": ("pos", 0), "b": "speed"}}
+
+
+def test_box_grows_and_dict_gets_a_key():
+    spec = "F(a > 0.5) & G(b < 2)"
+    box = TLTLRewardWrapper(Scripted(), spec, signals={"a": 0, "b": 1}, observe_monitor=True)
+    # 3 raw + 2 values x 2 features + first (the scripted env states no horizon: no t/T)
+    assert box.observation_space.shape == (8,)
+    assert box.observation_space.dtype == np.float64
+    obs, _ = box.reset(seed=0)
+    assert obs[:3].tolist() == Scripted().values[0].tolist() and obs[-1] == 1.0
+    with_horizon = TLTLRewardWrapper(Scripted(), spec, signals={"a": 0, "b": 1}, observe_monitor=True, horizon=5)
+    obs, _ = with_horizon.reset(seed=0)
+    assert with_horizon.observation_space.shape == (9,)
+    obs, *_ = with_horizon.step(np.zeros(1, dtype=np.float32))
+    assert obs[-2:].tolist() == [0.0, 0.2]  # not first; t / T
+    dict_env = TLTLRewardWrapper(Scripted(dict_obs=True), spec, signals=SIGNALS[True], observe_monitor=True)
+    assert set(dict_env.observation_space.spaces) == {"pos", "speed", "monitor"}
+    obs, _ = dict_env.reset(seed=0)
+    assert dict_env.observation_space.contains(obs)
+
+
+def test_horizon_is_read_from_the_env():
+    env = TLTLRewardWrapper(gym.make("Pendulum-v1", max_episode_steps=40), "F(c > 0.9)", signals={"c": 0},
+                            observe_monitor=True)
+    assert env.monitor_view.horizon == 40
+    car = gym.make("TLCarNav-v0", observe_monitor=True, horizon=50)
+    assert car.get_wrapper_attr("monitor_view").horizon == 50
+
+
+def test_formula_outside_the_fragment_is_refused_at_construction_naming_it():
+    with pytest.raises(ValueError, match=r"'G \(a > 0 -> F b > 1\)' is outside the incremental fragment"):
+        TLTLRewardWrapper(Scripted(), "F(a > 1) & G(a > 0 -> F b > 1)", signals={"a": 0, "b": 1},
+                          observe_monitor=True)
+
+
+def test_bad_arguments_are_refused():
+    with pytest.raises(TypeError, match="observe_monitor must be True or False"):
+        TLTLRewardWrapper(Scripted(), "F(a > 1)", signals={"a": 0}, observe_monitor="yes")
+    with pytest.raises(ValueError, match="monitor_scale must be finite and > 0"):
+        TLTLRewardWrapper(Scripted(), "F(a > 1)", signals={"a": 0}, observe_monitor=True, monitor_scale=0.0)
+
+    class Image(Scripted):
+        def __init__(self):
+            super().__init__()
+            self.observation_space = spaces.Box(0, 1, shape=(2, 2))
+
+    with pytest.raises(TypeError, match="1-D Box or a Dict"):
+        TLTLRewardWrapper(Image(), "F(a > 1)", signals={"a": (0, 0)}, observe_monitor=True)
+    with pytest.raises(ValueError, match="without observe_monitor"):
+        TLTLRewardWrapper(Scripted(), "F(a > 1)", signals={"a": 0}).dense_reward(np.zeros(3), np.zeros(3))
+
+
+def test_infinite_values_are_flagged_not_clipped_into_the_features():
+    view = MonitorView(PrefixMonitor(parse("a > 0 T b > 0 T a > 1")), scale=1.0, clip=100.0, horizon=None)
+    features = view.observe({"a": 0.5, "b": -1.0}, 0)
+    # the chain's three values after one state: 0.5, -inf, -inf
+    assert features.tolist() == [0.5, 0.0, 0.0, -1.0, 0.0, -1.0, 1.0]
+    assert view.decode(features) == ([0.5, -math.inf, -math.inf], True)
+
+
+@pytest.mark.parametrize("task", [1, 2])
+def test_car_passes_gymnasium_and_sb3_env_checks(task):
+    from gymnasium.utils.env_checker import check_env
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    env = gym.make("TLCarNav-v0", task=task, observe_monitor=True, reward_mode="dense")
+    with warnings.catch_warnings():  # the checkers recommend checking the unwrapped env: we mean the wrapper
+        warnings.filterwarnings("ignore", message=".*different from the unwrapped version")
+        check_env(env, skip_render_check=True)
+        sb3_check_env(env, warn=True)
+
+
+@pytest.mark.parametrize("mode", ["sync", "async", "vector_entry_point"])
+def test_car_vector_envs_agree_with_the_single_env(mode):
+    kwargs = {"task": 2, "observe_monitor": True, "reward_mode": "dense", "horizon": 30}
+    envs = gym.make_vec("TLCarNav-v0", num_envs=2, vectorization_mode=mode, **kwargs)
+    singles = [gym.make("TLCarNav-v0", **kwargs) for _ in range(2)]
+    obs, _ = envs.reset(seed=3)
+    expected = np.stack([env.reset(seed=3 + i)[0] for i, env in enumerate(singles)])
+    assert np.allclose(obs, expected)
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        actions = rng.uniform(-1, 1, (2, 2)).astype(np.float32)
+        obs, rewards, _, truncated, _ = envs.step(actions)
+        steps = [env.step(a) for env, a in zip(singles, actions)]
+        assert np.allclose(obs, np.stack([s[0] for s in steps]))
+        assert np.allclose(rewards, [s[1] for s in steps])
+    assert truncated.all()
+    envs.close()
+
+
+def test_sb3_vec_env_and_vec_normalize_run_on_the_view():
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    venv = VecNormalize(make_vec_env("TLCarNav-v0", n_envs=2, seed=0,
+                                     env_kwargs={"task": 1, "observe_monitor": True, "reward_mode": "dense",
+                                                 "horizon": 10}))
+    obs = venv.reset()
+    assert obs.shape == (2, 12)
+    total = np.zeros(2)
+    for _ in range(10):
+        obs, rewards, dones, infos = venv.step(np.zeros((2, 2), dtype=np.float32))
+        total += venv.get_original_reward()
+    assert dones.all()
+    assert np.allclose(total, [info["robustness"] for info in infos])
+    assert tl_gym.TLTLRewardWrapper is TLTLRewardWrapper

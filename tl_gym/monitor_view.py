@@ -1,0 +1,209 @@
+"""The Markov view: a TLTL monitor's state as observation features (``observe_monitor=True``).
+
+A prefix robustness is a running max/min over the past, so a reward paid from it is not a
+function of the env's observation. The online monitor (`tl_gym.tltl.online.PrefixMonitor`)
+carries exactly what the past contributes: running extrema, Until/Then chain progress, the
+"never again" values and a few remembered states. `MonitorView` turns that state into a
+vector an MLP (or VecNormalize) can use, and back:
+
+* a ``value`` slot (a robustness value) becomes two features: the value clipped to
+  ``[-clip, clip]`` and divided by ``scale`` (0 when infinite), and a flag that is ``+1``/``-1``
+  when the value is ``+inf``/``-inf`` (a chain not started yet, ``true`` with ``rho_max=inf``),
+  else 0;
+* a ``signal`` slot (a remembered state's signal) becomes the signal divided by ``scale``;
+* a ``count`` slot becomes the count divided by its bound;
+* then ``first`` (1 on the reset observation, else 0: the dense reward's baseline) and, when
+  the horizon ``T`` is known, ``t / T``.
+
+Clipping loses nothing the rewards use: every monitor value is built from predicate values by
+min, max and negation, which commute with a symmetric clip, and the rewards are clipped to
+the same bound. So `prefix_value` and `dense_reward` recompute the wrapper's rewards from
+observations alone (up to the rounding of the division by ``scale``).
+
+Example:
+    >>> from tl_gym import parse
+    >>> from tl_gym.tltl.online import PrefixMonitor
+    >>> view = MonitorView(PrefixMonitor(parse("F(x > 2) & G(x < 5)")), scale=2.0, clip=100.0, horizon=10)
+    >>> view.size  # two values (two features each), first, t/T
+    6
+    >>> s0 = view.observe({"x": 0.0}, t=0)
+    >>> s1 = view.observe({"x": 3.0}, t=1)
+    >>> s1.tolist()
+    [0.5, 0.0, 1.0, 0.0, 0.0, 0.1]
+    >>> view.dense_reward(s0, s1), view.prefix_value(s1)
+    (1.0, 1.0)
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+
+from tl_gym.tltl.online import SIGNAL, VALUE, PrefixMonitor
+
+
+class MonitorView:
+    """Encodes a `PrefixMonitor`'s state as a float64 feature vector, and decodes it.
+
+    Args:
+        monitor: the monitor to observe; its formula must be in the incremental fragment.
+        scale: robustness values and remembered signals are divided by it (> 0): pick the size
+            of a typical robustness, so that the features are of order one.
+        clip: values are clipped to ``[-clip, clip]``, the wrapper's reward bound.
+        horizon: the episode length ``T`` for the ``t / T`` feature (capped at 1); None leaves it out.
+        signal_bounds: name -> ``(low, high)`` of each signal, for the bounds of the remembered
+            states' features; unbounded when not given.
+
+    Raises:
+        ValueError: the formula is outside the incremental fragment (the message names the
+            sub-formula), or a bad ``scale``, ``clip`` or ``horizon``.
+    """
+
+    def __init__(
+        self,
+        monitor: PrefixMonitor,
+        scale: float,
+        clip: float,
+        horizon: int | None,
+        signal_bounds: Mapping[str, tuple[float, float]] | None = None,
+    ):
+        if not monitor.incremental:
+            monitor.state()  # raises the ValueError that names the sub-formula
+        if not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
+            raise ValueError(f"monitor_scale must be finite and > 0, got {scale!r}")
+        if horizon is not None and (isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer))
+                                    or horizon < 1):
+            raise ValueError(f"horizon must be an int >= 1 or None, got {horizon!r}")
+        self.monitor = monitor
+        self.scale = float(scale)
+        self.clip = float(clip)
+        self.horizon = None if horizon is None else int(horizon)
+        self.slots = monitor.slots
+        names = monitor.formula.signals
+        bounds = [(signal_bounds or {}).get(n, (-np.inf, np.inf)) for n in names]
+        low: list[float] = []
+        high: list[float] = []
+        window_position = 0  # signal slots come in whole states, in the order of `names`
+        for slot in self.slots:
+            if slot.kind == VALUE:
+                low += [-self.clip / self.scale, -1.0]
+                high += [self.clip / self.scale, 1.0]
+            elif slot.kind == SIGNAL:
+                signal_low, signal_high = bounds[window_position % len(names)]
+                low.append(signal_low / self.scale)
+                high.append(signal_high / self.scale)
+                window_position += 1
+            else:
+                low.append(0.0)
+                high.append(1.0)
+        low.append(0.0)  # first
+        high.append(1.0)
+        if self.horizon is not None:  # t / T
+            low.append(0.0)
+            high.append(1.0)
+        self.space = spaces.Box(np.array(low), np.array(high), dtype=np.float64)
+        self.size = len(low)
+        self.value = math.nan  # the monitor's value after the last `observe`
+
+    # encoding ----------------------------------------------------------------------------
+    def observe(self, state: Mapping[str, float], t: int) -> np.ndarray:
+        """Update the monitor with one state (``t = 0`` right after a reset) and return the features."""
+        if t == 0:
+            self.monitor.reset()
+        self.value = self.monitor.update(state)
+        return self.encode(self.monitor.state(), t)
+
+    def encode(self, state: list[float], t: int) -> np.ndarray:
+        """The features of a monitor state at step ``t``."""
+        out = np.empty(self.size)
+        i = 0
+        for slot, value in zip(self.slots, state):
+            if slot.kind == VALUE:
+                if math.isinf(value):
+                    out[i], out[i + 1] = 0.0, math.copysign(1.0, value)
+                else:
+                    out[i], out[i + 1] = min(max(value, -self.clip), self.clip) / self.scale, 0.0
+                i += 2
+            elif slot.kind == SIGNAL:
+                out[i] = value / self.scale
+                i += 1
+            else:
+                out[i] = value / slot.bound
+                i += 1
+        out[i] = 1.0 if t == 0 else 0.0
+        if self.horizon is not None:
+            out[i + 1] = min(t / self.horizon, 1.0)  # an env that runs past its stated horizon stays at 1
+        return out
+
+    # decoding (pure functions of the features) ----------------------------------------------
+    def decode(self, features: Any) -> tuple[list[float], bool]:
+        """``(monitor state, first)`` from features (inverse of `encode`, values clipped)."""
+        f = np.asarray(features, dtype=np.float64).reshape(-1)
+        if f.size != self.size:
+            raise ValueError(f"expected {self.size} monitor features, got {f.size}")
+        state: list[float] = []
+        i = 0
+        for slot in self.slots:
+            if slot.kind == VALUE:
+                flag = f[i + 1]
+                state.append(math.copysign(math.inf, flag) if flag != 0 else float(f[i]) * self.scale)
+                i += 2
+            elif slot.kind == SIGNAL:
+                state.append(float(f[i]) * self.scale)
+                i += 1
+            else:
+                state.append(float(round(f[i] * slot.bound)))
+                i += 1
+        return state, bool(f[i] == 1.0)
+
+    def prefix_value(self, features: Any) -> float:
+        """The clipped prefix robustness the features stand for."""
+        state, _ = self.decode(features)
+        return min(max(self.monitor.value_of_state(state), -self.clip), self.clip)
+
+    def dense_reward(self, before: Any, after: Any) -> float:
+        """The dense reward of the step from features ``before`` to ``after`` (``reward_mode="dense"``).
+
+        It is the change of the clipped prefix robustness, counted from 0 on the first step, so
+        that an episode's rewards add up to its clipped terminal robustness.
+        """
+        _, first = self.decode(before)
+        return self.prefix_value(after) - (0.0 if first else self.prefix_value(before))
+
+
+def augment_space(space: spaces.Space, view: MonitorView, key: str) -> spaces.Space:
+    """The observation space with the monitor features: a longer Box, or a Dict with one more key.
+
+    Raises:
+        TypeError: the space is neither a 1-D Box nor a Dict, or the Dict already has ``key``.
+    """
+    if isinstance(space, spaces.Box) and len(space.shape) == 1:
+        low = np.concatenate([space.low.astype(np.float64), view.space.low])
+        high = np.concatenate([space.high.astype(np.float64), view.space.high])
+        return spaces.Box(low, high, dtype=np.float64)
+    if isinstance(space, spaces.Dict):
+        if key in space.spaces:
+            raise TypeError(f"observe_monitor adds the key {key!r}, which the Dict observation already has")
+        return spaces.Dict({**space.spaces, key: view.space})
+    raise TypeError(
+        f"observe_monitor needs a 1-D Box or a Dict observation space, got {space}; "
+        "flatten the observation first (gymnasium.wrappers.FlattenObservation)"
+    )
+
+
+def augment(obs: Any, features: np.ndarray, key: str) -> Any:
+    """The observation with the monitor features appended (Box) or added under ``key`` (Dict)."""
+    if isinstance(obs, Mapping):
+        return {**obs, key: features}
+    return np.concatenate([np.asarray(obs, dtype=np.float64), features])
+
+
+def split(obs: Any, view: MonitorView, key: str) -> Any:
+    """The monitor features of an augmented observation (the inverse of `augment`)."""
+    if isinstance(obs, Mapping):
+        return np.asarray(obs[key], dtype=np.float64)
+    return np.asarray(obs, dtype=np.float64)[..., -view.size :]
