@@ -1,28 +1,86 @@
 """What TLPS and REPS share: episodic search over a time-varying linear-Gaussian policy.
 
 Both draw each episode's feed-forward sequence k_t^i from the policy, run the N
-episodes as one batch and refit ``k_t``, ``C_t`` by weighted maximum likelihood; they
-differ only in how the weights are computed (`_update`).
+episodes as one batch and refit the policy from the weighted batch; they differ only
+in how the weights are computed (`_update`). The refit (`_refit`) is here, once: the
+paper's open loop (``k_t``, ``C_t`` by weighted maximum likelihood, ``K_t`` fixed) or,
+with ``feedback="fitted"``, the gains ``K_t`` and their centre ``s̄_t`` too
+(`tl_gym.agents.feedback`). The config fields both agents share are `EpisodicSearchConfig`.
 """
 
 from __future__ import annotations
 
 import abc
 import dataclasses
+import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from .base import Agent
+from .feedback import FITTED_EXPLORATION_FLOOR, FeedbackSettings, fit_feedback, signal_components
 from .policy import LinearGaussianPolicy
-from .sampling import resolve_horizon
+from .sampling import Rollouts, resolve_horizon
+
+
+@dataclass(frozen=True)
+class EpisodicSearchConfig:
+    """Fields of `TLPSConfig` and `REPSConfig` for feedback and exploration (checked by `check_search`)."""
+
+    feedback: str = "open"
+    """``"open"``: the paper's policy, ``K_t`` fixed (``gains``, zeros by default). ``"fitted"``:
+    ``a_t = k_t + K_t (s_t ⊖ s̄_t)`` with ``K_t`` and the centre ``s̄_t`` refit each update by weighted
+    ridge regression (`tl_gym.agents.feedback`); ``gains`` must then be ``None``."""
+    feedback_features: Any = "auto"
+    """Observation components the fitted gains act on: ``"auto"`` (the components the formula's
+    signals are read from, found in the first batch, plus the angle components; all when no signal
+    is an observation component), ``"all"``, or a sequence of indices. Stored as a list."""
+    feedback_angles: Any = "auto"
+    """Angle components (deviations wrapped to [-π, π), circular centre): ``"auto"`` (Box bounds
+    exactly ±π) or a sequence of indices (``[]`` for none). Stored as a list."""
+    feedback_ridge: float = 0.01
+    """Ridge on the gain increment in standardised units (>= 0): a pull toward the previous gains."""
+    feedback_window: int = 5
+    """The regression's moments are pooled over steps ``t − window … t + window`` (>= 0)."""
+    exploration_floor: float | None = None
+    """Exploration schedule: the std floor at iteration ``m`` is
+    ``max(min_std, exploration_floor · 0.5^(m / exploration_halflife))``; 0 turns it off.
+    ``None``: 0.1 with ``feedback="fitted"`` (the gains learn from the drawn noise, which must not
+    collapse), 0 in open loop."""
+    exploration_halflife: float = 10.0
+    """Iterations over which the exploration floor halves (> 0)."""
+
+    def check_search(self) -> None:
+        """Validate and normalise the shared fields (call from ``__post_init__``)."""
+        for name in ("feedback_features", "feedback_angles"):
+            value = getattr(self, name)
+            if isinstance(value, (list, tuple, np.ndarray)):  # plain lists, so that the config stays JSON
+                object.__setattr__(self, name, [v.item() if isinstance(v, np.generic) else v for v in value])
+        FeedbackSettings.of(self)
+        if self.feedback == "fitted" and getattr(self, "gains", None) is not None:
+            raise ValueError("gains (fixed K_t) and feedback='fitted' exclude each other; pass one of them")
+        floor = self.exploration_floor
+        if floor is not None and (isinstance(floor, bool) or not (isinstance(floor, (int, float))
+                                                                    and 0 <= floor < math.inf)):
+            raise ValueError(f"exploration_floor must be None or a finite number >= 0, got {floor!r}")
+        halflife = self.exploration_halflife
+        if isinstance(halflife, bool) or not (isinstance(halflife, (int, float)) and 0 < halflife < math.inf):
+            raise ValueError(f"exploration_halflife must be a positive finite number, got {halflife!r}")
+
+    def std_floor(self, iteration: int) -> float:
+        """The policy's standard-deviation floor after update ``iteration`` (exploration schedule)."""
+        floor = self.exploration_floor
+        if floor is None:
+            floor = FITTED_EXPLORATION_FLOOR if self.feedback == "fitted" else 0.0
+        return max(self.min_std, floor * 0.5 ** (iteration / self.exploration_halflife))  # type: ignore[attr-defined]
 
 
 class AbstractEpisodicSearch(Agent):
     """Abstract agent over a `LinearGaussianPolicy`; subclasses define `_make_config` and `_update`.
 
-    The config must have the fields ``n_episodes``, ``horizon``, ``init_mean``,
-    ``init_std``, ``covariance``, ``min_std`` and ``gains``.
+    The config is an `EpisodicSearchConfig` with the fields ``n_episodes``, ``horizon``,
+    ``init_mean``, ``init_std``, ``covariance``, ``min_std`` and ``gains``.
     """
 
     policy: LinearGaussianPolicy
@@ -34,14 +92,59 @@ class AbstractEpisodicSearch(Agent):
     def _setup(self) -> None:
         cfg = self.config
         self.horizon = resolve_horizon(cfg.horizon, self.env)
+        self._feedback = FeedbackSettings.of(cfg)
+        fitted = self._feedback.mode == "fitted"
+        angles = self._feedback.angle_mask(self.observation_space) if fitted else None
         self.policy = LinearGaussianPolicy.for_spaces(  # Algorithm 1, l.2
             self.observation_space, self.action_space, self.horizon, init_mean=cfg.init_mean,
-            init_std=cfg.init_std, covariance=cfg.covariance, min_std=cfg.min_std, gains=cfg.gains,
+            init_std=cfg.init_std, covariance=cfg.covariance, min_std=cfg.min_std, gains=cfg.gains, angles=angles,
         )
+        obs_dim = self.policy.obs_dim
+        #: the components the fitted gains act on; all false until "auto" has seen a batch
+        self.feedback_features = np.zeros(obs_dim, dtype=bool)
+        if fitted:
+            if cfg.feedback_features == "auto":  # known after the first batch; check the likely count now
+                guess = min(obs_dim, len(self.formula.signals) + int(angles.sum()))
+                self._feedback.check_fittable(cfg.n_episodes, guess, "feedback_features='auto'")
+            else:
+                self.feedback_features = self._feedback.feature_mask(obs_dim, angles, None)
+                self._feedback.check_fittable(cfg.n_episodes, int(self.feedback_features.sum()),
+                                              f"feedback_features={cfg.feedback_features!r}")
 
     @abc.abstractmethod
     def _update(self, iteration: int) -> dict[str, Any]:
         """One policy update (see `Agent._update`)."""
+
+    def _refit(self, batch: Rollouts, feedforward: np.ndarray, weights: np.ndarray, min_std: float) -> dict[str, Any]:
+        """Refit the policy to the weighted batch; returns extra history keys.
+
+        Open loop: `LinearGaussianPolicy.update` (``k_t``, ``C_t``). Fitted: the same update gives
+        ``C_t`` (the drawn noise's weighted covariance, floored at ``min_std``); `fit_feedback` gives
+        ``K_t``, ``s̄_t`` and ``k_t``.
+        """
+        policy = self.policy
+        if self._feedback.mode == "open":
+            policy.update(feedforward, weights, min_std=min_std)
+            return {}
+        horizon = policy.horizon
+        states = batch.observations[:, :horizon]
+        if not self.feedback_features.any():  # "auto": the signals' components are known now
+            signals = signal_components(batch.observations, batch.traces)
+            mask = self._feedback.feature_mask(policy.obs_dim, policy.angles, signals)
+            self._feedback.check_fittable(self.config.n_episodes, int(mask.sum()), "feedback_features='auto'")
+            self.feedback_features = mask
+        n = feedforward.shape[0]
+        steps = np.broadcast_to(np.arange(horizon), (n, horizon)).reshape(-1)
+        executed = feedforward + policy.feedback_term(steps, states.reshape(-1, policy.obs_dim)).reshape(
+            n, horizon, policy.act_dim)
+        fit = fit_feedback(
+            states, feedforward - policy.mean, executed, weights, policy.gains, self.feedback_features,
+            policy.angles, ridge=self.config.feedback_ridge, window=self.config.feedback_window,
+            valid=np.arange(horizon)[None, :] < batch.lengths[:, None],
+        )
+        policy.update(feedforward, weights, min_std=min_std)
+        policy.mean, policy.gains, policy.centre = fit.mean, fit.gains, fit.centre
+        return {"feedback_gain": float(np.abs(fit.gains).sum(axis=2).mean())}
 
     def predict(
         self, obs: Any, state: Any = None, episode_start: Any = None, deterministic: bool = True
@@ -53,10 +156,14 @@ class AbstractEpisodicSearch(Agent):
         return dataclasses.asdict(self.config)
 
     def _state_arrays(self) -> dict[str, np.ndarray]:
-        return self.policy.arrays()
+        if self._feedback.mode == "open":
+            return self.policy.arrays()
+        return {**self.policy.arrays(centre=True), "feedback_features": self.feedback_features}
 
     def _extra_files(self) -> dict[str, bytes]:
         return {}
 
     def _load_state(self, arrays: dict[str, np.ndarray], files: dict[str, bytes]) -> None:
         self.policy.load_arrays(arrays)
+        if "feedback_features" in arrays:
+            self.feedback_features = np.array(arrays["feedback_features"], dtype=bool)

@@ -1,7 +1,10 @@
 """The paper's time-varying linear-Gaussian policy (section IV).
 
-``π(a_t | s_t) = N(K_t s_t + k_t, C_t)`` for ``t = 0 … T-1``. The feedback gains
-``K_t`` stay fixed (zeros unless given); the feed-forward terms ``k_t`` and the
+``π(a_t | s_t) = N(k_t + K_t (s_t ⊖ s̄_t), C_t)`` for ``t = 0 … T-1``, ``s̄_t`` a centre
+(zeros unless set: the paper's ``K_t s_t + k_t``) and ``⊖`` the difference, wrapped to
+``[-π, π)`` on angle components. The paper keeps the feedback gains ``K_t`` fixed (zeros
+unless given); the agents' ``feedback="fitted"`` option refits them, with the centre, by
+weighted regression (`tl_gym.agents.feedback`). The feed-forward terms ``k_t`` and the
 covariances ``C_t`` are learned. Exploration is per episode: each episode ``i``
 draws its own feed-forward sequence ``k_t^i ~ N(k_t, C_t)`` and keeps it for the
 whole episode, so that the update can credit each episode's parameters
@@ -14,10 +17,13 @@ clips what it sends to the env but the update uses the drawn ``k_t^i``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
+
+from .feedback import deviation
 
 #: Default initial standard deviation of every action component. On a ``[-1, 1]``
 #: action Box, 0.5 keeps about 95% of the draws inside the box while letting
@@ -43,11 +49,14 @@ class LinearGaussianPolicy:
             (the same for every step); zeros by default (an open-loop policy).
         covariance: ``"diag"`` (independent action components) or ``"full"``.
         min_std: floor on the standard deviation (on the eigenvalues of ``C_t`` when full).
+        angles: boolean mask ``(obs_dim,)`` of the observation components that are angles:
+            their deviation from the centre is wrapped to ``[-π, π)``; none by default.
 
     Attributes:
         mean: the feed-forward terms ``k_t``, shape ``(T, act_dim)``.
         cov: the covariances ``C_t``, shape ``(T, act_dim, act_dim)``.
         gains: the feedback gains ``K_t``, shape ``(T, act_dim, obs_dim)``.
+        centre: the states ``s̄_t`` the gains act around, shape ``(T, obs_dim)`` (zeros by default).
 
     Example:
         >>> import numpy as np
@@ -71,6 +80,7 @@ class LinearGaussianPolicy:
         gains: Any = None,
         covariance: str = "diag",
         min_std: float = DEFAULT_MIN_STD,
+        angles: Any = None,
     ):
         if covariance not in ("diag", "full"):
             raise ValueError(f"covariance must be 'diag' or 'full', got {covariance!r}")
@@ -96,6 +106,9 @@ class LinearGaussianPolicy:
                 f"gains must have shape (act_dim, obs_dim) = {(act_dim, obs_dim)} or "
                 f"(horizon, act_dim, obs_dim) = {(horizon, act_dim, obs_dim)}, got {gains.shape}"
             )
+        angles = np.zeros(obs_dim, dtype=bool) if angles is None else np.asarray(angles, dtype=bool)
+        if angles.shape != (obs_dim,):
+            raise ValueError(f"angles must be a boolean mask of shape ({obs_dim},), got shape {angles.shape}")
         self.horizon = horizon
         self.obs_dim = obs_dim
         self.act_dim = act_dim
@@ -104,6 +117,8 @@ class LinearGaussianPolicy:
         self.mean = mean
         self.cov = np.broadcast_to(np.diag(std**2), (horizon, act_dim, act_dim)).copy()
         self.gains = gains.copy()
+        self.centre = np.zeros((horizon, obs_dim))
+        self.angles = angles
 
     @classmethod
     def for_spaces(cls, observation_space: Any, action_space: Any, horizon: int, **kwargs: Any) -> LinearGaussianPolicy:
@@ -118,9 +133,18 @@ class LinearGaussianPolicy:
         return cls(horizon, observation_space.shape[0], action_space.shape[0], **kwargs)
 
     @property
-    def feedback(self) -> np.ndarray | None:
-        """The gains ``K_t``, or ``None`` when all are zero (samplers then skip the product)."""
-        return self.gains if np.any(self.gains) else None
+    def feedback(self) -> Callable[[int, np.ndarray], np.ndarray] | None:
+        """The feedback term ``(t, obs) -> K_t (obs ⊖ s̄_t)`` for `sampling.rollout`.
+
+        ``None`` when all gains are zero (samplers then skip the product).
+        """
+        return self.feedback_term if np.any(self.gains) else None
+
+    def feedback_term(self, t: int | np.ndarray, obs: np.ndarray) -> np.ndarray:
+        """``K_t (s ⊖ s̄_t)`` for a batch of observations ``(n, obs_dim)`` at step(s) ``t`` (an int or ``(n,)``)."""
+        t = np.minimum(t, self.horizon - 1)
+        gains = np.broadcast_to(self.gains[t], (obs.shape[0], self.act_dim, self.obs_dim))
+        return np.einsum("nij,nj->ni", gains, deviation(obs, self.centre[t], self.angles))
 
     # Sampling ---------------------------------------------------------------------
     @property
@@ -138,15 +162,14 @@ class LinearGaussianPolicy:
         return self.mean + np.einsum("tij,ntj->nti", self._cholesky(), noise)
 
     def act(self, obs: np.ndarray, t: np.ndarray, feedforward: np.ndarray) -> np.ndarray:
-        """Actions ``K_t s_t + k`` for a batch.
+        """Actions ``k + K_t (s_t ⊖ s̄_t)`` for a batch.
 
         Args:
             obs: observations, shape ``(n, obs_dim)``.
             t: time index of each row, shape ``(n,)`` (clipped to ``T - 1``).
             feedforward: feed-forward term of each row, shape ``(n, act_dim)``.
         """
-        t = np.minimum(t, self.horizon - 1)
-        return np.einsum("nij,nj->ni", self.gains[t], obs) + feedforward
+        return self.feedback_term(np.asarray(t), np.asarray(obs, dtype=float)) + feedforward
 
     def predict(
         self,
@@ -226,12 +249,21 @@ class LinearGaussianPolicy:
         return np.linalg.cholesky(self.cov)
 
     # State ------------------------------------------------------------------------
-    def arrays(self) -> dict[str, np.ndarray]:
-        """The policy's parameters by name, for saving."""
-        return {"policy_mean": self.mean, "policy_cov": self.cov, "policy_gains": self.gains}
+    def arrays(self, centre: bool = False) -> dict[str, np.ndarray]:
+        """The policy's parameters by name, for saving.
+
+        The centre ``s̄_t`` only with ``centre=True``: a policy whose centre never moves (open
+        loop) leaves it out, so that files saved before the centre existed still load.
+        """
+        arrays = {"policy_mean": self.mean, "policy_cov": self.cov, "policy_gains": self.gains}
+        if centre:
+            arrays["policy_centre"] = self.centre
+        return arrays
 
     def load_arrays(self, arrays: dict[str, np.ndarray]) -> None:
         """Set the parameters from `arrays` (shapes checked by the caller)."""
         self.mean = np.array(arrays["policy_mean"], dtype=float)
         self.cov = np.array(arrays["policy_cov"], dtype=float)
         self.gains = np.array(arrays["policy_gains"], dtype=float)
+        if "policy_centre" in arrays:
+            self.centre = np.array(arrays["policy_centre"], dtype=float)

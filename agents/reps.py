@@ -32,7 +32,7 @@ from scipy.optimize import minimize
 from scipy.special import logsumexp
 
 from .base import build_config, check_episodic
-from .episodic import AbstractEpisodicSearch
+from .episodic import AbstractEpisodicSearch, EpisodicSearchConfig
 from .policy import DEFAULT_INIT_STD, DEFAULT_MIN_STD
 from .sampling import rollout
 
@@ -42,8 +42,8 @@ ETA_MIN = 1e-6
 
 
 @dataclass(frozen=True)
-class REPSConfig:
-    """Hyperparameters of `REPS`."""
+class REPSConfig(EpisodicSearchConfig):
+    """Hyperparameters of `REPS`; the feedback and exploration fields are `EpisodicSearchConfig`'s."""
 
     n_episodes: int = 40
     """Episodes sampled per update, ``N`` (>= 2); the batched env runs this many at once."""
@@ -76,6 +76,7 @@ class REPSConfig:
             raise ValueError(f"min_std must be > 0, got {self.min_std}")
         if self.covariance not in ("diag", "full"):
             raise ValueError(f"covariance must be 'diag' or 'full', got {self.covariance!r}")
+        self.check_search()
 
 
 def reps_weights(returns: np.ndarray, epsilon: float) -> tuple[np.ndarray, float, float]:
@@ -167,7 +168,8 @@ class REPS(AbstractEpisodicSearch):
         feedforward = self.policy.sample_feedforward(self.config.n_episodes, self.rng)
         batch = rollout(self.env, feedforward, self.policy.feedback, seed=seed)
         weights, eta, kl = reps_weights(batch.robustness, self.config.epsilon)
-        self.policy.update(feedforward, weights)
+        floor = self.config.std_floor(iteration)
+        refit = self._refit(batch, feedforward, weights, floor)
         return {
             "env_steps": batch.env_steps,
             "mean_robustness": batch.mean_robustness,
@@ -175,4 +177,6 @@ class REPS(AbstractEpisodicSearch):
             "eta": eta,
             "kl": kl,
             "policy_std": float(self.policy.std.mean()),
+            "std_floor": floor,
+            **refit,
         }

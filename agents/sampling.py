@@ -4,7 +4,8 @@
 `VectorEnv`) into a `VectorEnv`, preferring the env's own batched simulator
 (its ``vector_entry_point``, one numpy call per step for all cars) over
 `SyncVectorEnv`. `rollout` runs ``N`` episodes of horizon ``T`` with a linear
-controller ``a_t = K_t s_t + k_t^i`` and returns what every agent needs: the
+controller ``a_t = K_t s_t + k_t^i`` (or any feedback term ``f(t, s_t) + k_t^i``,
+such as the policy's ``K_t (s_t ⊖ s̄_t)``) and returns what every agent needs: the
 actions, the observations, the formula's signal traces ``(N, T+1)``, the exact
 robustness and success flags read from the reward wrapper's terminal ``info``.
 The Python loop runs over time steps only; all envs of a step move in one call.
@@ -13,7 +14,7 @@ The Python loop runs over time steps only; all envs of a step move in one call.
 from __future__ import annotations
 
 import copy
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -110,10 +111,13 @@ class Rollouts:
         return float(np.mean(self.robustness > 0))
 
 
+Feedback = np.ndarray | Callable[[int, np.ndarray], np.ndarray] | None
+
+
 def rollout(
     venv: gym.vector.VectorEnv,
     feedforward: np.ndarray,
-    gains: np.ndarray | None = None,
+    gains: Feedback = None,
     seed: int | None = None,
 ) -> Rollouts:
     """Run one episode per row of ``feedforward`` with actions ``a_t = K_t s_t + k_t^i``.
@@ -126,7 +130,8 @@ def rollout(
         venv: a vector env whose episodes end within ``T`` steps, wrapped so that the terminal
             ``info`` holds ``robustness`` and ``trace`` (`tl_gym.TLTLRewardWrapper`).
         feedforward: per-episode action sequences ``k_t^i``, shape ``(N, T, act_dim)``.
-        gains: feedback gains ``K_t``, shape ``(T, act_dim, obs_dim)``; none for open loop.
+        gains: feedback gains ``K_t``, shape ``(T, act_dim, obs_dim)``, or a function
+            ``(t, obs (n, obs_dim)) -> (n, act_dim)`` added to ``k_t^i``; none for open loop.
         seed: reset seed of episode 0.
 
     Raises:
@@ -153,9 +158,7 @@ def rollout(
     )
 
 
-def _rollout_chunk(
-    venv: gym.vector.VectorEnv, feedforward: np.ndarray, gains: np.ndarray | None, seed: int | None
-) -> Rollouts:
+def _rollout_chunk(venv: gym.vector.VectorEnv, feedforward: np.ndarray, gains: Feedback, seed: int | None) -> Rollouts:
     """Run at most ``num_envs`` episodes at once (the rows past ``n`` are padding)."""
     n, horizon, act_dim = feedforward.shape
     n_envs = venv.num_envs
@@ -174,7 +177,9 @@ def _rollout_chunk(
     traces: dict[str, np.ndarray] = {}
     for t in range(horizon):
         action = ff[:, t]
-        if gains is not None:
+        if callable(gains):
+            action = action + gains(t, obs)
+        elif gains is not None:
             action = action + np.einsum("nij,nj->ni", np.broadcast_to(gains[t], (n_envs, *gains.shape[1:])), obs)
         action = np.clip(action, low, high)
         actions[:, t] = action

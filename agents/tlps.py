@@ -36,7 +36,7 @@ import numpy as np
 from scipy.stats import spearmanr
 
 from .base import build_config, check_episodic
-from .episodic import AbstractEpisodicSearch
+from .episodic import AbstractEpisodicSearch, EpisodicSearchConfig
 from .policy import DEFAULT_INIT_STD, DEFAULT_MIN_STD
 from .sampling import rollout
 from .trust_region import check_trust_region, improve_trajectories
@@ -46,8 +46,13 @@ SMOOTHING_FORMS = ("nested", "linear")
 
 
 @dataclass(frozen=True)
-class TLPSConfig:
-    """Hyperparameters of `TLPS`; the defaults and the measurements behind them are in ``docs/tlps.md``."""
+class TLPSConfig(EpisodicSearchConfig):
+    """Hyperparameters of `TLPS`; the defaults and the measurements behind them are in ``docs/tlps.md``.
+
+    The feedback and exploration fields (``feedback``, ``feedback_features``, ``feedback_angles``,
+    ``feedback_ridge``, ``feedback_window``, ``exploration_floor``, ``exploration_halflife``) are
+    `EpisodicSearchConfig`'s, shared with REPS.
+    """
 
     n_episodes: int = 40
     """Episodes per update, ``N`` (>= 2; the paper's 40); the batched env runs this many at once."""
@@ -86,12 +91,6 @@ class TLPSConfig:
     """Initial feed-forward action ``k_t`` (every component, every step)."""
     min_std: float = DEFAULT_MIN_STD
     """Permanent floor on the policy's standard deviation (> 0)."""
-    exploration_floor: float = 0.0
-    """Exploration schedule: the std floor at iteration ``m`` is
-    ``max(min_std, exploration_floor · 0.5^(m / exploration_halflife))``; 0 (the default) turns it
-    off, 0.1 is the feasibility study's schedule."""
-    exploration_halflife: float = 10.0
-    """Iterations over which the exploration floor halves (> 0)."""
     covariance: str = "diag"
     """``"diag"`` or ``"full"`` covariance ``C_t`` per time step."""
     gains: Any = None
@@ -119,17 +118,11 @@ class TLPSConfig:
         _positive("regularization", self.regularization)
         _positive("init_std", self.init_std)
         _positive("min_std", self.min_std)
-        _positive("exploration_halflife", self.exploration_halflife)
-        if not (isinstance(self.exploration_floor, (int, float)) and 0 <= self.exploration_floor < math.inf):
-            raise ValueError(f"exploration_floor must be a finite number >= 0, got {self.exploration_floor!r}")
         if self.covariance not in ("diag", "full"):
             raise ValueError(f"covariance must be 'diag' or 'full', got {self.covariance!r}")
         if self.threads is not None and (not isinstance(self.threads, int) or self.threads < 1):
             raise ValueError(f"threads must be a positive int or None, got {self.threads!r}")
-
-    def std_floor(self, iteration: int) -> float:
-        """The policy's standard-deviation floor after update ``iteration`` (exploration schedule)."""
-        return max(self.min_std, self.exploration_floor * 0.5 ** (iteration / self.exploration_halflife))
+        self.check_search()
 
 
 def _positive(name: str, value: Any) -> None:
@@ -189,7 +182,7 @@ class TLPS(AbstractEpisodicSearch):
         weights = softmax_weights(logits, alpha)
 
         floor = cfg.std_floor(iteration)  # exploration schedule (paper, section VI: covariance damping)
-        self.policy.update(feedforward, weights, min_std=floor)  # l.14-17: k_t', C_t' by weighted ML
+        refit = self._refit(batch, feedforward, weights, floor)  # l.14-17: k_t', C_t' (and K_t) by weighted ML
         # l.18: the buffer is cleared: nothing is carried to the next update.
 
         # TRY NOT TO MODIFY: diagnostics for the history
@@ -208,4 +201,5 @@ class TLPS(AbstractEpisodicSearch):
             "std_floor": floor,
             "time_sampling": sampled_at - start,
             "time_trust_region": solved_at - sampled_at,
+            **refit,
         }

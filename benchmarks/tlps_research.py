@@ -17,10 +17,19 @@ Writes, under ``docs/results/tlps_research/`` (or ``--out``):
 
 Runs are spread over ``--workers`` processes (one torch thread each).
 
+Variants whose name starts with ``spread_`` run on the wide start spread of issue 16
+(``env_kwargs={"start_std": (15, 15, 0.3)}``: half a goal's width and 17°) instead of the
+paper's (1.5, 1.5, 0.01). Every variant that does not set ``feedback`` runs open loop
+(``feedback="open"``, the paper's policy and the default before issue 16), so the names
+measured before the fitted feedback keep their meaning.
+
 Usage::
 
     python -m benchmarks.tlps_research --tasks 1 2 --variants default reps --seeds 0 1 2
     python -m benchmarks.tlps_research --solver-check --timing
+    python -m benchmarks.tlps_research --out docs/results/tlps_research/feedback --workers 1 \
+        --iterations 50 --tasks 1 2 --seeds 0 1 2 3 4 \
+        --variants spread_open spread_fitted spread_reps spread_reps_fitted
 """
 
 from __future__ import annotations
@@ -71,7 +80,24 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "reps": ("REPS", {"epsilon": 2.0}),
     "reps_3": ("REPS", {"epsilon": 3.0}),
     "reps_floor": ("REPS", {"epsilon": 2.0}),  # REPS with a 0.1 exploration floor (see _floor_callback)
+    # issue 16: fitted time-varying feedback K_t (s_t ⊖ s̄_t), paper start and wide start spread
+    "fitted": ("TLPS", {"feedback": "fitted"}),
+    "reps_fitted": ("REPS", {"epsilon": 2.0, "feedback": "fitted"}),
+    "spread_open": ("TLPS", {}),
+    "spread_fitted": ("TLPS", {"feedback": "fitted"}),
+    "spread_reps": ("REPS", {"epsilon": 2.0}),
+    "spread_reps_fitted": ("REPS", {"epsilon": 2.0, "feedback": "fitted"}),
+    # ablations of the fitted feedback (on the spread)
+    "spread_fitted_xy": ("TLPS", {"feedback": "fitted", "feedback_features": [0, 1]}),
+    "spread_fitted_all": ("TLPS", {"feedback": "fitted", "feedback_features": "all"}),
+    "spread_fitted_no_floor": ("TLPS", {"feedback": "fitted", "exploration_floor": 0.0}),
+    "spread_fitted_no_pool": ("TLPS", {"feedback": "fitted", "feedback_window": 0}),
+    "spread_fitted_ridge_0.1": ("TLPS", {"feedback": "fitted", "feedback_ridge": 0.1}),
+    "spread_open_floor": ("TLPS", {"exploration_floor": 0.1}),
 }
+
+#: The wide start spread of issue 16, for the ``spread_`` variants.
+SPREAD = {"start_std": (15.0, 15.0, 0.3)}
 
 
 def _make_agent(variant: str, task: int, seed: int) -> Any:
@@ -79,7 +105,8 @@ def _make_agent(variant: str, task: int, seed: int) -> Any:
 
     kind, hyperparameters = VARIANTS[variant]
     cls = TLPS if kind == "TLPS" else REPS
-    return cls("TLCarNav-v0", seed=seed, env_kwargs={"task": task}, **hyperparameters)
+    env_kwargs = {"task": task, **(SPREAD if variant.startswith("spread_") else {})}
+    return cls("TLCarNav-v0", seed=seed, env_kwargs=env_kwargs, **{"feedback": "open", **hyperparameters})
 
 
 def _floor_callback(agent: Any, row: dict[str, Any]) -> bool:
