@@ -214,6 +214,7 @@ def make_car_env(
     clip: float = DEFAULT_CLIP,
     observe_monitor: bool = False,
     monitor_scale: float = CAR_MONITOR_SCALE,
+    gamma: float = 1.0,
     **car_kwargs: Any,
 ) -> TLTLRewardWrapper:
     """The entry point of TLCarNav-v0: a `CarNavEnv` wrapped in `TLTLRewardWrapper` with its task's formula.
@@ -229,7 +230,8 @@ def make_car_env(
         observe_monitor: append the task monitor's state to the observation (the Markov view,
             `TLTLRewardWrapper`): 6 + 6 features for task 1, 6 + 45 for task 2.
         monitor_scale: divisor of the monitor's robustness values and positions; 100 units,
-            a third of the arena, keeps them of order one.
+            a third of the arena, keeps them of order one (and the unit of the potential).
+        gamma: the discount of ``reward_mode="potential"`` (`TLTLRewardWrapper`).
         **car_kwargs: `CarNavEnv` arguments (``horizon``, ``dt``, layout overrides, ``render_mode`` …).
     """
     car = CarNavEnv(task=task, **car_kwargs)
@@ -241,6 +243,7 @@ def make_car_env(
     return TLTLRewardWrapper(
         car, formula, signals={"x": 0, "y": 1}, reward=reward, beta=beta, reward_mode=reward_mode,
         rho_max=rho_max, clip=clip, observe_monitor=observe_monitor, monitor_scale=monitor_scale,
+        gamma=gamma,
     )
 
 

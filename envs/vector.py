@@ -22,6 +22,7 @@ from tl_gym.envs.dynamics import CarParams, car_step, sample_episode_noise
 from tl_gym.envs.tasks import Layout, make_layout, task_formula
 
 from tl_gym.monitor_view import MonitorView, augment_space
+from tl_gym.shaping import HierarchicalPotential
 from tl_gym.tltl.online import PrefixMonitor
 from tl_gym.wrapper import DEFAULT_CLIP, MONITOR_KEY, REWARD_MODES, REWARDS, check_positive
 
@@ -71,6 +72,7 @@ class CarNavVectorEnv(VectorEnv):
         clip: float = DEFAULT_CLIP,
         observe_monitor: bool = False,
         monitor_scale: float = CAR_MONITOR_SCALE,
+        gamma: float = 1.0,
         horizon: int = 200,
         dt: float = 0.5,
         wheelbase: float = 15.0,
@@ -91,8 +93,10 @@ class CarNavVectorEnv(VectorEnv):
             raise ValueError(f"reward must be one of {REWARDS}, got {reward!r}")
         if reward_mode not in REWARD_MODES:
             raise ValueError(f"reward_mode must be one of {REWARD_MODES}, got {reward_mode!r}")
-        if reward_mode == "dense" and reward == "smooth":
-            raise ValueError("reward_mode='dense' pays exact robustness increments; use reward='exact'")
+        if reward_mode != "terminal" and reward == "smooth":
+            raise ValueError(f"reward_mode={reward_mode!r} pays exact robustness increments; use reward='exact'")
+        if isinstance(gamma, bool) or not (isinstance(gamma, (int, float)) and 0 < gamma <= 1):
+            raise ValueError(f"gamma must lie in (0, 1], got {gamma!r}")
         if not isinstance(observe_monitor, bool):
             raise TypeError(f"observe_monitor must be True or False, got {observe_monitor!r}")
         check_positive("beta", beta, allow_inf=False)
@@ -119,7 +123,13 @@ class CarNavVectorEnv(VectorEnv):
         self.single_observation_space = observation_space(self.params, self.layout)
         # one monitor per car, for dense rewards and the Markov view
         self._views: list[MonitorView] = []
-        if reward_mode == "dense" or observe_monitor:
+        self.gamma = float(gamma)
+        self._potentials = (
+            [HierarchicalPotential(self.formula, self.rho_max, monitor_scale) for _ in range(self.num_envs)]
+            if reward_mode == "potential" else []
+        )
+        self._phi = np.zeros(self.num_envs)
+        if reward_mode != "terminal" or observe_monitor:
             bounds = dict(zip(("x", "y"), zip(self.single_observation_space.low[:2],
                                                self.single_observation_space.high[:2])))
             self._views = [
@@ -179,7 +189,19 @@ class CarNavVectorEnv(VectorEnv):
         if not self._views:
             return self._state.copy()
         t = self._t
-        features = [view.observe({"x": x, "y": y}, t) for view, (x, y) in zip(self._views, self._state[:, :2].tolist())]
+        states = [{"x": x, "y": y} for x, y in self._state[:, :2].tolist()]
+        features = [view.observe(state, t) for view, state in zip(self._views, states)]
+        if self._potentials:  # γ Φ(s') − Φ(s) of the step that led here, with Φ = 0 after the last state
+            if t == 0:
+                for potential in self._potentials:
+                    potential.reset()
+                self._phi = np.array([p.update(s) for p, s in zip(self._potentials, states)])
+                self._shaping = np.zeros(self.num_envs)
+            else:
+                phi = np.zeros(self.num_envs)
+                if t < self.params.horizon:
+                    phi = np.array([p.update(s) for p, s in zip(self._potentials, states)])
+                self._shaping, self._phi = self.gamma * phi - self._phi, phi
         if not self.observe_monitor:
             return self._state.copy()
         return np.concatenate([self._state, np.array(features)], axis=1)
@@ -208,11 +230,15 @@ class CarNavVectorEnv(VectorEnv):
         if t >= p.horizon:
             self._autoreset = True
             rewards = self._score(infos) - self._paid
+            if self._potentials:
+                rewards = rewards + self._shaping
             return obs, rewards, done, ~done, infos
-        if self.reward_mode == "dense":
+        if self.reward_mode != "terminal":
             value = np.array([view.value for view in self._views])
             rewards = np.clip(value, -self.clip, self.clip) - self._paid
             self._paid += rewards
+        if self._potentials:
+            rewards = rewards + self._shaping
         return obs, rewards, done, done.copy(), infos
 
     def _score(self, infos: dict[str, Any]) -> np.ndarray:

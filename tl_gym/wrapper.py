@@ -14,6 +14,7 @@ from gymnasium import spaces
 
 from tl_gym.errors import TraceError, UnknownSignalError
 from tl_gym.monitor_view import MonitorView, augment, augment_space, split
+from tl_gym.shaping import HierarchicalPotential
 from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.online import PrefixMonitor
 from tl_gym.tltl.parser import parse
@@ -22,7 +23,7 @@ SignalSource = Union[int, str, tuple, Callable[..., Any]]
 SignalMap = Union[Mapping[str, SignalSource], Callable[..., Mapping[str, Any]]]
 
 REWARDS = ("exact", "smooth")
-REWARD_MODES = ("terminal", "dense")
+REWARD_MODES = ("terminal", "dense", "potential")
 DEFAULT_CLIP = 1e4
 #: The key of the monitor features in a Dict observation (``observe_monitor=True``).
 MONITOR_KEY = "monitor"
@@ -89,6 +90,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         observe_monitor: bool = False,
         monitor_scale: float = 1.0,
         horizon: int | None = None,
+        gamma: float = 1.0,
     ):
         """Check every argument, then wrap ``env``.
 
@@ -99,8 +101,10 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             reward: ``"exact"`` robustness or ``"smooth"`` (log-sum-exp with ``beta``).
             beta: smoothing sharpness, > 0; used with ``reward="smooth"``.
             rho_max: the robustness of ``true`` (and minus that of ``X φ`` at the last state).
-            reward_mode: ``"terminal"`` (one reward at the end) or ``"dense"`` (increments of
-                the prefix robustness; exact robustness only).
+            reward_mode: ``"terminal"`` (one reward at the end), ``"dense"`` (increments of
+                the prefix robustness; exact robustness only) or ``"potential"`` (the dense
+                increments plus ``γ Φ(s') − Φ(s)`` of the hierarchical potential of
+                `tl_gym.shaping`, Φ = 0 after the last state; use it with ``observe_monitor``).
             env_reward_weight: weight of the wrapped env's own reward, added every step.
             clip: the temporal-logic part of every reward lies in ``[-clip, clip]``. The
                 default 1e4 leaves every finite robustness of TLCarNav-v0 untouched (its
@@ -114,6 +118,8 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             horizon: the episode length ``T`` for the monitor's ``t / T`` feature; None reads it
                 from the env (``spec.max_episode_steps``, else a ``horizon`` attribute) and leaves
                 the feature out when neither exists.
+            gamma: the discount γ of ``reward_mode="potential"`` (in (0, 1]); the agent's own
+                discount keeps its optimal policies those of the unshaped reward.
 
         Raises:
             SpecError: ``spec`` does not parse.
@@ -125,8 +131,10 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             raise ValueError(f"reward must be one of {REWARDS}, got {reward!r}")
         if reward_mode not in REWARD_MODES:
             raise ValueError(f"reward_mode must be one of {REWARD_MODES}, got {reward_mode!r}")
-        if reward_mode == "dense" and reward == "smooth":
-            raise ValueError("reward_mode='dense' pays exact robustness increments; use reward='exact'")
+        if reward_mode != "terminal" and reward == "smooth":
+            raise ValueError(f"reward_mode={reward_mode!r} pays exact robustness increments; use reward='exact'")
+        if isinstance(gamma, bool) or not (isinstance(gamma, numbers.Real) and 0 < gamma <= 1):
+            raise ValueError(f"gamma must lie in (0, 1], got {gamma!r}")
         check_positive("beta", beta, allow_inf=False)
         check_positive("rho_max", rho_max, allow_inf=True)
         check_positive("clip", clip, allow_inf=False)
@@ -147,7 +155,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         gym.utils.RecordConstructorArgs.__init__(
             self, spec=str(formula), signals=signals, reward=reward, beta=beta, rho_max=rho_max,
             reward_mode=reward_mode, env_reward_weight=env_reward_weight, clip=clip,
-            observe_monitor=observe_monitor, monitor_scale=monitor_scale, horizon=horizon,
+            observe_monitor=observe_monitor, monitor_scale=monitor_scale, horizon=horizon, gamma=gamma,
         )
         gym.Wrapper.__init__(self, env)
         if view is not None:
@@ -165,8 +173,12 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if view is not None:
             self._monitor: PrefixMonitor | None = view.monitor
         else:
-            self._monitor = PrefixMonitor(formula, self.rho_max) if reward_mode == "dense" else None
-        self._rows: list[list[float]] = []
+            self._monitor = PrefixMonitor(formula, self.rho_max) if reward_mode != "terminal" else None
+        self.gamma = float(gamma)
+        self._potential = (
+            HierarchicalPotential(formula, self.rho_max, monitor_scale) if reward_mode == "potential" else None
+        )
+        self._phi = 0.0  # Φ of the last state        self._rows: list[list[float]] = []
         self._paid = 0.0
         self._done = True
 
@@ -177,6 +189,9 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._rows = [row]
         self._paid = 0.0
         self._done = False
+        if self._potential is not None:
+            self._potential.reset()
+            self._phi = self._potential.update(dict(zip(self._reader.names, row)))
         if self.monitor_view is not None:
             features = self.monitor_view.observe(dict(zip(self._reader.names, row)), 0)
             return augment(obs, features, MONITOR_KEY), info
@@ -200,11 +215,15 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if terminated or truncated:
             self._done = True
             reward = self._terminal_reward(info)
-        elif self.reward_mode == "dense":
+        elif self.reward_mode != "terminal":
             if value is None:
                 value = self._monitor.update(dict(zip(self._reader.names, row)))  # type: ignore[union-attr]
             reward = self._clipped(value) - self._paid
             self._paid += reward
+        if self._potential is not None:  # γ Φ(s') − Φ(s), with Φ = 0 after the last state
+            phi = 0.0 if self._done else self._potential.update(dict(zip(self._reader.names, row)))
+            reward += self.gamma * phi - self._phi
+            self._phi = phi
         if self.env_reward_weight:
             reward += self.env_reward_weight * float(env_reward)
         return obs, reward, terminated, truncated, info

@@ -1,0 +1,173 @@
+"""Hierarchical potential-based shaping from a TLTL formula (``reward_mode="potential"``).
+
+The dense prefix increments of `tl_gym.TLTLRewardWrapper` follow the minimum over the
+formula's conjuncts: while the worst conjunct does not move, progress on the others pays
+nothing (task 2 of the car: driving to the first goal does not change the margin of the
+third). Following Berducci et al., "Hierarchical potential-based reward shaping from task
+specifications" (HPRS, 2021), `HierarchicalPotential` scores the top-level conjuncts by
+kind and orders them:
+
+* **safety** (``G``, "never again", Boolean and bounded-lookahead conjuncts): 1 while the
+  conjunct's prefix robustness is > 0, else 0 (once broken, a ``G`` stays broken);
+* **targets**: ``F φ`` scores 1 once satisfied, else ``exp(φ(s_t) / scale)`` (closeness of the
+  current state, 1 at the boundary); a chain ``φ1 T … T φm`` scores ``(k + closeness of
+  φ_{k+1}(s_t)) / m`` after its first ``k`` operands were met in order; ``φ U ψ`` scores like
+  ``F ψ`` while φ has held, 0 once φ failed before ψ.
+
+``Φ = scale · (Σ safety + Π safety · mean target)``: targets count only while every safety
+conjunct holds, as in HPRS. The wrapper pays ``γ Φ(s_{t+1}) − Φ(s_t)`` on top of the dense
+increments, with ``Φ = 0`` after the last state, so an episode's rewards add up to
+``clip(ρ) − Φ(s_0)`` for ``γ = 1``: the terminal robustness shifted by a constant of the start
+state, which changes no optimal policy (Ng, Harada and Russell, 1999). Φ is a function of the
+monitor's state and of the current signals, so it is Markov in the ``observe_monitor`` view
+when the signals are read from the observation.
+
+Example:
+    >>> from tl_gym import parse
+    >>> phi = HierarchicalPotential(parse("F(x > 2) & G(x < 5)"), scale=1.0)
+    >>> round(phi.update({"x": 0.0}), 4)  # safe (1) + exp(-2) of the way to the target
+    1.1353
+    >>> phi.update({"x": 3.0}), phi.update({"x": 6.0})  # target met; then the safety broken
+    (2.0, 0.0)
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+
+from tl_gym.tltl.ast import And, Eventually, Formula, Then, Until
+from tl_gym.tltl.online import PrefixMonitor, compile_state_formula
+
+State = Mapping[str, float]
+
+
+def _closeness(value: float, scale: float) -> float:
+    """How near a state is to meeting a predicate of robustness ``value``: 1 at or past the boundary."""
+    return 1.0 if value >= 0 else math.exp(value / scale)
+
+
+class _Safety:
+    """1 while the conjunct's prefix robustness is > 0."""
+
+    def __init__(self, formula: Formula, rho_max: float):
+        self.monitor = PrefixMonitor(formula, rho_max)
+
+    def reset(self) -> None:
+        self.monitor.reset()
+
+    def update(self, s: State) -> float:
+        return 1.0 if self.monitor.update(s) > 0 else 0.0
+
+
+class _Chain:
+    """``φ1 T … T φm`` (``m = 1``: ``F φ1``): completed stages plus the closeness of the next one."""
+
+    def __init__(self, operands: list[Formula], rho_max: float, scale: float):
+        stages: list[Formula] = []
+        for k in range(1, len(operands) + 1):
+            chain = operands[k - 1]
+            for operand in reversed(operands[: k - 1]):
+                chain = Then(operand, chain)
+            stages.append(Eventually(chain) if k == 1 else chain)
+        self.monitors = [PrefixMonitor(f, rho_max) for f in stages]
+        self.operands: list[Callable[[State], float]] = [compile_state_formula(f, rho_max) for f in operands]
+        self.scale = scale
+
+    def reset(self) -> None:
+        for monitor in self.monitors:
+            monitor.reset()
+
+    def update(self, s: State) -> float:
+        done = 0  # leading stages met (a longer chain is only met after the shorter ones)
+        for k, monitor in enumerate(self.monitors):
+            if monitor.update(s) > 0 and done == k:
+                done += 1
+        if done == len(self.operands):
+            return 1.0
+        return (done + _closeness(self.operands[done](s), self.scale)) / len(self.operands)
+
+
+class _Until:
+    """``φ U ψ``: 1 once met, the closeness of ψ while φ has held so far, 0 once φ failed first."""
+
+    def __init__(self, formula: Until, rho_max: float, scale: float):
+        self.monitor = PrefixMonitor(formula, rho_max)
+        self.left = compile_state_formula(formula.left, rho_max)
+        self.right = compile_state_formula(formula.right, rho_max)
+        self.scale = scale
+        self.reset()
+
+    def reset(self) -> None:
+        self.monitor.reset()
+        self.held = math.inf  # min of φ over the states before this one
+
+    def update(self, s: State) -> float:
+        if self.monitor.update(s) > 0:
+            score = 1.0
+        else:
+            score = _closeness(self.right(s), self.scale) if self.held > 0 else 0.0
+        self.held = min(self.held, self.left(s))
+        return score
+
+
+def _chain_operands(formula: Formula) -> list[Formula] | None:
+    """``[φ1, …, φm]`` of ``φ1 T (… T φm)`` or ``[φ]`` of ``F φ`` with temporal-free operands, else None."""
+    if isinstance(formula, Eventually):
+        return None if formula.child.is_temporal else [formula.child]
+    operands: list[Formula] = []
+    node = formula
+    while isinstance(node, Then):
+        operands.append(node.left)
+        node = node.right
+    operands.append(node)
+    return None if len(operands) < 2 or any(f.is_temporal for f in operands) else operands
+
+
+class HierarchicalPotential:
+    """The HPRS-style potential Φ of a formula's prefix and current state (see the module docstring).
+
+    Args:
+        formula: the task formula; its top-level conjuncts are scored by kind.
+        rho_max: the robustness of ``true``.
+        scale: the robustness units of "close" for targets, and the unit of Φ (> 0).
+
+    Attributes:
+        safety: the conjuncts scored as safety requirements (their text).
+        targets: the conjuncts scored as targets.
+    """
+
+    def __init__(self, formula: Formula, rho_max: float = math.inf, scale: float = 1.0):
+        if not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
+            raise ValueError(f"scale must be finite and > 0, got {scale!r}")
+        conjuncts = list(formula.operands) if isinstance(formula, And) else [formula]
+        self.scale = float(scale)
+        self._safety: list[_Safety] = []
+        self._targets: list[_Chain | _Until] = []
+        self.safety: list[str] = []
+        self.targets: list[str] = []
+        for conjunct in conjuncts:
+            operands = _chain_operands(conjunct)
+            if operands is not None:
+                self._targets.append(_Chain(operands, rho_max, self.scale))
+                self.targets.append(str(conjunct))
+            elif isinstance(conjunct, Until) and not (conjunct.left.is_temporal or conjunct.right.is_temporal):
+                self._targets.append(_Until(conjunct, rho_max, self.scale))
+                self.targets.append(str(conjunct))
+            else:  # G, "never again", state and bounded-lookahead conjuncts, anything else: hold it
+                self._safety.append(_Safety(conjunct, rho_max))
+                self.safety.append(str(conjunct))
+
+    def reset(self) -> None:
+        """Forget the trace; the next `update` is s_0."""
+        for part in (*self._safety, *self._targets):
+            part.reset()
+
+    def update(self, state: State) -> float:
+        """Append one state; return Φ of the prefix so far."""
+        safe = [part.update(state) for part in self._safety]
+        reached = [part.update(state) for part in self._targets]
+        value = sum(safe)
+        if reached and all(safe):
+            value += sum(reached) / len(reached)
+        return self.scale * value
