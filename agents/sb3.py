@@ -1,4 +1,4 @@
-"""stable-baselines3 algorithms behind the tl_gym agent interface.
+"""stable-baselines3 algorithms behind the tl_gym agent interface, set up as rl-baselines3-zoo does.
 
 `SB3Agent("PPO", "TLCarNav-v0")` trains any stable-baselines3 (or sb3-contrib)
 algorithm on a TLTL-rewarded env and reports on the same axes as TLPS and REPS:
@@ -7,37 +7,93 @@ default, a TLPS iteration's budget), and each history row holds the mean exact
 robustness and success rate of the episodes that ended during the iteration,
 read from the reward wrapper's terminal ``info``.
 
-Saving embeds stable-baselines3's own zip as the member ``sb3_model.zip``.
-stable-baselines3 unpickles parts of that file when loading, so **load only files
-you trust**. A loaded agent acts and evaluates exactly as the saved one; it can
-continue learning, but not bit-identically to an uninterrupted run (SB3 does not
-save its random state, nor, for off-policy algorithms, its replay buffer).
+A fair baseline uses SB3's own tools the way the zoo does, so by default:
+
+- **VecNormalize** wraps the training envs (observations always, rewards when the
+  task's hyperparameters say so); `predict`, and so `evaluate`, normalise raw
+  observations with its statistics without updating them, and the statistics are
+  saved and loaded with the agent.
+- **The Markov view and a shaped reward** (``tl_reward="markov"``): the env keywords
+  of `TL_REWARD_ENV_KWARGS` append the online monitor's state to the observation and
+  pay a dense reward, because the terminal robustness alone is not a Markov reward of
+  the raw observation. ``tl_reward="terminal"`` is the plain terminal reward, for the ablation.
+- **Per-task hyperparameters** from one YAML file in the zoo's format
+  (``agents/hyperparams/sb3.yml``, see `load_hyperparams`); explicit keyword arguments win.
+
+Saving embeds stable-baselines3's own zip as the member ``sb3_model.zip`` and the
+pickled `VecNormalize` as ``vecnormalize.pkl`` (the zoo's file; ``VecNormalize.load``
+reads it). stable-baselines3 unpickles parts of the first, and the second is a pickle,
+so **load only files you trust**. A loaded agent acts and evaluates exactly as the
+saved one; it can continue learning, but not bit-identically to an uninterrupted run
+(SB3 does not save its random state, nor, for off-policy algorithms, its replay buffer).
 """
 
 from __future__ import annotations
 
+import ast
 import contextlib
 import copy
 import dataclasses
+import functools
 import importlib
+import inspect
 import io
-from collections.abc import Iterator
+import math
+import pickle
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
-from .base import Agent, build_config
+from tl_gym.errors import IncompatibleSaveError
+
+from .base import Agent, _describe_env_source, build_config
+from .sampling import env_attribute
 from .serialization import is_jsonable
 
 #: Env steps of one TLPS iteration with the paper's settings (N = 40 episodes × T = 200).
 DEFAULT_STEPS_PER_ITERATION = 40 * 200
 
+#: Parallel training envs when neither the user nor the task's hyperparameters say.
+DEFAULT_N_ENVS = 8
+
 #: Archive member holding stable-baselines3's own model file.
 SB3_MEMBER = "sb3_model.zip"
 
+#: Archive member holding the pickled `VecNormalize` (observation and return statistics).
+VECNORMALIZE_MEMBER = "vecnormalize.pkl"
+
+#: Env keywords each ``tl_reward`` adds to an env id's ``env_kwargs`` (the user's own win).
+#: ``"markov"`` appends the online monitor's state to the observation and pays the shaped
+#: reward; ``"terminal"`` is the plain terminal robustness on the raw observation. Change
+#: the shaping here, in one place, once measurements pick the best one.
+TL_REWARD_ENV_KWARGS: dict[str, dict[str, Any]] = {
+    "markov": {"observe_monitor": True, "reward_mode": "dense"},
+    "terminal": {"observe_monitor": False, "reward_mode": "terminal"},
+}
+
+#: ``tl_reward`` of an agent built on an env id when the user does not choose.
+DEFAULT_TL_REWARD = "markov"
+
+#: VecNormalize settings when neither the user nor the task's hyperparameters say: the
+#: observations only (reward normalisation is a per-task choice, as in the zoo).
+DEFAULT_NORMALIZE: dict[str, Any] = {"norm_obs": True, "norm_reward": False}
+
+#: The packaged per-task hyperparameters (the zoo's ``hyperparams/<algo>.yml``, all algorithms in one file).
+HYPERPARAMS_FILE = Path(__file__).with_name("hyperparams") / "sb3.yml"
+
+#: Keys of a hyperparameter entry that are not the algorithm's constructor arguments.
+ENTRY_KEYS = ("n_envs", "policy", "n_timesteps", "normalize", "noise_type", "noise_std")
+
+#: Exploration noise of off-policy algorithms, by the zoo's ``noise_type`` names.
+NOISE_TYPES = ("normal", "ornstein-uhlenbeck")
+
 _ALGO_MODULES = ("stable_baselines3", "sb3_contrib")
+# constructor arguments that SB3Agent sets itself
+_RESERVED_ALGO_ARGS = ("self", "policy", "env", "seed", "verbose", "device", "_init_setup_model")
 
 
 def resolve_algorithm(algo: Any) -> type:
@@ -69,6 +125,121 @@ def resolve_algorithm(algo: Any) -> type:
         raise ValueError(f"unknown algorithm {algo!r}; available: {available}") from None
 
 
+# Checked settings ---------------------------------------------------------------------------------
+def check_tl_reward(value: Any) -> str:
+    """Return ``value`` if it is a key of `TL_REWARD_ENV_KWARGS`.
+
+    Raises:
+        ValueError: naming the field and the allowed values.
+    """
+    if not isinstance(value, str) or value not in TL_REWARD_ENV_KWARGS:
+        raise ValueError(f"tl_reward must be one of {sorted(TL_REWARD_ENV_KWARGS)}, got {value!r}")
+    return value
+
+
+def parse_normalize(value: Any) -> dict[str, Any] | None:
+    """VecNormalize keyword arguments from a zoo-style ``normalize`` value; ``None`` means off.
+
+    ``True`` is VecNormalize's defaults (observations and rewards, as ``normalize: true`` in
+    the zoo), ``False`` is off, and a dict or its text (``"{'norm_obs': True, 'norm_reward':
+    False}"``, read with `ast.literal_eval`, never `eval`) gives the keywords.
+
+    Example:
+        >>> parse_normalize("{'norm_obs': True, 'norm_reward': False}")
+        {'norm_obs': True, 'norm_reward': False}
+        >>> parse_normalize(True), parse_normalize(False)
+        ({}, None)
+
+    Raises:
+        ValueError: a keyword VecNormalize does not take, or text that is not a literal dict.
+    """
+    if isinstance(value, str):
+        try:
+            value = ast.literal_eval(value.strip())
+        except (ValueError, SyntaxError):
+            raise ValueError(f"normalize must be true, false or a dict of VecNormalize keywords, got {value!r}") \
+                from None
+    if value is None or value is False:
+        return None
+    if value is True:
+        return {}
+    if not isinstance(value, Mapping):
+        raise ValueError(f"normalize must be true, false or a dict of VecNormalize keywords, got {value!r}")
+    allowed = _vecnormalize_keywords()
+    unknown = sorted(set(value) - set(allowed))
+    if unknown:
+        raise ValueError(f"normalize has keyword(s) {unknown} that VecNormalize does not take; valid ones: {allowed}")
+    return dict(value)
+
+
+@functools.lru_cache(maxsize=1)
+def _vecnormalize_keywords() -> list[str]:
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    return [n for n in inspect.signature(VecNormalize.__init__).parameters if n not in ("self", "venv", "training")]
+
+
+def parse_policy_kwargs(value: Any) -> dict[str, Any] | None:
+    """``policy_kwargs`` as a JSON-able dict, activations named by string.
+
+    Takes a dict (activation as a `torch.nn` class or its name) or the zoo's text,
+    ``"dict(net_arch=[64, 64], activation_fn=nn.Tanh)"``, read safely: only ``dict(...)``
+    calls, ``{...}`` literals, plain literals and ``nn.<Activation>`` names are accepted.
+
+    Example:
+        >>> parse_policy_kwargs("dict(log_std_init=-2, net_arch=dict(pi=[64], vf=[64]), activation_fn=nn.ReLU)")
+        {'log_std_init': -2, 'net_arch': {'pi': [64], 'vf': [64]}, 'activation_fn': 'ReLU'}
+
+    Raises:
+        ValueError: text that is not such an expression, or an unknown activation.
+    """
+    if value is None:
+        return None
+    if isinstance(value, str):
+        try:
+            tree = ast.parse(value.strip(), mode="eval").body
+        except SyntaxError:
+            raise ValueError(f"policy_kwargs text does not parse: {value!r}") from None
+        value = _policy_kwargs_node(tree, value)
+    if not isinstance(value, Mapping):
+        raise ValueError(f"policy_kwargs must be a dict or its text, got {value!r}")
+    out = dict(value)
+    if "activation_fn" in out:
+        out["activation_fn"] = _activation(out["activation_fn"]).__name__
+    return out
+
+
+def _policy_kwargs_node(node: ast.AST, text: str) -> Any:
+    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "dict" and not node.args:
+        return {kw.arg: _policy_kwargs_node(kw.value, text) for kw in node.keywords}
+    if isinstance(node, ast.Dict):
+        return {ast.literal_eval(k): _policy_kwargs_node(v, text) for k, v in zip(node.keys, node.values)}
+    if isinstance(node, (ast.List, ast.Tuple)):
+        return [_policy_kwargs_node(e, text) for e in node.elts]
+    if isinstance(node, ast.Attribute):  # nn.Tanh, th.nn.Tanh, torch.nn.Tanh
+        return node.attr
+    try:
+        return ast.literal_eval(node)
+    except ValueError:
+        raise ValueError(f"policy_kwargs {text!r}: cannot read {ast.unparse(node)!r} (only literals, dict(...) "
+                         "and nn.<Activation> are allowed)") from None
+
+
+def _activation(value: Any) -> type:
+    """A `torch.nn` activation class from the class or its case-insensitive name (``"tanh"``, ``"nn.ReLU"``)."""
+    import torch.nn.modules.activation as activations
+
+    known = {name.lower(): cls for name, cls in vars(activations).items()
+             if isinstance(cls, type) and issubclass(cls, activations.Module)
+             and cls.__module__ == activations.__name__}
+    if isinstance(value, type) and value in known.values():
+        return value
+    name = value.rsplit(".", 1)[-1].lower() if isinstance(value, str) else None
+    if name not in known:
+        raise ValueError(f"unknown activation_fn {value!r}; use a torch.nn activation name, e.g. 'Tanh' or 'ReLU'")
+    return known[name]
+
+
 @dataclass(frozen=True)
 class SB3Config:
     """Hyperparameters of `SB3Agent` (the algorithm's own go in ``algo_kwargs``)."""
@@ -77,10 +248,22 @@ class SB3Config:
     """Algorithm class name, e.g. ``"PPO"``."""
     steps_per_iteration: int = DEFAULT_STEPS_PER_ITERATION
     """Env steps per iteration; on-policy algorithms get ``n_steps = steps_per_iteration // n_envs`` by default."""
-    n_envs: int = 8
+    n_envs: int = DEFAULT_N_ENVS
     """Parallel envs of SB3's ``DummyVecEnv``."""
     policy: str | None = None
     """SB3 policy name; ``None`` picks ``"MultiInputPolicy"`` for Dict observations, else ``"MlpPolicy"``."""
+    tl_reward: str = DEFAULT_TL_REWARD
+    """``"markov"`` (monitor view + shaped reward) or ``"terminal"`` (the ablation); see `TL_REWARD_ENV_KWARGS`."""
+    normalize: bool | dict[str, Any] = field(default_factory=lambda: dict(DEFAULT_NORMALIZE))
+    """VecNormalize: ``False`` (off), ``True`` (its defaults) or its keywords (see `parse_normalize`)."""
+    hyperparams: bool | str = True
+    """Per-task hyperparameters: ``True`` the packaged file, ``False`` none, or the path of a file."""
+    n_timesteps: int | None = None
+    """The env-step budget the task's hyperparameters were set for (``tl-gym train`` uses it by default)."""
+    noise_type: str | None = None
+    """Off-policy exploration noise: ``None``, ``"normal"`` or ``"ornstein-uhlenbeck"`` (std ``noise_std``)."""
+    noise_std: float = 0.1
+    """Standard deviation of ``noise_type`` noise, in action units."""
     algo_kwargs: dict[str, Any] = field(default_factory=dict)
     """Keyword arguments for the algorithm's constructor (``learning_rate``, ``n_steps``, ...)."""
 
@@ -89,21 +272,181 @@ class SB3Config:
             raise ValueError(f"steps_per_iteration must be an int >= 1, got {self.steps_per_iteration!r}")
         if not isinstance(self.n_envs, (int, np.integer)) or self.n_envs < 1:
             raise ValueError(f"n_envs must be an int >= 1, got {self.n_envs!r}")
+        check_tl_reward(self.tl_reward)
+        if not (isinstance(self.normalize, bool) or isinstance(self.normalize, Mapping)):
+            raise ValueError(f"normalize must be a bool or a dict of VecNormalize keywords, got {self.normalize!r}")
+        parse_normalize(self.normalize)
+        if not isinstance(self.hyperparams, (bool, str)):
+            raise ValueError(f"hyperparams must be true, false or a file path, got {self.hyperparams!r}")
+        if self.n_timesteps is not None and (not isinstance(self.n_timesteps, (int, np.integer))
+                                             or self.n_timesteps < 1):
+            raise ValueError(f"n_timesteps must be an int >= 1 or None, got {self.n_timesteps!r}")
+        if self.noise_type is not None and self.noise_type not in NOISE_TYPES:
+            raise ValueError(f"noise_type must be None or one of {NOISE_TYPES}, got {self.noise_type!r}")
+        if not (isinstance(self.noise_std, (int, float)) and self.noise_std >= 0):
+            raise ValueError(f"noise_std must be a number >= 0, got {self.noise_std!r}")
 
 
+# The hyperparameter file --------------------------------------------------------------------------
+def load_hyperparams(path: str | Path | None = None) -> dict[str, dict[str, dict[str, Any]]]:
+    """Read and check a per-task hyperparameter file (by default the packaged ``sb3.yml``).
+
+    The file maps an env key to algorithm names to settings, like rl-baselines3-zoo's
+    ``hyperparams/<algo>.yml`` with the algorithm as a second level::
+
+        TLCarNav-v0:task=2:          # env id, then optional env keywords it applies to
+          ppo:
+            n_envs: 8                # tl_gym / zoo keys: n_envs, policy, n_timesteps, normalize,
+            n_timesteps: 1.5e6       #   noise_type, noise_std
+            normalize: "{'norm_obs': True, 'norm_reward': False}"
+            gamma: 0.999             # everything else: the algorithm's constructor arguments
+            policy_kwargs: "dict(net_arch=[64, 64], activation_fn=nn.Tanh)"
+
+    Values come back checked and in canonical form: ``n_timesteps`` an int, ``normalize``
+    a dict or ``None`` (`parse_normalize`), ``policy_kwargs`` a dict (`parse_policy_kwargs`),
+    ``train_freq`` lists as tuples.
+
+    Raises:
+        ValueError: naming the entry and the culprit: an unknown algorithm, a key that is neither
+            in `ENTRY_KEYS` nor an argument of the algorithm, or a bad value.
+    """
+    import yaml
+
+    path = HYPERPARAMS_FILE if path is None else Path(path)
+    table = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(table, Mapping):
+        raise ValueError(f"{path}: expected a mapping of env keys to algorithms")
+    checked: dict[str, dict[str, dict[str, Any]]] = {}
+    for env_key, algos in table.items():
+        _split_env_key(str(env_key))
+        if not isinstance(algos, Mapping):
+            raise ValueError(f"{path}: {env_key}: expected a mapping of algorithm names to settings")
+        checked[str(env_key)] = {}
+        for algo_name, settings in algos.items():
+            where = f"{path}: {env_key} / {algo_name}"
+            try:
+                algo_class = resolve_algorithm(str(algo_name))
+            except ValueError as error:
+                raise ValueError(f"{where}: {error}") from None
+            if not isinstance(settings, Mapping):
+                raise ValueError(f"{where}: expected a mapping of settings")
+            checked[str(env_key)][str(algo_name).lower()] = _check_entry(dict(settings), algo_class, where)
+    return checked
+
+
+def _check_entry(settings: dict[str, Any], algo_class: type, where: str) -> dict[str, Any]:
+    allowed = set(ENTRY_KEYS) | (set(inspect.signature(algo_class.__init__).parameters) - set(_RESERVED_ALGO_ARGS))
+    for key in settings:
+        if key not in allowed:
+            raise ValueError(f"{where}: unknown key {key!r}: neither one of {list(ENTRY_KEYS)} nor an argument of "
+                             f"{algo_class.__name__}")
+    try:
+        return _canonical(settings)
+    except ValueError as error:
+        raise ValueError(f"{where}: {error}") from None
+
+
+def _canonical(settings: Mapping[str, Any]) -> dict[str, Any]:
+    """Settings in the form the config holds (JSON-able where the value allows)."""
+    out = dict(settings)
+    for key, value in out.items():
+        if isinstance(value, str) and value.startswith("lin_"):
+            raise ValueError(f"{key}={value!r}: the zoo's 'lin_' schedules are not supported; give a number")
+    if "n_timesteps" in out:
+        value = float(out["n_timesteps"])
+        if not math.isfinite(value) or value < 1 or value != int(value):
+            raise ValueError(f"n_timesteps must be a whole number >= 1, got {out['n_timesteps']!r}")
+        out["n_timesteps"] = int(value)
+    if "normalize" in out and not isinstance(out["normalize"], bool):
+        normalize = parse_normalize(out["normalize"])
+        out["normalize"] = False if normalize is None else normalize
+    if "policy_kwargs" in out:
+        out["policy_kwargs"] = parse_policy_kwargs(out["policy_kwargs"])
+    if isinstance(out.get("train_freq"), list):
+        out["train_freq"] = tuple(out["train_freq"])
+    return out
+
+
+def _split_env_key(key: str) -> tuple[str, dict[str, Any]]:
+    """``"TLCarNav-v0:task=2"`` -> ``("TLCarNav-v0", {"task": 2})`` (values read as YAML scalars)."""
+    import yaml
+
+    env_id, _, conditions = key.partition(":")
+    wanted: dict[str, Any] = {}
+    for item in filter(None, (c.strip() for c in conditions.split(","))):
+        name, sep, value = item.partition("=")
+        if not sep or not name.strip():
+            raise ValueError(f"bad env key {key!r}: expected ID or ID:name=value,...")
+        wanted[name.strip()] = yaml.safe_load(value)
+    return env_id.strip(), wanted
+
+
+def find_hyperparams(table: Mapping[str, Mapping[str, Mapping[str, Any]]], env_id: str | None,
+                     env_kwargs: Mapping[str, Any], algo: str) -> dict[str, Any]:
+    """The settings for ``algo`` on ``env_id`` with ``env_kwargs``; ``{}`` when the table has none.
+
+    Among the keys naming ``env_id`` whose every ``name=value`` condition holds in
+    ``env_kwargs`` and that list ``algo``, the one with the most conditions wins
+    (``TLCarNav-v0:task=2`` over ``TLCarNav-v0``).
+
+    Example:
+        >>> table = {"Car": {"ppo": {"gamma": 0.99}}, "Car:task=2": {"ppo": {"gamma": 0.999}}}
+        >>> find_hyperparams(table, "Car", {"task": 2}, "PPO"), find_hyperparams(table, "Car", {}, "ppo")
+        ({'gamma': 0.999}, {'gamma': 0.99})
+    """
+    best: tuple[int, dict[str, Any]] = (-1, {})
+    for key, algos in table.items():
+        key_id, wanted = _split_env_key(key)
+        if key_id != env_id or algo.lower() not in algos:
+            continue
+        if all(k in env_kwargs and env_kwargs[k] == v for k, v in wanted.items()) and len(wanted) > best[0]:
+            best = (len(wanted), dict(algos[algo.lower()]))
+    return best[1]
+
+
+def merge_hyperparameters(entry: Mapping[str, Any], explicit: Mapping[str, Any], on_policy: bool) -> dict[str, Any]:
+    """The task's settings overridden by the user's, name by name.
+
+    One exception keeps an iteration at the size the user asked for: when the user sets
+    ``steps_per_iteration`` or ``n_envs`` but not ``n_steps``, an on-policy entry's ``n_steps``
+    is dropped (``n_steps`` then follows ``steps_per_iteration // n_envs``).
+
+    Example:
+        >>> merge_hyperparameters({"n_envs": 8, "n_steps": 1000, "gamma": 0.999}, {"n_envs": 2}, on_policy=True)
+        {'n_envs': 2, 'gamma': 0.999}
+    """
+    merged = {**entry, **explicit}
+    if on_policy and "n_steps" not in explicit and {"steps_per_iteration", "n_envs"} & set(explicit):
+        merged.pop("n_steps", None)
+    return merged
+
+
+# The agent ------------------------------------------------------------------------------------------
 class SB3Agent(Agent):
     """A stable-baselines3 algorithm trained on a TLTL-rewarded env, reported like TLPS.
 
     Args:
         algo: an SB3 / sb3-contrib algorithm class or its name (``"PPO"``, ``"sac"``, ...).
         env: env id, `Env` or `VectorEnv` (see `Agent`); SB3 trains on a ``DummyVecEnv`` of
-            ``n_envs`` single envs rebuilt from it, evaluation runs on the batched env.
+            ``n_envs`` single envs rebuilt from it (wrapped in ``VecNormalize``), evaluation runs
+            on a vector env of the same single envs.
         seed: seeds SB3 (torch, numpy, the envs).
-        env_kwargs: env constructor keywords for an env id.
-        steps_per_iteration, n_envs, policy: see `SB3Config`.
-        **algo_kwargs: passed to the algorithm's constructor.
+        env_kwargs: env constructor keywords for an env id; they win over the ones ``tl_reward`` adds.
+        steps_per_iteration, n_envs, policy, normalize, n_timesteps, noise_type, noise_std: see
+            `SB3Config`; ``None`` takes the task's value from the hyperparameter file, else the default.
+        tl_reward: ``"markov"`` or ``"terminal"``. With an env id it adds the env keywords of
+            `TL_REWARD_ENV_KWARGS` (default ``"markov"``). An `Env` or `VectorEnv` object cannot be
+            rebuilt with other keywords: ``None`` reads what it does, and an explicit value it
+            visibly contradicts (its ``observe_monitor`` / ``reward_mode``) is an error.
+        hyperparams: ``True`` (the packaged ``sb3.yml``), ``False`` (none: SB3's defaults) or a file path.
+        **algo_kwargs: the algorithm's constructor arguments; each one given wins over the file's.
 
     History rows add ``episodes`` (episodes that ended in the iteration).
+
+    Raises:
+        ValueError: a bad setting (naming it), an iteration more than 5% off ``steps_per_iteration``,
+            or a ``tl_reward`` the env object contradicts.
+        TypeError: an env id that does not take the keywords ``tl_reward`` adds.
 
     Example:
         >>> resolve_algorithm("ppo").__name__  # what SB3Agent("ppo", "TLCarNav-v0") trains
@@ -112,14 +455,45 @@ class SB3Agent(Agent):
 
     config: SB3Config
 
-    def __init__(self, algo: Any, env: Any, *, seed: int | None = None, env_kwargs: dict[str, Any] | None = None,
-                 steps_per_iteration: int = DEFAULT_STEPS_PER_ITERATION, n_envs: int = 8,
-                 policy: str | None = None, **algo_kwargs: Any):
+    def __init__(self, algo: Any, env: Any, *, seed: int | None = None, env_kwargs: Mapping[str, Any] | None = None,
+                 steps_per_iteration: int | None = None, n_envs: int | None = None, policy: str | None = None,
+                 tl_reward: str | None = None, normalize: Any = None, hyperparams: bool | str = True,
+                 n_timesteps: int | None = None, noise_type: str | None = None, noise_std: float | None = None,
+                 **algo_kwargs: Any):
+        from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
+
         self.algo_class = resolve_algorithm(algo)
+        on_policy = issubclass(self.algo_class, OnPolicyAlgorithm)
+        if tl_reward is not None:
+            check_tl_reward(tl_reward)
+        if isinstance(env, str):
+            tl_reward = tl_reward or DEFAULT_TL_REWARD
+            env_kwargs = {**TL_REWARD_ENV_KWARGS[tl_reward], **dict(env_kwargs or {})}
+        else:
+            tl_reward = _tl_reward_of(env, tl_reward)
+        explicit = {k: v for k, v in dict(
+            steps_per_iteration=steps_per_iteration, n_envs=n_envs, policy=policy, normalize=normalize,
+            n_timesteps=n_timesteps, noise_type=noise_type, noise_std=noise_std).items() if v is not None}
+        explicit = _canonical({**explicit, **algo_kwargs})
+        entry = {}
+        if hyperparams is not False:
+            table = load_hyperparams(None if hyperparams is True else hyperparams)
+            entry = find_hyperparams(table, *_env_key(env, env_kwargs), self.algo_class.__name__)
+        settings = merge_hyperparameters(entry, explicit, on_policy)
+        fields = {f.name for f in dataclasses.fields(SB3Config)} - {"algo_kwargs"}
+        hyperparameters = {k: v for k, v in settings.items() if k in fields}
+        hyperparameters.update(algo=self.algo_class.__name__, tl_reward=tl_reward, hyperparams=hyperparams,
+                               algo_kwargs={k: v for k, v in settings.items() if k not in fields})
+        config = self._make_config(hyperparameters)  # checked before any env is built
         self._env_argument = env
-        super().__init__(env, seed=seed, env_kwargs=env_kwargs, algo=self.algo_class.__name__,
-                         steps_per_iteration=steps_per_iteration, n_envs=n_envs, policy=policy,
-                         algo_kwargs=algo_kwargs)
+        self._train_env_kwargs = dict(env_kwargs or {})  # read by _setup, which runs inside Agent.__init__
+        if isinstance(env, str):
+            venv = _make_sync_vec(env, config.n_envs, self._train_env_kwargs, TL_REWARD_ENV_KWARGS[tl_reward])
+            super().__init__(venv, seed=seed, **hyperparameters)
+            self.env_kwargs = dict(self._train_env_kwargs)
+            self._env_source = _describe_env_source(env, self.env_kwargs)
+        else:
+            super().__init__(env, seed=seed, env_kwargs=env_kwargs, **hyperparameters)
 
     @classmethod
     def _make_config(cls, hyperparameters: dict[str, Any]) -> SB3Config:
@@ -128,9 +502,14 @@ class SB3Agent(Agent):
     def _num_envs(self) -> int:
         return self.config.n_envs
 
+    @property
+    def n_timesteps(self) -> int | None:
+        """The env-step budget of the task's hyperparameters (``None`` when they state none)."""
+        return self.config.n_timesteps
+
     def _setup(self) -> None:
         from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
-        from stable_baselines3.common.vec_env import DummyVecEnv
+        from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
         kwargs = dict(self.config.algo_kwargs)
         on_policy = issubclass(self.algo_class, OnPolicyAlgorithm)
@@ -145,13 +524,27 @@ class SB3Agent(Agent):
                 f"one iteration would take {actual} env steps, more than 5% off steps_per_iteration="
                 f"{self.config.steps_per_iteration}; choose n_envs (and n_steps) that divide it"
             )
-        factories = _single_env_factories(self._env_argument, self.env_kwargs, self.config.n_envs)
+        if kwargs.get("policy_kwargs") and "activation_fn" in kwargs["policy_kwargs"]:
+            kwargs["policy_kwargs"] = {**kwargs["policy_kwargs"],
+                                       "activation_fn": _activation(kwargs["policy_kwargs"]["activation_fn"])}
+        if self.config.noise_type is not None and "action_noise" not in kwargs:
+            kwargs["action_noise"] = _action_noise(self.config.noise_type, self.config.noise_std, self.action_space)
+        factories = _single_env_factories(self._env_argument, self._train_env_kwargs, self.config.n_envs)
         self.sb3_env = DummyVecEnv(factories)
+        normalize = parse_normalize(self.config.normalize)
+        self.vec_normalize: VecNormalize | None = None
+        if normalize is not None:
+            normalize.setdefault("gamma", kwargs.get("gamma", _default_argument(self.algo_class, "gamma", 0.99)))
+            self.vec_normalize = VecNormalize(self.sb3_env, **normalize)
         policy = self.config.policy or (
             "MultiInputPolicy" if isinstance(self.observation_space, gym.spaces.Dict) else "MlpPolicy"
         )
-        self.model = self.algo_class(policy, self.sb3_env, seed=self.seed, verbose=0, device="cpu", **kwargs)
+        self.model = self.algo_class(policy, self._training_env(), seed=self.seed, verbose=0, device="cpu", **kwargs)
         self._quiet_logger()
+
+    def _training_env(self) -> Any:
+        """The VecEnv SB3 steps: the VecNormalize wrapper when there is one."""
+        return self.vec_normalize if self.vec_normalize is not None else self.sb3_env
 
     def _quiet_logger(self) -> None:
         """Give the model a logger that writes nothing, unless the user asked for tensorboard logs.
@@ -181,13 +574,16 @@ class SB3Agent(Agent):
     def predict(
         self, obs: Any, state: Any = None, episode_start: Any = None, deterministic: bool = True
     ) -> tuple[np.ndarray, Any]:
+        """Actions for raw env observations: normalised with the VecNormalize statistics (not updated)."""
+        if self.vec_normalize is not None:
+            obs = self.vec_normalize.normalize_obs(obs)
         with one_torch_thread():
             return self.model.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
 
     def _config(self) -> dict[str, Any]:
         config = dataclasses.asdict(self.config)
         algo_kwargs = config.pop("algo_kwargs")
-        # kwargs that JSON cannot hold (classes in policy_kwargs...) live on in SB3's own file
+        # kwargs that JSON cannot hold (classes, action noise...) live on in SB3's own file
         config.update({k: v for k, v in algo_kwargs.items() if is_jsonable(v)})
         return config
 
@@ -197,14 +593,30 @@ class SB3Agent(Agent):
     def _extra_files(self) -> dict[str, bytes]:
         buffer = io.BytesIO()
         self.model.save(buffer)
-        return {SB3_MEMBER: buffer.getvalue()}
+        files = {SB3_MEMBER: buffer.getvalue()}
+        if self.vec_normalize is not None:
+            # what VecNormalize.save writes: the object without its venv
+            files[VECNORMALIZE_MEMBER] = pickle.dumps(self.vec_normalize)
+        return files
 
     def _load_state(self, arrays: dict[str, np.ndarray], files: dict[str, bytes]) -> None:
-        if SB3_MEMBER not in files:
-            from tl_gym.errors import IncompatibleSaveError
+        from stable_baselines3.common.vec_env import VecNormalize
 
+        if SB3_MEMBER not in files:
             raise IncompatibleSaveError(f"the file holds no {SB3_MEMBER} member")
-        self.model = self.algo_class.load(io.BytesIO(files[SB3_MEMBER]), env=self.sb3_env, device="cpu")
+        if (self.vec_normalize is not None) != (VECNORMALIZE_MEMBER in files):
+            raise IncompatibleSaveError(
+                f"the file {'lacks' if self.vec_normalize is not None else 'has'} a {VECNORMALIZE_MEMBER} member "
+                f"but the agent's normalize={self.config.normalize!r}"
+            )
+        if self.vec_normalize is not None:
+            loaded = pickle.loads(files[VECNORMALIZE_MEMBER])  # documented: load only files you trust
+            if not isinstance(loaded, VecNormalize):
+                raise IncompatibleSaveError(
+                    f"{VECNORMALIZE_MEMBER} holds a {type(loaded).__name__}, not a VecNormalize")
+            loaded.set_venv(self.sb3_env)
+            self.vec_normalize = loaded
+        self.model = self.algo_class.load(io.BytesIO(files[SB3_MEMBER]), env=self._training_env(), device="cpu")
         self._quiet_logger()
 
 
@@ -245,6 +657,71 @@ def _make_collector() -> Any:
             return True
 
     return RobustnessCollector()
+
+
+def _default_argument(algo_class: type, name: str, fallback: Any) -> Any:
+    parameter = inspect.signature(algo_class.__init__).parameters.get(name)
+    return fallback if parameter is None or parameter.default is inspect.Parameter.empty else parameter.default
+
+
+def _action_noise(noise_type: str, std: float, space: gym.Space) -> Any:
+    """The zoo's ``noise_type`` / ``noise_std`` as an SB3 action noise object."""
+    from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
+
+    shape = space.shape or (1,)
+    mean, sigma = np.zeros(shape), np.full(shape, float(std))
+    return NormalActionNoise(mean, sigma) if noise_type == "normal" else OrnsteinUhlenbeckActionNoise(mean, sigma)
+
+
+def _env_key(env: Any, env_kwargs: Mapping[str, Any] | None) -> tuple[str | None, dict[str, Any]]:
+    """The env id and keywords the hyperparameter file is looked up with."""
+    if isinstance(env, str):
+        return env, dict(env_kwargs or {})
+    spec = getattr(env, "spec", None)
+    if spec is None:
+        return None, {}
+    return spec.id, {k: v for k, v in spec.kwargs.items()
+                     if k not in ("num_envs", "vectorization_mode", "vector_kwargs", "wrappers")}
+
+
+def _env_setting(env: Any, name: str) -> Any:
+    """The env object's attribute ``name`` (through its wrappers or sub-envs); ``None`` when absent."""
+    if isinstance(env, gym.vector.VectorEnv):
+        return env_attribute(env, name)
+    try:
+        return env.get_wrapper_attr(name)
+    except AttributeError:
+        return None
+
+
+def _tl_reward_of(env: Any, asked: str | None) -> str:
+    """The ``tl_reward`` an env object implements: checked against ``asked``, else read from it.
+
+    The object cannot be rebuilt with other keywords, so an explicit choice that one of its
+    readable settings contradicts is an error; a setting it does not expose is not checked.
+    """
+    if asked is not None:
+        has = {k: _env_setting(env, k) for k in TL_REWARD_ENV_KWARGS[asked]}
+        wrong = {k: (v, has[k]) for k, v in TL_REWARD_ENV_KWARGS[asked].items() if has[k] is not None and has[k] != v}
+        if wrong:
+            detail = ", ".join(f"{k}={want!r} (the env has {got!r})" for k, (want, got) in wrong.items())
+            raise ValueError(f"tl_reward={asked!r} needs the env keywords {detail}; an env object cannot be rebuilt "
+                             f"by the agent: make it with those keywords, or pass the env id instead")
+        return asked
+    markov = TL_REWARD_ENV_KWARGS["markov"]
+    return "markov" if all(_env_setting(env, k) == v for k, v in markov.items()) else "terminal"
+
+
+def _make_sync_vec(env_id: str, n_envs: int, env_kwargs: Mapping[str, Any],
+                   added: Mapping[str, Any]) -> gym.vector.VectorEnv:
+    """The evaluation env: ``n_envs`` of the very single envs SB3 trains on, so the observation layout matches."""
+    try:
+        return gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="sync", **env_kwargs)
+    except TypeError as error:
+        if not added:
+            raise
+        raise TypeError(f"{env_id} does not take the env keywords {dict(added)} that tl_reward adds ({error}); "
+                        "pass tl_reward='terminal', or env_kwargs that set them") from error
 
 
 def _single_env_factories(env: Any, env_kwargs: dict[str, Any], n_envs: int) -> list[Any]:

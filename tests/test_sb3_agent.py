@@ -3,12 +3,28 @@
 from __future__ import annotations
 
 import tempfile
+import zipfile
 
+import gymnasium as gym
 import numpy as np
 import pytest
+import torch
 from stable_baselines3 import PPO, SAC
+from stable_baselines3.common.noise import NormalActionNoise
+from stable_baselines3.common.vec_env import VecNormalize
 from tl_gym.agents import Agent, SB3Agent
-from tl_gym.agents.sb3 import resolve_algorithm
+from tl_gym.agents.sb3 import (
+    TL_REWARD_ENV_KWARGS,
+    VECNORMALIZE_MEMBER,
+    find_hyperparams,
+    load_hyperparams,
+    one_torch_thread,
+    parse_normalize,
+    resolve_algorithm,
+)
+
+#: A budget small enough for fast tests (PPO: one rollout of 2 envs x 32 steps).
+TINY = {"steps_per_iteration": 64, "n_envs": 2, "batch_size": 32, "n_epochs": 1}
 
 
 def test_default_iteration_is_a_tlps_iteration():
@@ -17,12 +33,12 @@ def test_default_iteration_is_a_tlps_iteration():
 
 
 def test_ppo_learns_reports_saves_and_loads(tmp_path):
-    agent = SB3Agent("ppo", "TLCarNav-v0", seed=0, env_kwargs={"task": 1}, steps_per_iteration=800, n_envs=4,
-                     batch_size=200, n_epochs=1)
+    agent = SB3Agent("ppo", "TLCarNav-v0", seed=0, env_kwargs={"task": 1}, steps_per_iteration=400, n_envs=2,
+                     batch_size=100, n_epochs=1)
     agent.learn(2)
-    assert [row["env_steps"] for row in agent.history] == [800, 1600]
+    assert [row["env_steps"] for row in agent.history] == [400, 800]
     for row in agent.history:
-        assert row["episodes"] == 4  # 800 steps of 200-step episodes
+        assert row["episodes"] == 2  # 400 steps of 200-step episodes
         assert np.isfinite(row["mean_robustness"]) and 0.0 <= row["success_rate"] <= 1.0
 
     path = agent.save(tmp_path / "ppo.zip")
@@ -32,25 +48,24 @@ def test_ppo_learns_reports_saves_and_loads(tmp_path):
     np.testing.assert_array_equal(loaded.predict(obs)[0], agent.predict(obs)[0])
     assert loaded.evaluate(4, seed=3)["robustness"].tolist() == agent.evaluate(4, seed=3)["robustness"].tolist()
     loaded.learn(1)
-    assert loaded.history[-1]["iteration"] == 3 and loaded.history[-1]["env_steps"] == 2400
+    assert loaded.history[-1]["iteration"] == 3 and loaded.history[-1]["env_steps"] == 1200
 
 
 def test_learning_leaves_no_sb3_log_folders(tmp_path, monkeypatch):
     """SB3's default logger makes an empty SB3-<time> folder in the temp directory per learn() call."""
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     monkeypatch.delenv("SB3_LOGDIR", raising=False)
-    agent = SB3Agent("ppo", "TLCarNav-v0", seed=0, steps_per_iteration=400, n_envs=2, batch_size=100, n_epochs=1)
+    agent = SB3Agent("ppo", "TLCarNav-v0", seed=0, **TINY)
     agent.learn(2)
     Agent.load(agent.save(tmp_path / "a.zip")).learn(1)
     assert not list(tmp_path.glob("SB3-*"))
-    logged = SB3Agent("ppo", "TLCarNav-v0", seed=0, steps_per_iteration=400, n_envs=2, batch_size=100, n_epochs=1,
-                      tensorboard_log=str(tmp_path / "tb"))
+    logged = SB3Agent("ppo", "TLCarNav-v0", seed=0, tensorboard_log=str(tmp_path / "tb"), **TINY)
     assert logged.model.tensorboard_log == str(tmp_path / "tb") and not logged.model._custom_logger
 
 
 def test_off_policy_algorithm_by_class():
-    agent = SB3Agent(SAC, "TLCarNav-v0", seed=0, steps_per_iteration=200, n_envs=1, learning_starts=100,
-                     batch_size=32)
+    agent = SB3Agent(SAC, "TLCarNav-v0", seed=0, steps_per_iteration=200, n_envs=1, learning_starts=150,
+                     batch_size=32, policy_kwargs={"net_arch": [32, 32]})
     agent.learn(1)
     assert agent.history[0]["env_steps"] == 200 and agent.history[0]["episodes"] == 1
 
@@ -63,3 +78,166 @@ def test_algorithm_names_and_budget_checks():
         SB3Agent("PPO", "TLCarNav-v0", n_envs=8, n_steps=3000)
     with pytest.raises(ValueError, match="n_envs"):
         SB3Agent("PPO", "TLCarNav-v0", n_envs=0)
+
+
+# Fair baselines: VecNormalize, the Markov view, per-task hyperparameters -------------------------------------
+
+
+def test_markov_view_is_the_default_and_terminal_the_ablation():
+    markov = SB3Agent("ppo", "TLCarNav-v0", seed=0, **TINY)
+    assert markov.config.tl_reward == "markov"
+    assert markov.env_kwargs == TL_REWARD_ENV_KWARGS["markov"] == {"observe_monitor": True, "reward_mode": "dense"}
+    assert markov.observation_space.shape[0] > 6  # the car's 6 numbers, then the monitor's state
+    # evaluation runs on the very envs the model trained on: same observation layout
+    assert markov.env.single_observation_space == markov.model.observation_space == markov.sb3_env.observation_space
+    assert markov.env.get_attr("reward_mode") == ("dense", "dense")
+
+    ablation = SB3Agent("ppo", "TLCarNav-v0", seed=0, tl_reward="terminal", **TINY)
+    assert ablation.env_kwargs == {"observe_monitor": False, "reward_mode": "terminal"}
+    assert ablation.observation_space.shape == (6,) and ablation.model.observation_space.shape == (6,)
+
+    mixed = SB3Agent("ppo", "TLCarNav-v0", seed=0, env_kwargs={"reward_mode": "terminal", "task": 2}, **TINY)
+    assert mixed.env_kwargs == {"observe_monitor": True, "reward_mode": "terminal", "task": 2}  # the user's win
+
+
+def test_unknown_tl_reward_is_refused_at_construction():
+    with pytest.raises(ValueError, match=r"tl_reward must be one of \['markov', 'terminal'\], got 'dense'"):
+        SB3Agent("ppo", "TLCarNav-v0", tl_reward="dense")
+
+
+def test_an_env_object_is_taken_as_it_is():
+    plain = gym.make("TLCarNav-v0")
+    with pytest.raises(ValueError, match=r"tl_reward='markov' needs the env keywords observe_monitor=True"):
+        SB3Agent("ppo", plain, tl_reward="markov", **TINY)
+    assert SB3Agent("ppo", plain, **TINY).config.tl_reward == "terminal"
+    viewed = gym.make("TLCarNav-v0", observe_monitor=True, reward_mode="dense")
+    agent = SB3Agent("ppo", viewed, **TINY)
+    assert agent.config.tl_reward == "markov"
+    assert agent.env.single_observation_space == agent.model.observation_space == viewed.observation_space
+
+
+def _stats(agent):
+    vec = agent.vec_normalize
+    return [vec.obs_rms.mean.copy(), vec.obs_rms.var.copy(), vec.obs_rms.count, vec.ret_rms.mean.copy(),
+            vec.ret_rms.var.copy(), vec.ret_rms.count]
+
+
+def test_vecnormalize_is_applied_saved_and_loaded(tmp_path):
+    agent = SB3Agent("ppo", "TLCarNav-v0", seed=0, **TINY)
+    assert agent.config.normalize is True and agent.vec_normalize.norm_reward  # the car's entry: normalize: true
+    assert agent.vec_normalize.gamma == agent.model.gamma == 0.999  # returns discounted as the algorithm does
+    assert agent.model.get_env() is agent.vec_normalize and agent.vec_normalize.venv is agent.sb3_env
+    agent.learn(1)
+    stats = _stats(agent)
+    assert stats[2] > 1 and np.all(stats[1] != 1.0)  # it did learn statistics
+
+    rng = np.random.default_rng(0)
+    obs = np.stack([agent.observation_space.sample() for _ in range(5)]) * rng.uniform(0.5, 2.0, (5, 1))
+    normalised = agent.vec_normalize.normalize_obs(obs)
+    with one_torch_thread():  # as predict runs it, so that the float sums match bit for bit
+        expected = agent.model.predict(normalised, deterministic=True)[0]
+        raw = agent.model.predict(obs, deterministic=True)[0]
+    np.testing.assert_array_equal(agent.predict(obs)[0], expected)
+    assert not np.allclose(raw, expected)  # the normalisation matters
+
+    result = agent.evaluate(2, seed=1)
+    after = _stats(agent)
+    for a, b in zip(stats, after):
+        np.testing.assert_array_equal(a, b)  # evaluation does not update the running statistics
+
+    path = agent.save(tmp_path / "ppo.zip")
+    with zipfile.ZipFile(path) as archive:
+        raw = archive.read(VECNORMALIZE_MEMBER)
+    (tmp_path / "vecnormalize.pkl").write_bytes(raw)  # SB3's own loader reads the member
+    sb3_loaded = VecNormalize.load(str(tmp_path / "vecnormalize.pkl"), agent.sb3_env)
+    np.testing.assert_array_equal(sb3_loaded.obs_rms.mean, stats[0])
+
+    loaded = Agent.load(path)
+    for a, b in zip(stats, _stats(loaded)):
+        np.testing.assert_array_equal(a, b)
+    assert loaded.model.get_env() is loaded.vec_normalize and loaded.vec_normalize.venv is loaded.sb3_env
+    np.testing.assert_array_equal(loaded.predict(obs)[0], agent.predict(obs)[0])
+    assert loaded.evaluate(2, seed=1)["robustness"].tolist() == result["robustness"].tolist()
+    loaded.learn(1)
+    assert loaded.vec_normalize.obs_rms.count > stats[2]  # training goes on updating them
+
+
+def test_normalize_off_and_on_observations_only(tmp_path):
+    off = SB3Agent("ppo", "TLCarNav-v0", seed=0, normalize=False, **TINY)
+    assert off.vec_normalize is None and off.model.get_env() is off.sb3_env
+    with zipfile.ZipFile(off.save(tmp_path / "off.zip")) as archive:
+        assert VECNORMALIZE_MEMBER not in archive.namelist()
+    assert Agent.load(tmp_path / "off.zip").vec_normalize is None
+    obs_only = SB3Agent("ppo", "TLCarNav-v0", seed=0, normalize="{'norm_obs': True, 'norm_reward': False}", **TINY)
+    assert obs_only.vec_normalize.norm_obs and not obs_only.vec_normalize.norm_reward
+    with pytest.raises(ValueError, match="norm_everything"):
+        SB3Agent("ppo", "TLCarNav-v0", normalize={"norm_everything": True}, **TINY)
+
+
+def test_off_policy_entry_with_action_noise_saves_and_loads(tmp_path):
+    agent = SB3Agent("td3", "TLCarNav-v0", seed=0, steps_per_iteration=64, n_envs=2, learning_starts=32,
+                     batch_size=16, buffer_size=1000)
+    assert isinstance(agent.model.action_noise, NormalActionNoise)  # the entry's noise_type: normal
+    assert agent.config.noise_type == "normal" and agent.model.policy.net_arch == [400, 300]
+    agent.learn(1)
+    loaded = Agent.load(agent.save(tmp_path / "td3.zip"))
+    obs = np.stack([agent.observation_space.sample() for _ in range(3)])
+    np.testing.assert_array_equal(loaded.predict(obs)[0], agent.predict(obs)[0])
+
+
+def test_the_task_entry_is_read_and_explicit_kwargs_win(tmp_path):
+    task2 = SB3Agent("ppo", "TLCarNav-v0", env_kwargs={"task": 2}, **TINY)
+    assert task2.model.gamma == 0.999 and task2.n_timesteps == 1_500_000  # TLCarNav-v0:task=2
+    assert task2.model.n_steps == 32  # the user's iteration size, not the entry's n_steps=1000
+    assert SB3Agent("ppo", "TLCarNav-v0", **TINY).n_timesteps == 300_000  # TLCarNav-v0
+    assert SB3Agent("ppo", "TLCarNav-v0", gamma=0.9, **TINY).model.gamma == 0.9
+    none = SB3Agent("ppo", "TLCarNav-v0", hyperparams=False, **TINY)
+    assert none.model.gamma == 0.99 and none.n_timesteps is None  # SB3's own default
+    assert parse_normalize(none.config.normalize) == {"norm_obs": True, "norm_reward": False}
+
+    own = tmp_path / "mine.yml"
+    own.write_text("TLCarNav-v0:\n  ppo:\n    gamma: 0.5\n    normalize: false\n"
+                   "    policy_kwargs: \"dict(net_arch=[8], activation_fn=nn.Tanh)\"\n")
+    agent = SB3Agent("ppo", "TLCarNav-v0", hyperparams=str(own), **TINY)
+    assert agent.model.gamma == 0.5 and agent.vec_normalize is None
+    assert agent.model.policy.activation_fn is torch.nn.Tanh and agent.model.policy.net_arch == [8]
+    loaded = Agent.load(agent.save(tmp_path / "mine.zip"))
+    assert loaded.config == agent.config and loaded.config.algo_kwargs["policy_kwargs"]["activation_fn"] == "Tanh"
+    relu = SB3Agent("ppo", "TLCarNav-v0", hyperparams=str(own), policy_kwargs={"activation_fn": torch.nn.ReLU}, **TINY)
+    assert relu.model.policy.activation_fn is torch.nn.ReLU and relu.model.policy.net_arch != [8]  # whole-name win
+
+
+def test_the_packaged_hyperparameters_validate():
+    table = load_hyperparams()
+    for suite_id in ("TLCarNav-v0", "TLCarNav-v0:task=2", "TLPendulum-v0", "TLMountainCar-v0", "TLParking-v0"):
+        assert {"ppo", "sac", "td3"} <= set(table[suite_id]), suite_id
+    for env_key, algos in table.items():
+        for algo, entry in algos.items():
+            assert entry["n_timesteps"] >= 1, (env_key, algo)
+            if algo == "ppo":  # one iteration of the default 8000 steps is a whole number of rollouts
+                rollout = entry["n_steps"] * entry["n_envs"]
+                assert abs(-(-8000 // rollout) * rollout - 8000) <= 400, (env_key, rollout)
+                assert rollout % entry["batch_size"] == 0, (env_key, "batch_size")
+    assert find_hyperparams(table, "TLCarNav-v0", {"task": 2}, "PPO")["n_timesteps"] == 1_500_000
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("TLCarNav-v0:\n  ppo:\n    gama: 0.9\n", "TLCarNav-v0 / ppo: unknown key 'gama'"),
+        ("TLCarNav-v0:\n  sac:\n    n_epochs: 3\n", "unknown key 'n_epochs'.*SAC"),
+        ("TLCarNav-v0:\n  nope:\n    gamma: 0.9\n", "unknown algorithm 'nope'"),
+        ("TLCarNav-v0:\n  ppo:\n    learning_rate: lin_3e-4\n", "'lin_' schedules"),
+        ("TLCarNav-v0:\n  ppo:\n    policy_kwargs: \"dict(net_arch=__import__('os'))\"\n", "cannot read"),
+        ("TLCarNav-v0:\n  ppo:\n    policy_kwargs: {activation_fn: nn.Sigmoidal}\n", "unknown activation_fn"),
+        ("TLCarNav-v0:\n  ppo:\n    normalize: \"{'norm_obs': True, 'gamma2': 1}\"\n", "gamma2"),
+        ("TLCarNav-v0:task:\n  ppo: {}\n", "bad env key"),
+    ],
+)
+def test_a_bad_hyperparameter_file_is_refused_naming_the_culprit(tmp_path, text, message):
+    path = tmp_path / "bad.yml"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=message):
+        load_hyperparams(path)
+    with pytest.raises(ValueError, match=message):
+        SB3Agent("ppo", "TLCarNav-v0", hyperparams=str(path), **TINY)

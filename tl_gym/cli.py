@@ -120,8 +120,10 @@ def hyperparameter_help() -> str:
         config = klass._make_config({})
         fields = ", ".join(f"{f.name}={getattr(config, f.name)!r}" for f in dataclasses.fields(config))
         lines.append(f"  {name}: {fields}")
-    lines.append("  stable-baselines3 agents: steps_per_iteration=8000, n_envs=8, policy=None, and the "
-                 "algorithm's own keywords (learning_rate, batch_size, ...)")
+    lines.append("  stable-baselines3 agents: tl_reward='markov' (or 'terminal', the ablation), normalize, "
+                 "hyperparams=true (agents/hyperparams/sb3.yml, or false, or a path), steps_per_iteration=8000, "
+                 "n_envs, policy, n_timesteps, noise_type, noise_std, and the algorithm's own keywords "
+                 "(learning_rate, batch_size, ...); unset ones come from the task's entry in the file")
     return "\n".join(lines)
 
 
@@ -147,7 +149,8 @@ def build_parser(with_hyperparameters: bool = False) -> argparse.ArgumentParser:
     train.add_argument("--signals", type=parse_signals, default=None,
                        help="with --spec: signal sources, e.g. cos_th=0,th_dot=2 (observation indices or Dict keys)")
     train.add_argument("--agent", default="tlps", help="tlps, reps or a stable-baselines3 algorithm (ppo, sac, ...)")
-    train.add_argument("--iterations", type=int, default=50, help="policy updates (default: 50)")
+    train.add_argument("--iterations", type=int, default=None,
+                       help="policy updates (default: 50; SB3 agents: the task's n_timesteps budget, else 50)")
     train.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
     train.add_argument("--out", type=Path, required=True, help="run folder to write")
     train.add_argument("--snapshots", default=None,
@@ -165,19 +168,34 @@ def build_parser(with_hyperparameters: bool = False) -> argparse.ArgumentParser:
 
 # Building the env and the agent --------------------------------------------------------------------
 def build_env(run: dict[str, Any], render_mode: str | None = None) -> Any:
-    """The env of a run: its id (the agent adds the kwargs), or the env wrapped with ``--spec``."""
+    """The env of a run: its id (the agent adds the kwargs), or the env wrapped with ``--spec``.
+
+    SB3 agents get the env keywords of their ``tl_reward`` (`tl_gym.agents.sb3.TL_REWARD_ENV_KWARGS`)
+    here too, since they cannot rewrap an env object: with ``--spec`` they go to the wrapper, for a
+    rendered env to the id (the run's own ``env_kwargs`` win, as in the agent).
+    """
     import gymnasium as gym
 
     import tl_gym
 
     kwargs = dict(run["env_kwargs"])
+    tl_kwargs = _tl_reward_env_kwargs(run)
     if render_mode is not None:
         kwargs["render_mode"] = render_mode
     if run.get("spec") is None:
-        return run["env"] if render_mode is None else gym.make(run["env"], **kwargs)
+        return run["env"] if render_mode is None else gym.make(run["env"], **{**tl_kwargs, **kwargs})
     if not run.get("signals"):
         raise ValueError("--spec needs --signals to say where each signal comes from, e.g. --signals cos_th=0")
-    return tl_gym.TLTLRewardWrapper(gym.make(run["env"], **kwargs), run["spec"], run["signals"])
+    return tl_gym.TLTLRewardWrapper(gym.make(run["env"], **kwargs), run["spec"], run["signals"], **tl_kwargs)
+
+
+def _tl_reward_env_kwargs(run: dict[str, Any]) -> dict[str, Any]:
+    """The env keywords an SB3 run's ``tl_reward`` implies; none for TLPS and REPS."""
+    if run["agent"].lower() in EPISODIC_AGENTS:
+        return {}
+    from tl_gym.agents.sb3 import DEFAULT_TL_REWARD, TL_REWARD_ENV_KWARGS, check_tl_reward
+
+    return dict(TL_REWARD_ENV_KWARGS[check_tl_reward(run["hyperparameters"].get("tl_reward", DEFAULT_TL_REWARD))])
 
 
 def agent_class(name: str) -> Any:
@@ -203,6 +221,14 @@ def make_agent(run: dict[str, Any]) -> Any:
     if run["agent"].lower() in EPISODIC_AGENTS:
         return klass(env, seed=run["seed"], env_kwargs=env_kwargs, **run["hyperparameters"])
     return klass(run["agent"], env, seed=run["seed"], env_kwargs=env_kwargs, **run["hyperparameters"])
+
+
+def default_iterations(agent: Any) -> int:
+    """Iterations when ``--iterations`` is not given: the task's ``n_timesteps`` budget for SB3 agents, else 50."""
+    budget = getattr(agent, "n_timesteps", None)
+    if budget is None:
+        return 50
+    return max(1, -(-int(budget) // int(agent.config.steps_per_iteration)))
 
 
 def default_snapshots(iterations: int) -> list[int]:
@@ -232,11 +258,12 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
         "agent": args.agent, "iterations": args.iterations, "seed": args.seed,
         "hyperparameters": parse_hyperparameters(extra),
     }
-    if args.iterations < 1:
+    if args.iterations is not None and args.iterations < 1:
         raise ValueError(f"--iterations must be >= 1, got {args.iterations}")
-    snapshots_at = (sorted({int(s) for s in args.snapshots.split(",")}) if args.snapshots
-                    else default_snapshots(args.iterations))
     agent = make_agent(run)
+    run["iterations"] = iterations = default_iterations(agent) if args.iterations is None else args.iterations
+    snapshots_at = (sorted({int(s) for s in args.snapshots.split(",")}) if args.snapshots
+                    else default_snapshots(iterations))
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     (out / RUN_FILE).write_text(json.dumps(run, indent=1))
@@ -251,7 +278,7 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
             snapshots.append((row["iteration"], traces))
         return True
 
-    agent.learn(args.iterations, callback=as_callback(record), progress_bar=not args.quiet)
+    agent.learn(iterations, callback=as_callback(record), progress_bar=not args.quiet)
     agent.save(out / AGENT_FILE)
     write_history(agent.history, out / "history.csv")
     write_plots(agent, run, snapshots, out)
