@@ -17,13 +17,22 @@ independent of the trace length: Boolean combinations (``! & | ->``) of
 * chains ``φ1 T (φ2 T (… T φm))`` of temporal-free operands (best value of every
   leading sub-chain),
 * ``G(A | X G B)`` and ``G(L -> X G B)`` ("never again"), with A, L of bounded
-  lookahead and B temporal-free (two running values, see `_NeverAgain`).
+  lookahead and B temporal-free (two running values, see `_NeverAgain`),
+* ``F G φ`` and ``G F φ`` for any φ: on a finite trace both equal φ judged at the last
+  state alone (a one-state suffix).
 
 Both car tasks are in it (task 2 with either reading of its no-revisit clause).
-Any other formula (``F G φ``, ``G(φ -> F ψ)``, ``U`` over a temporal operand, …)
+Any other formula (``G(φ -> F ψ)``, ``U`` over a temporal operand, …)
 falls back to re-evaluating the whole prefix at every update: O(t) for state
 ``t``, O(T²) per episode (about ``T/2`` full evaluations). The monitor says which
-one it uses in ``incremental``.
+one it uses in ``incremental``; `outside_fragment` names the sub-formula that keeps a
+formula out.
+
+Inside the fragment the monitor's *state* is finite: `PrefixMonitor.state` exports it as
+floats (typed by `PrefixMonitor.slots`: robustness values, remembered signals, counts) and
+`PrefixMonitor.value_of_state` recomputes the prefix robustness from it alone. The state and
+the states still to come determine every later value: this is what the wrapper's
+``observe_monitor=True`` shows an agent (`tl_gym.monitor_view`).
 
 Pure numpy and the standard library: no Gymnasium here.
 
