@@ -28,6 +28,13 @@ if "TLCarNav-v0" not in registry:
         entry_point="tl_gym.envs.car:make_car_env",
         vector_entry_point="tl_gym.envs.vector:CarNavVectorEnv",
     )
+# The TL task suite on third-party envs (tl_gym.envs.suite, docs/tasks.md); TLParking-v0 needs highway-env.
+for _id, _entry in (
+    ("TLPendulum-v0", "make_pendulum"), ("TLMountainCar-v0", "make_mountain_car"), ("TLParking-v0", "make_parking"),
+):
+    if _id not in registry:
+        register(id=_id, entry_point=f"tl_gym.envs.suite:{_entry}")
+del _id, _entry
 
 __all__ = [
     "Formula", "SpecError", "TLGymError", "TLTLRewardWrapper", "TraceError", "UnknownSignalError", "logic", "parse",

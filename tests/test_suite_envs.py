@@ -1,0 +1,248 @@
+"""The TL task suite (tl_gym.envs.suite): the ids make, run, score and vectorise; the formulas tell good from bad."""
+
+import copy
+import math
+import pickle
+import sys
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.error import DependencyNotInstalled
+from gymnasium.utils.env_checker import check_env
+from tl_gym.envs.suite import InfoValue, PendulumAngle, StepClock, pendulum_formula
+
+import tl_gym  # noqa: F401  (registers the ids)
+from tl_gym import TLTLRewardWrapper
+
+CLASSIC = ["TLPendulum-v0", "TLMountainCar-v0"]
+ALL = CLASSIC + ["TLParking-v0"]
+
+
+def needs(env_id):
+    if env_id == "TLParking-v0":
+        pytest.importorskip("highway_env")
+
+
+def run_episode(env, policy, seed):
+    """One episode with ``policy(obs) -> action``; return (number of steps, rewards, terminal info)."""
+    obs, info = env.reset(seed=seed)
+    rewards = []
+    while True:
+        obs, reward, terminated, truncated, info = env.step(policy(obs))
+        rewards.append(reward)
+        if terminated or truncated:
+            return len(rewards), rewards, info
+
+
+# ----------------------------------------------------------------------------- hand-written policies
+
+
+def pendulum_swing_up(obs):
+    """Energy pumping towards just below the upright energy, PD balance within cos θ > 0.7."""
+    cos_th, sin_th, th_dot = (float(v) for v in obs)
+    th = math.atan2(sin_th, cos_th)
+    if cos_th > 0.7:
+        u = -(10.0 * th + 2.0 * th_dot)
+    else:
+        energy = 0.5 * th_dot**2 - 15.0 * (1.0 - cos_th)  # per unit inertia; 0 at rest upright
+        u = 2.0 * math.copysign(1.0, th_dot * (-2.0 - energy) + 1e-9)
+    return np.array([np.clip(u, -2.0, 2.0)], dtype=np.float32)
+
+
+def pendulum_pump(obs):
+    """Always full torque along the motion: the pendulum spins up to its speed clip."""
+    return np.array([2.0 if obs[2] >= 0 else -2.0], dtype=np.float32)
+
+
+def mountain_car_regulated(obs, target=0.039):
+    """Push along the velocity, but only up to ``target`` speed (brake above it)."""
+    velocity = float(obs[1])
+    direction = 1.0 if velocity >= 0 else -1.0
+    return np.array([direction * np.clip((target - abs(velocity)) / 0.0015, -1.0, 1.0)], dtype=np.float32)
+
+
+def mountain_car_bang_bang(obs):
+    """Full push along the velocity: reaches the flag in about 105 steps, at speeds up to 0.069."""
+    return np.array([1.0 if obs[1] >= 0 else -1.0], dtype=np.float32)
+
+
+class Parker:
+    """Line-of-sight pursuit of the slot's centre line, slowing to 0.6 m/s within 6 m of the slot.
+
+    A three-point turn (reverse at full lock) when the line lies behind, a straight reverse
+    and a new attempt when the car overshoots the slot.
+    """
+
+    def __init__(self, lookahead=3.0, gain=3.0):
+        self.lookahead, self.gain, self.mode = lookahead, gain, "forward"
+
+    def __call__(self, obs):
+        o, g = obs["observation"], obs["desired_goal"]
+        p, heading = o[:2] * 100.0, math.atan2(o[5], o[4])
+        speed = float(np.hypot(o[2], o[3]) * 5.0)
+        signed = speed * np.sign(math.cos(math.atan2(o[3], o[2]) - heading)) if speed > 1e-6 else 0.0
+        goal, goal_heading = g[:2] * 100.0, math.atan2(g[5], g[4])
+        axis = np.array([math.cos(goal_heading), math.sin(goal_heading)])
+        s = float((p - goal) @ axis)  # position along the slot's axis, 0 at its centre
+        if s > 0.5:
+            self.mode = "back"
+        if self.mode == "back" and s < -5.0:
+            self.mode = "forward"
+        if self.mode == "back":
+            steer, target = 0.0, -1.0
+        else:
+            d = goal + (s + self.lookahead) * axis - p
+            alpha = (math.atan2(d[1], d[0]) - heading + math.pi) % (2 * math.pi) - math.pi
+            if self.mode == "forward" and abs(alpha) > math.radians(120) and s < -3:
+                self.mode = "turn"
+            if self.mode == "turn" and abs(alpha) < math.radians(60):
+                self.mode = "forward"
+            if self.mode == "turn":
+                steer, target = -math.copysign(1.0, alpha), -1.5
+            else:
+                steer = float(np.clip(self.gain * alpha / (math.pi / 4), -1, 1))
+                distance = float(np.linalg.norm(p - goal))
+                target = 0.6 if distance < 6 else min(3.0, 0.6 + 0.5 * (distance - 6))
+        return np.array([np.clip(2.0 * (target - signed) / 5.0, -1, 1), steer], dtype=np.float32)
+
+
+# ----------------------------------------------------------------------------- every id
+
+
+@pytest.mark.parametrize("env_id", ALL)
+def test_random_episode_ends_with_the_robustness(env_id):
+    needs(env_id)
+    env = gym.make(env_id)
+    env.action_space.seed(8)
+    steps, rewards, info = run_episode(env, lambda obs: env.action_space.sample(), seed=8)
+    formula = env.get_wrapper_attr("formula")
+    assert steps <= env.get_wrapper_attr("horizon")
+    assert info["robustness"] == formula.robustness(info["trace"])
+    assert info["satisfied"] == (info["robustness"] > 0)
+    assert not info["satisfied"]  # random actions solve none of the tasks
+    assert rewards[-1] == info["robustness"] and all(r == 0.0 for r in rewards[:-1])
+    assert all(len(v) == steps + 1 for v in info["trace"].values())
+
+
+@pytest.mark.parametrize("env_id", ALL)
+def test_gymnasium_env_checker(env_id):
+    needs(env_id)
+    with warnings.catch_warnings():
+        # the task is the wrapped env, so check it as a whole (the checker only suggests `.unwrapped`)
+        warnings.filterwarnings("ignore", message=".*is different from the unwrapped version")
+        # the base envs' own spaces, which the suite keeps as they are: Pendulum's torque Box is
+        # [-2, 2], parking's observation Boxes are unbounded
+        warnings.filterwarnings("ignore", message=".*we recommend using a symmetric and normalized space")
+        warnings.filterwarnings("ignore", message=".*observation space (minimum|maximum) value is")
+        check_env(gym.make(env_id), skip_render_check=True)
+
+
+@pytest.mark.parametrize("env_id", ALL)
+def test_sync_vector_env(env_id):
+    needs(env_id)
+    envs = gym.make_vec(env_id, num_envs=2, vectorization_mode="sync")
+    obs, _ = envs.reset(seed=0)
+    envs.action_space.seed(0)
+    for _ in range(3):
+        obs, reward, terminated, truncated, info = envs.step(envs.action_space.sample())
+    assert reward.shape == (2,)
+    assert envs.get_attr("horizon") == (gym.make(env_id).get_wrapper_attr("horizon"),) * 2
+    envs.close()
+
+
+@pytest.mark.parametrize("env_id", CLASSIC)
+def test_envs_pickle_and_deepcopy(env_id):
+    env = gym.make(env_id)
+    env.reset(seed=0)
+    for clone in (pickle.loads(pickle.dumps(env)), copy.deepcopy(env)):
+        clone.reset(seed=1)
+        clone.step(clone.action_space.sample())
+
+
+def test_wrapper_keywords_flow_through():
+    env = gym.make("TLMountainCar-v0", reward_mode="dense", clip=2.0, horizon=40)
+    wrapper = env.get_wrapper_attr("reward_mode"), env.get_wrapper_attr("clip"), env.get_wrapper_attr("horizon")
+    assert wrapper == ("dense", 2.0, 40)
+    steps, rewards, info = run_episode(env, mountain_car_bang_bang, seed=0)
+    assert steps == 40 and sum(rewards) == pytest.approx(info["robustness"], abs=1e-12)
+    with pytest.raises(TypeError, match="'rewrad'"):
+        gym.make("TLPendulum-v0", rewrad="smooth")
+
+
+def test_bad_task_arguments_name_the_culprit():
+    with pytest.raises(ValueError, match="up_by must be below horizon"):
+        gym.make("TLPendulum-v0", horizon=50)
+    with pytest.raises(ValueError, match="speed_limit"):
+        gym.make("TLMountainCar-v0", speed_limit=-1.0)
+    with pytest.raises(ValueError, match="horizon"):
+        gym.make("TLMountainCar-v0", horizon=0)
+
+
+def test_step_clock_is_the_trace_index():
+    env = TLTLRewardWrapper(
+        StepClock(gym.make("Pendulum-v1", max_episode_steps=7), horizon=7),
+        "G(t >= 0)", signals={"t": InfoValue("t"), "th": PendulumAngle()},
+    )
+    _, _, info = run_episode(env, lambda obs: np.zeros(1, dtype=np.float32), seed=0)
+    np.testing.assert_array_equal(info["trace"]["t"], np.arange(8))
+
+
+# ----------------------------------------------------------------------------- the formulas against behaviour
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_pendulum_swing_up_satisfies_and_pumping_does_not(seed):
+    env = gym.make("TLPendulum-v0")
+    _, _, good = run_episode(env, pendulum_swing_up, seed)
+    assert good["satisfied"] and good["robustness"] > 0.05
+    _, _, spin = run_episode(env, pendulum_pump, seed)
+    assert spin["robustness"] < 0 and np.abs(spin["trace"]["th_dot"]).max() == 8.0  # at the speed clip
+
+
+def test_pendulum_up_too_late_fails():
+    # the swing-up needs 25-70 steps: demanding upright from step 10 on fails
+    env = gym.make("TLPendulum-v0", up_by=10)
+    _, _, info = run_episode(env, pendulum_swing_up, seed=0)
+    assert info["robustness"] < 0
+    assert str(env.get_wrapper_attr("formula")) == str(pendulum_formula(up_by=10))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_mountain_car_regulated_satisfies_and_bang_bang_speeds(seed):
+    env = gym.make("TLMountainCar-v0")
+    steps, _, good = run_episode(env, mountain_car_regulated, seed)
+    assert good["satisfied"] and steps < 200
+    steps, _, fast = run_episode(env, mountain_car_bang_bang, seed)
+    assert fast["trace"]["position"][-1] >= 0.45 and steps < 120  # reaches the flag ...
+    assert fast["robustness"] < 0  # ... too fast
+
+
+def test_parking_controller_parks_and_full_throttle_speeds():
+    pytest.importorskip("highway_env")
+    env = gym.make("TLParking-v0")
+    steps, _, good = run_episode(env, Parker(), seed=8)
+    assert good["satisfied"] and good["is_success"] and steps < 100
+    _, _, fast = run_episode(env, lambda obs: np.array([1.0, 0.0], dtype=np.float32), seed=8)
+    assert fast["robustness"] < 0 and fast["trace"]["speed"].max() > 5.0
+
+
+def test_parking_without_highway_env_names_the_extra(monkeypatch):
+    monkeypatch.setitem(sys.modules, "highway_env", None)  # `import highway_env` raises ImportError
+    with pytest.raises(DependencyNotInstalled, match=r'pip install "tl_gym\[highway\]"'):
+        gym.make("TLParking-v0")
+
+
+# ----------------------------------------------------------------------------- agents find the horizon
+
+
+@pytest.mark.parametrize("env_id", CLASSIC)
+def test_agents_read_the_horizon(env_id):
+    from tl_gym.agents import REPS, TLPS
+
+    env_kwargs = {"horizon": 30, **({"up_by": 20} if env_id == "TLPendulum-v0" else {})}
+    for agent_class in (TLPS, REPS):
+        agent = agent_class(env_id, seed=0, n_episodes=4, env_kwargs=env_kwargs).learn(1)
+        assert agent.horizon == 30
+        assert agent.history[-1]["env_steps"] <= 4 * 30
