@@ -186,6 +186,30 @@ def main() -> None:
         kind = "incremental" if dense._monitor.incremental else "re-evaluated prefix, O(t)"
         rows.append((f"dense mode per step, {name} ({kind})", _micro(dense_step)))
 
+    # --- the Markov view (observe_monitor=True) --------------------------------------------------
+    for task in (1, 2):
+        def wrap(task: int = task, **kwargs: object) -> TLTLRewardWrapper:
+            return TLTLRewardWrapper(Idle(), task_formula(task), signals={"x": 0, "y": 1}, horizon=HORIZON, **kwargs)
+
+        envs = {"terminal": wrap(), "dense": wrap(reward_mode="dense"),
+                "view": wrap(reward_mode="dense", observe_monitor=True, monitor_scale=100.0)}
+        runs: dict[str, list[Timing]] = {name: [] for name in envs}
+        for _ in range(3 * repeats):  # interleaved, so that all see the same background load
+            for name, env in envs.items():
+                runs[name].append(time_steps_split(env, actions, max(1, episodes // 2))[0])
+        best = {name: (min(r[0] for r in rs), min(r[1] for r in rs)) for name, rs in runs.items()}
+        for base in ("terminal", "dense"):
+            overhead = (best["view"][0] - best[base][0], best["view"][1] - best[base][1])
+            rows.append((f"Markov view (dense + observe_monitor) per step, task {task}, over the {base} mode",
+                         _micro(overhead)))
+        plain = CarNavVectorEnv(num_envs=NUM_ENVS, task=task)
+        viewed = CarNavVectorEnv(num_envs=NUM_ENVS, task=task, observe_monitor=True, reward_mode="dense")
+        t_plain = best_of(repeats, lambda b=plain: time_vector(b, batch_actions, max(1, episodes // 2)))
+        t_viewed = best_of(repeats, lambda b=viewed: time_vector(b, batch_actions, max(1, episodes // 2)))
+        car_steps = max(1, episodes // 2) * HORIZON * NUM_ENVS
+        per_car = ((t_viewed[0] - t_plain[0]) / car_steps, (t_viewed[1] - t_plain[1]) / car_steps)
+        rows.append((f"Markov view per car step, CarNavVectorEnv({NUM_ENVS}) task {task}", _micro(per_car)))
+
     _report(rows, args.quick)
 
 
