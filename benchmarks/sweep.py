@@ -58,19 +58,21 @@ from benchmarks.sweep_run import (
 
 #: Keys of a config's top level (all but name, agents and variants may be overridden in a variant).
 TOP_KEYS = {
-    "name", "description", "env", "tasks", "seeds", "iterations", "evaluate_episodes",
+    "name", "description", "env", "tasks", "seeds", "iterations", "evaluate_episodes", "evaluate_every",
     "trajectory_iterations", "trajectory_episodes", "save_agent", "agents", "variants", "env_kwargs",
 }
 #: Keys of an ``[[agents]]`` entry; ``variants.<name>`` holds its overrides in that variant
 #: (``skip = true`` leaves the agent out of it).
 AGENT_KEYS = {
     "label", "agent", "hyperparameters", "grid", "env_kwargs", "tasks", "seeds", "iterations",
-    "evaluate_episodes", "trajectory_iterations", "trajectory_episodes", "save_agent", "note", "variants", "skip",
+    "evaluate_episodes", "evaluate_every", "trajectory_iterations", "trajectory_episodes", "save_agent", "note",
+    "variants", "skip",
 }
 #: Keys an agent entry inherits from the top level when it does not set them.
-INHERITED = ("tasks", "seeds", "iterations", "evaluate_episodes", "trajectory_iterations",
+INHERITED = ("tasks", "seeds", "iterations", "evaluate_episodes", "evaluate_every", "trajectory_iterations",
              "trajectory_episodes", "save_agent")
-DEFAULTS = {"env_kwargs": {}, "evaluate_episodes": 0, "trajectory_iterations": [], "trajectory_episodes": 40,
+DEFAULTS = {"env_kwargs": {}, "evaluate_episodes": 0, "evaluate_every": 0, "trajectory_iterations": [],
+            "trajectory_episodes": 40,
             "save_agent": False}
 
 
@@ -227,6 +229,7 @@ def _expand_agent(entry: dict[str, Any], top: Mapping[str, Any], where: str, fai
                 runs.append(RunSpec(
                     env=top["env"], env_kwargs=kwargs, agent=agent, label=run_label, hyperparameters=values,
                     seed=seed, iterations=iterations, evaluate_episodes=int(settings["evaluate_episodes"]),
+                    evaluate_every=int(settings["evaluate_every"]),
                     trajectory_iterations=tuple(t for t in trajectory_iterations if t <= iterations),
                     trajectory_episodes=int(settings["trajectory_episodes"]),
                     save_agent=bool(settings["save_agent"]), note=str(entry.get("note", "")),

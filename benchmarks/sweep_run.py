@@ -65,6 +65,9 @@ class RunSpec:
         seed: the agent's seed.
         iterations: number of policy updates.
         evaluate_episodes: fresh episodes for the final evaluation (0: none).
+        evaluate_every: also evaluate ``evaluate_episodes`` fresh episodes (deterministic policy) after
+            every this many iterations and after the last, into the history columns
+            ``eval_success_rate`` and ``eval_mean_robustness`` (0: never; learning curves on fresh episodes).
         trajectory_iterations: iterations after which sampled traces are recorded (0 = before training).
         trajectory_episodes: episodes per recorded iteration.
         save_agent: keep the trained agent as ``agent.zip``.
@@ -79,6 +82,7 @@ class RunSpec:
     seed: int
     iterations: int
     evaluate_episodes: int = 0
+    evaluate_every: int = 0
     trajectory_iterations: Sequence[int] = ()
     trajectory_episodes: int = 40
     save_agent: bool = False
@@ -225,6 +229,13 @@ class _Recorder:
         self.traces: dict[str, np.ndarray] = {}
 
     def __call__(self, agent: Any, row: Mapping[str, Any]) -> bool:
+        every = self.spec.evaluate_every
+        row = {**row, "eval_success_rate": np.nan, "eval_mean_robustness": np.nan}
+        if every and self.spec.evaluate_episodes and (row["iteration"] % every == 0
+                                                       or row["iteration"] == self.spec.iterations):
+            result = agent.evaluate(n_episodes=self.spec.evaluate_episodes, seed=20_000_033 + self.spec.seed)
+            row["eval_success_rate"] = float(result["success_rate"])
+            row["eval_mean_robustness"] = float(result["mean_robustness"])
         if self.writer is None:
             self.writer = csv.DictWriter(self.file, fieldnames=list(row), extrasaction="ignore")
             self.writer.writeheader()

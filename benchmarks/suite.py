@@ -1,0 +1,183 @@
+"""The TL task suite benchmark: every suite task × {TLPS, REPS, PPO, SAC}, SB3 also on the plain terminal reward.
+
+One sweep config per task in ``benchmarks/configs/suite/`` (env, budget, agents), run by the
+sweep runner (`benchmarks.sweep`); every run evaluates its policy on fresh episodes along the
+way (``evaluate_every``), so the curves are success on fresh episodes against env steps.
+Then this script writes ``docs/results/suite.md`` (one table per task, and the headline:
+which agent solves it, at how many env steps) and ``docs/results/suite_<task>.png``.
+
+Usage::
+
+    python -m benchmarks.suite                        # every task, the configs' full grid
+    python -m benchmarks.suite --variant session      # what fits a working session on 2 cores
+    python -m benchmarks.suite --quick                # CI smoke run (tiny), results in runs/ only
+    python -m benchmarks.suite --tasks car1 pendulum  # some tasks
+    python -m benchmarks.suite --report-only          # redraw from finished runs
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from matplotlib import colormaps
+from matplotlib.figure import Figure
+
+from benchmarks.results import RunResult, group_runs, load_runs, mean_band
+from benchmarks.sweep import load_config, run_sweep
+
+HERE = Path(__file__).resolve().parent
+CONFIGS = HERE / "configs" / "suite"
+RESULTS = HERE.parent / "docs" / "results"
+#: Success on fresh episodes that counts as "solved" (the issue's target).
+SOLVED = 0.9
+
+
+def config_paths(tasks: Sequence[str] = ()) -> list[Path]:
+    """The suite configs, in name order; ``tasks`` picks some by file stem (``car1``, ``pendulum`` ...)."""
+    paths = sorted(CONFIGS.glob("*.toml"))
+    if tasks:
+        unknown = sorted(set(tasks) - {p.stem for p in paths})
+        if unknown:
+            raise ValueError(f"no suite config {unknown}; available: {[p.stem for p in paths]}")
+        paths = [p for p in paths if p.stem in tasks]
+    return paths
+
+
+def eval_curve(runs: Sequence[RunResult], key: str = "eval_success_rate") -> tuple[np.ndarray, np.ndarray]:
+    """``(env steps, values (seeds, points))`` of the rows where the runs evaluated, cut to the shortest run."""
+    points = []
+    for run in runs:
+        mask = ~np.isnan(run.history[key])
+        points.append((run.history["env_steps"][mask], run.history[key][mask]))
+    length = min(len(steps) for steps, _ in points)
+    steps = np.mean([s[:length] for s, _ in points], axis=0)
+    return steps, np.stack([v[:length] for _, v in points])
+
+
+def steps_to_solve(steps: np.ndarray, values: np.ndarray) -> float | None:
+    """Env steps at which one seed's fresh-episode success first reaches `SOLVED`; None if never."""
+    hits = np.flatnonzero(values >= SOLVED)
+    return float(steps[hits[0]]) if hits.size else None
+
+
+def plot_task(name: str, runs: Sequence[RunResult], path: Path | None) -> Figure:
+    """Success on fresh episodes against env steps, mean over seeds with a 95% band, one curve per agent."""
+    groups = group_runs(runs)
+    fig = Figure(figsize=(6.4, 4.2), constrained_layout=True)
+    ax = fig.subplots()
+    for i, ((_, label), members) in enumerate(groups.items()):
+        steps, values = eval_curve(members)
+        if not steps.size:
+            continue
+        mean, low, high = mean_band(values)
+        color = colormaps["tab10"](i % 10)
+        ax.plot(steps, mean, color=color, lw=1.5, marker="o" if len(steps) <= 5 else None, markersize=3,
+                label=f"{label} ({len(members)} seeds)")
+        ax.fill_between(steps, np.clip(low, 0, 1), np.clip(high, 0, 1), color=color, alpha=0.2, lw=0)
+    ax.axhline(SOLVED, color="0.4", lw=0.8, ls="--")
+    ax.set_xlabel("env steps")
+    ax.set_ylabel("success on fresh episodes (ρ > 0)")
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_title(name)
+    ax.legend(fontsize=7, loc="best")
+    if path is not None:
+        fig.savefig(path, dpi=110)
+    return fig
+
+
+def task_table(runs: Sequence[RunResult]) -> tuple[str, list[tuple[str, float, float | None, int, int]]]:
+    """The markdown table of one task, and one summary tuple per agent.
+
+    The tuples are ``(label, median final success, median env steps to solve, seeds that solved, seeds)``.
+    """
+    header = ("| agent | seeds | budget (env steps) | final success, fresh episodes: median (min–max) "
+              "| env steps to ≥ 90 %: median (seeds) | final mean ρ | note |")
+    lines = [header, "|" + "---|" * (header.count("|") - 1)]
+    rows = []
+    for (_, label), members in group_runs(runs).items():
+        steps, success = eval_curve(members)
+        _, rho = eval_curve(members, "eval_mean_robustness")
+        if not steps.size:
+            continue
+        final = success[:, -1]
+        solves = [steps_to_solve(steps, row) for row in success]
+        reached = [s for s in solves if s is not None]
+        median_steps = float(np.median(reached)) if reached else None
+        solve_text = f"{median_steps:,.0f} ({len(reached)}/{len(solves)})" if reached else f"never (0/{len(solves)})"
+        note = "; ".join(sorted({run.spec.note for run in members if run.spec.note}))
+        lines.append(f"| {label} | {len(members)} | {steps[-1]:,.0f} | {np.median(final):.0%} "
+                     f"({final.min():.0%}–{final.max():.0%}) | {solve_text} | {np.median(rho[:, -1]):.3g} | {note} |")
+        rows.append((label, float(np.median(final)), median_steps, len(reached), len(solves)))
+    return "\n".join(lines), rows
+
+
+def headline(task: str, rows: Sequence[tuple[str, float, float | None, int, int]]) -> str:
+    """One README-style line: which agent solves the task (median final success ≥ 90 %), at how many steps."""
+    solved = [r for r in rows if r[1] >= SOLVED and r[2] is not None]
+    if not solved:
+        best = max(rows, key=lambda r: r[1]) if rows else None
+        tail = f"best: {best[0]} at {best[1]:.0%}" if best else "no runs"
+        return f"| {task} | none solved it (≥ 90 % on fresh episodes) | {tail} |"
+    first = min(solved, key=lambda r: r[2])  # type: ignore[arg-type, return-value]
+    others = ", ".join(r[0] for r in solved if r is not first)
+    return (f"| {task} | {first[0]} | {first[2]:,.0f} env steps (median, {first[3]}/{first[4]} seeds)"
+            + (f"; also {others}" if others else "") + " |")
+
+
+def write_report(results: dict[str, tuple[str, list[RunResult]]], command: str, out: Path) -> Path:
+    """``suite.md`` in ``out``: the headline table, then each task's table and figure."""
+    lines = ["# The TL task suite", "",
+             f"Produced by `{command}` (seeds and budgets in `benchmarks/configs/suite/`); success is "
+             "ρ > 0 on fresh episodes of the deterministic policy, evaluated along training. "
+             "Tasks and formulas: [../tasks.md](../tasks.md).", "",
+             "| task | solved by (median final success ≥ 90 %) | at |", "|---|---|---|"]
+    sections = []
+    for stem, (title, runs) in results.items():
+        table, rows = task_table(runs)
+        lines.append(headline(title, rows))
+        figure = f"suite_{stem}.png"
+        plot_task(title, runs, out / figure)
+        sections += ["", f"## {title}", "", table, "", f"![{title}]({figure})"]
+    path = out / "suite.md"
+    path.write_text("\n".join(lines + sections) + "\n")
+    return path
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command line (see the module docstring)."""
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.suite", description=__doc__.split("\n")[0])
+    parser.add_argument("--tasks", nargs="*", default=[], help="config stems to run (default: all)")
+    parser.add_argument("--variant", help="the configs' [variants.VARIANT] (e.g. session)")
+    parser.add_argument("--quick", action="store_true", help="CI smoke run: variant quick, no docs written")
+    parser.add_argument("--workers", type=int, default=None, help="local processes (default: CPU count)")
+    parser.add_argument("--out", default="runs/suite", help="results directory")
+    parser.add_argument("--report-only", action="store_true", help="only redraw the report from finished runs")
+    args = parser.parse_args(argv)
+    variant = "quick" if args.quick else args.variant
+    results: dict[str, tuple[str, list[RunResult]]] = {}
+    failed = 0
+    for path in config_paths(args.tasks):
+        sweep = load_config(path, variant=variant)
+        out_dir = Path(args.out) / sweep.name
+        if not args.report_only:
+            report = run_sweep(sweep, out_dir, workers=args.workers)
+            failed += len(report.failed)
+            for run_id, text in report.failed.items():
+                print(f"--- {run_id} failed:\n{text}", file=sys.stderr)
+        runs = load_runs(out_dir)
+        if runs:
+            results[path.stem] = (sweep.description or path.stem, runs)
+    command = "python -m benchmarks.suite" + (f" --variant {variant}" if variant and not args.quick else "")
+    target = Path(args.out) if args.quick else RESULTS
+    target.mkdir(parents=True, exist_ok=True)
+    if results:
+        print(f"wrote {write_report(results, command, target)}")
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
