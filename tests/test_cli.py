@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import csv
 import json
+import zipfile
 
 import pytest
+from tl_gym.agents import Agent
 
-from tl_gym.cli import main
+from tl_gym.cli import build_env, main
 
 
 @pytest.fixture(scope="module")
@@ -84,3 +86,42 @@ def test_help_lists_the_hyperparameters(capsys):
     assert exit_info.value.code == 0
     out = capsys.readouterr().out
     assert "reps: n_episodes=40" in out and "epsilon=2.0" in out and "--spec" in out
+
+
+SB3_TINY = ["--steps-per-iteration", "64", "--n-envs", "2", "--batch-size", "32", "--n-epochs", "1", "--snapshots", "9"]
+
+
+def test_an_sb3_run_keeps_its_markov_view_and_vecnormalize(tmp_path, capsys):
+    out = tmp_path / "ppo"
+    # no --iterations: the task's budget, here set to two iterations of 64 steps
+    assert main(["train", "--env", "TLCarNav-v0", "--agent", "ppo", "--n-timesteps", "128", "--out", str(out),
+                 "--quiet", *SB3_TINY]) == 0
+    assert json.loads((out / "run.json").read_text())["iterations"] == 2
+    with zipfile.ZipFile(out / "agent.zip") as archive:
+        assert "vecnormalize.pkl" in archive.namelist()
+    agent = Agent.load(out / "agent.zip")
+    assert agent.config.tl_reward == "markov" and agent.observation_space.shape[0] > 6
+    expected = agent.evaluate(3, seed=7)["mean_robustness"]
+    capsys.readouterr()
+    assert main(["eval", str(out), "--episodes", "3", "--seed", "7"]) == 0
+    assert f"mean robustness {expected:.4g}" in capsys.readouterr().out
+
+
+def test_tl_reward_terminal_is_the_ablation(tmp_path):
+    out = tmp_path / "ablation"
+    assert main(["train", "--agent", "ppo", "--iterations", "1", "--tl-reward", "terminal", "--out", str(out),
+                 "--quiet", *SB3_TINY]) == 0
+    agent = Agent.load(out / "agent.zip")
+    assert agent.config.tl_reward == "terminal" and agent.observation_space.shape == (6,)
+
+
+def test_sb3_with_spec_gets_the_markov_view_on_the_wrapper(tmp_path, capsys):
+    out = tmp_path / "pendulum"
+    assert main(["train", "--env", "Pendulum-v1", "--spec", "F(cos_th > 0.9)", "--signals", "cos_th=0",
+                 "--agent", "ppo", "--iterations", "1", "--out", str(out), "--quiet", *SB3_TINY]) == 0
+    run = json.loads((out / "run.json").read_text())
+    agent = Agent.load(out / "agent.zip", env=build_env(run))
+    assert agent.config.tl_reward == "markov" and agent.observation_space.shape[0] > 3
+    assert agent.model.gamma == 0.9  # the Pendulum-v1 entry of the hyperparameter file
+    assert main(["eval", str(out), "--episodes", "2"]) == 0
+    assert "2 episodes" in capsys.readouterr().out
