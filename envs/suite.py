@@ -283,7 +283,7 @@ def make_mountain_car(
         "MountainCarContinuous-v0", max_episode_steps=_check_steps("horizon", horizon), render_mode=render_mode
     )
     signals = {"position": 0, "velocity": 1}
-    return _wrap(base, horizon, formula, signals, wrapper_kwargs, monitor_scale=0.05)
+    return _wrap(base, horizon, formula, signals, wrapper_kwargs, monitor_scale=0.5)
 
 
 def make_parking(
@@ -340,7 +340,7 @@ def make_parking(
         "goal_error": ParkingGoalError(tuple(cfg["reward_weights"]), tuple(observation["scales"])),
         "speed": ParkingSpeed(float(observation["scales"][2])),
     }
-    return _wrap(base, horizon, formula, signals, wrapper_kwargs, monitor_scale=1.0)
+    return _wrap(base, horizon, formula, signals, wrapper_kwargs, monitor_scale=10.0)
 
 
 # --------------------------------------------------------------------------- helpers
@@ -354,7 +354,11 @@ def _wrap(
     wrapper_kwargs: dict[str, Any],
     monitor_scale: float,
 ) -> TLTLRewardWrapper:
-    """`StepClock` and `TLTLRewardWrapper` around ``base``, with the task's default monitor scale."""
+    """`StepClock` and `TLTLRewardWrapper` around ``base``.
+
+    ``monitor_scale`` is the task's default for the wrapper keyword of that name (when the wrapper
+    has it): the size of the robustness of an early, failing policy, so monitor features are of order one.
+    """
     params = inspect.signature(TLTLRewardWrapper).parameters
     kwargs = dict(wrapper_kwargs)
     if "monitor_scale" in params:

@@ -1,6 +1,7 @@
 """The TL task suite (tl_gym.envs.suite): the ids make, run, score and vectorise; the formulas tell good from bad."""
 
 import copy
+import inspect
 import math
 import pickle
 import sys
@@ -169,6 +170,23 @@ def test_wrapper_keywords_flow_through():
     assert steps == 40 and sum(rewards) == pytest.approx(info["robustness"], abs=1e-12)
     with pytest.raises(TypeError, match="'rewrad'"):
         gym.make("TLPendulum-v0", rewrad="smooth")
+
+
+@pytest.mark.parametrize("env_id, scale", [("TLPendulum-v0", 1.0), ("TLMountainCar-v0", 0.5), ("TLParking-v0", 10.0)])
+def test_observe_monitor_flows_through_with_the_task_scale(env_id, scale):
+    needs(env_id)
+    if "monitor_scale" not in inspect.signature(TLTLRewardWrapper).parameters:
+        pytest.skip("the wrapper has no Markov view")
+    plain, viewed = gym.make(env_id), gym.make(env_id, observe_monitor=True)
+    assert viewed.get_wrapper_attr("monitor_view").scale == scale
+    assert gym.make(env_id, observe_monitor=True, monitor_scale=2.0).get_wrapper_attr("monitor_view").scale == 2.0
+    obs, _ = viewed.reset(seed=0)
+    raw, _ = plain.reset(seed=0)
+    if isinstance(obs, dict):
+        assert set(obs) == set(raw) | {"monitor"}
+    else:
+        np.testing.assert_array_equal(obs[: raw.shape[0]], raw)  # the raw observation comes first, unchanged
+        assert obs.shape[0] > raw.shape[0]
 
 
 def test_bad_task_arguments_name_the_culprit():
