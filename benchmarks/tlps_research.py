@@ -94,6 +94,7 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "spread_fitted_no_pool": ("TLPS", {"feedback": "fitted", "feedback_window": 0}),
     "spread_fitted_ridge_0.1": ("TLPS", {"feedback": "fitted", "feedback_ridge": 0.1}),
     "spread_open_floor": ("TLPS", {"exploration_floor": 0.1}),
+    "spread_reps_floor": ("REPS", {"epsilon": 2.0, "exploration_floor": 0.1}),
 }
 
 #: The wide start spread of issue 16, for the ``spread_`` variants.
@@ -313,7 +314,9 @@ def solver_check(
 
 
 def timing(out: Path, iterations: int = 5) -> list[dict[str, Any]]:
-    """Seconds per TLPS iteration (defaults: N = 40, T = 200) on both tasks, with the machine's load.
+    """Seconds per TLPS and REPS iteration (N = 40, T = 200) on both tasks, with the machine's load.
+
+    Open loop on both tasks, and the fitted feedback of issue 16 on task 2.
 
     The nested smoothing is timed on task 2 for one iteration only (it costs seconds per solver step).
     """
@@ -322,20 +325,21 @@ def timing(out: Path, iterations: int = 5) -> list[dict[str, Any]]:
 
     torch.set_num_threads(1)
     rows = []
-    cases = [("TLPS", 1, "linear", iterations), ("TLPS", 2, "linear", iterations), ("TLPS", 2, "nested", 1),
-             ("REPS", 1, "", iterations), ("REPS", 2, "", iterations)]
-    for kind, task, smoothing, n in cases:
+    cases = [("TLPS", 1, "linear", iterations, "open"), ("TLPS", 2, "linear", iterations, "open"),
+             ("TLPS", 2, "nested", 1, "open"), ("REPS", 1, "", iterations, "open"), ("REPS", 2, "", iterations, "open"),
+             ("TLPS", 2, "linear", iterations, "fitted"), ("REPS", 2, "", iterations, "fitted")]
+    for kind, task, smoothing, n, feedback in cases:
         if kind == "TLPS":
-            agent = TLPS("TLCarNav-v0", seed=0, env_kwargs={"task": task}, smoothing=smoothing)
+            agent = TLPS("TLCarNav-v0", seed=0, env_kwargs={"task": task}, smoothing=smoothing, feedback=feedback)
         else:
-            agent = REPS("TLCarNav-v0", seed=0, env_kwargs={"task": task})
+            agent = REPS("TLCarNav-v0", seed=0, env_kwargs={"task": task}, feedback=feedback)
         agent.learn(1)  # warm-up
         load_before = os.getloadavg()[0]
         agent.learn(n)
         hist = agent.history[1:]
         walls = np.diff([agent.history[0]["wall_time"]] + [r["wall_time"] for r in hist])
         rows.append({
-            "agent": kind, "task": task, "smoothing": smoothing, "iterations": n,
+            "agent": kind, "task": task, "smoothing": smoothing, "feedback": feedback, "iterations": n,
             "seconds_per_iteration": float(np.mean(walls)), "min_seconds": float(np.min(walls)),
             "sampling": float(np.mean([r.get("time_sampling", math.nan) for r in hist])),
             "trust_region": float(np.mean([r.get("time_trust_region", math.nan) for r in hist])),
