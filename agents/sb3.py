@@ -264,6 +264,10 @@ class SB3Config:
     """Off-policy exploration noise: ``None``, ``"normal"`` or ``"ornstein-uhlenbeck"`` (std ``noise_std``)."""
     noise_std: float = 0.1
     """Standard deviation of ``noise_type`` noise, in action units."""
+    end_is_terminal: bool = True
+    """Report the end of every episode to SB3 as a termination. The robustness is of the finite trace
+    s_0 … s_T: nothing after its end counts, so SB3 must not add a bootstrapped value past a time-limit
+    truncation (which it does, as for infinite-horizon tasks). ``False`` keeps Gymnasium's flags."""
     algo_kwargs: dict[str, Any] = field(default_factory=dict)
     """Keyword arguments for the algorithm's constructor (``learning_rate``, ``n_steps``, ...)."""
 
@@ -281,6 +285,8 @@ class SB3Config:
         if self.n_timesteps is not None and (not isinstance(self.n_timesteps, (int, np.integer))
                                              or self.n_timesteps < 1):
             raise ValueError(f"n_timesteps must be an int >= 1 or None, got {self.n_timesteps!r}")
+        if not isinstance(self.end_is_terminal, bool):
+            raise ValueError(f"end_is_terminal must be true or false, got {self.end_is_terminal!r}")
         if self.noise_type is not None and self.noise_type not in NOISE_TYPES:
             raise ValueError(f"noise_type must be None or one of {NOISE_TYPES}, got {self.noise_type!r}")
         if not (isinstance(self.noise_std, (int, float)) and self.noise_std >= 0):
@@ -530,6 +536,8 @@ class SB3Agent(Agent):
         if self.config.noise_type is not None and "action_noise" not in kwargs:
             kwargs["action_noise"] = _action_noise(self.config.noise_type, self.config.noise_std, self.action_space)
         factories = _single_env_factories(self._env_argument, self._train_env_kwargs, self.config.n_envs)
+        if self.config.end_is_terminal:
+            factories = [lambda make=make: TraceEndIsTerminal(make()) for make in factories]
         self.sb3_env = DummyVecEnv(factories)
         normalize = parse_normalize(self.config.normalize)
         self.vec_normalize: VecNormalize | None = None
@@ -618,6 +626,20 @@ class SB3Agent(Agent):
             self.vec_normalize = loaded
         self.model = self.algo_class.load(io.BytesIO(files[SB3_MEMBER]), env=self._training_env(), device="cpu")
         self._quiet_logger()
+
+
+class TraceEndIsTerminal(gym.Wrapper):
+    """Reports every episode end (terminated or truncated) as a termination.
+
+    A TLTL reward is the robustness of the finite trace s_0 … s_T: when the trace ends, the
+    task ends, and no value lies beyond it. stable-baselines3 adds ``γ V(s_T)`` to the last
+    reward of a *truncated* episode (right for a time limit on an infinite-horizon task);
+    here that value would be the critic's guess at a state it never trained on.
+    """
+
+    def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return obs, reward, bool(terminated or truncated), False, info
 
 
 @contextlib.contextmanager

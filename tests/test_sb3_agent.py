@@ -241,3 +241,18 @@ def test_a_bad_hyperparameter_file_is_refused_naming_the_culprit(tmp_path, text,
         load_hyperparams(path)
     with pytest.raises(ValueError, match=message):
         SB3Agent("ppo", "TLCarNav-v0", hyperparams=str(path), **TINY)
+
+
+@pytest.mark.parametrize("end_is_terminal", [True, False])
+def test_the_end_of_the_trace_is_a_termination_for_sb3(end_is_terminal):
+    agent = SB3Agent("PPO", "TLCarNav-v0", seed=0, env_kwargs={"horizon": 3}, steps_per_iteration=6, n_envs=2,
+                     n_steps=3, batch_size=6, end_is_terminal=end_is_terminal)
+    venv = agent.sb3_env
+    venv.reset()
+    for _ in range(3):
+        _, _, dones, infos = venv.step(np.zeros((2, 2), dtype=np.float32))
+    assert dones.all()
+    # SB3 bootstraps a value past an episode end only when it was a truncation
+    assert [info["TimeLimit.truncated"] for info in infos] == [not end_is_terminal] * 2
+    with pytest.raises(ValueError, match="end_is_terminal must be true or false"):
+        SB3Agent("PPO", "TLCarNav-v0", end_is_terminal="yes")
