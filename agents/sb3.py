@@ -486,6 +486,10 @@ class SB3Agent(Agent):
             table = load_hyperparams(None if hyperparams is True else hyperparams)
             entry = find_hyperparams(table, *_env_key(env, env_kwargs), self.algo_class.__name__)
         settings = merge_hyperparameters(entry, explicit, on_policy)
+        if isinstance(env, str) and env_kwargs.get("reward_mode") == "potential" and "gamma" not in env_kwargs:
+            # potential shaping keeps the optimal policies only with the agent's own discount
+            env_kwargs = {**env_kwargs, "gamma": settings.get("gamma", _default_argument(self.algo_class, "gamma",
+                                                                                           0.99))}
         fields = {f.name for f in dataclasses.fields(SB3Config)} - {"algo_kwargs"}
         hyperparameters = {k: v for k, v in settings.items() if k in fields}
         hyperparameters.update(algo=self.algo_class.__name__, tl_reward=tl_reward, hyperparams=hyperparams,

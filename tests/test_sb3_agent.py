@@ -256,3 +256,13 @@ def test_the_end_of_the_trace_is_a_termination_for_sb3(end_is_terminal):
     assert [info["TimeLimit.truncated"] for info in infos] == [not end_is_terminal] * 2
     with pytest.raises(ValueError, match="end_is_terminal must be true or false"):
         SB3Agent("PPO", "TLCarNav-v0", end_is_terminal="yes")
+
+
+def test_potential_shaping_gets_the_agents_discount():
+    agent = SB3Agent("PPO", "TLCarNav-v0", seed=0, env_kwargs={"reward_mode": "potential", "horizon": 4},
+                     steps_per_iteration=8, n_envs=2, n_steps=4, batch_size=8, gamma=0.97)
+    assert agent.env_kwargs["gamma"] == 0.97 == agent.model.gamma
+    assert agent.sb3_env.get_attr("gamma") == [0.97, 0.97]
+    mine = SB3Agent("PPO", "TLCarNav-v0", seed=0, env_kwargs={"reward_mode": "potential", "gamma": 1.0, "horizon": 4},
+                    steps_per_iteration=8, n_envs=2, n_steps=4, batch_size=8, gamma=0.97)
+    assert mine.env_kwargs["gamma"] == 1.0  # the user's own wins
