@@ -7,11 +7,20 @@ The evaluators (``exact``, ``smooth``, ``bracket``) dispatch on these classes.
 A chain of ``&`` (or of ``|``) is one n-ary node whatever its parentheses: the
 constructors flatten nested conjunctions (disjunctions), as the paper's Eq. 17
 treats the goal box, so regrouping never changes a smoothed value.
+
+Every structural operation — printing, ``repr``, hashing, equality, `Formula.walk`,
+`Formula.signals`, `Formula.is_temporal` — runs on explicit stacks, so a formula nested
+10,000 levels deep prints, hashes and compares like a small one (docs/engine.md, "Depth").
+Nodes are immutable, so what is derived from a whole sub-tree (hash, signals, whether it is
+temporal, its nesting depth) is computed once, bottom-up, and kept on the node.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import operator
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar, Union
 
@@ -35,8 +44,25 @@ _E_ADD, _E_MUL, _E_UNARY, _E_POW, _E_ATOM = 1, 2, 3, 4, 5
 _F_IMPLIES, _F_OR, _F_AND, _F_BINARY_TEMPORAL, _F_UNARY, _F_ATOM = 1, 2, 3, 4, 5, 6
 
 
-def _wrap(text: str, own: int, needed: int) -> str:
-    return f"({text})" if own < needed else text
+def _wrapped(child: Any, needed: int) -> list[Any]:
+    """Print pieces of ``child``, in parentheses when it binds looser than ``needed``."""
+    return ["(", child, ")"] if child.precedence < needed else [child]
+
+
+def _render(root: Any) -> str:
+    """The canonical text of a node, from the pieces its ``_pieces`` lists (strings and nodes).
+
+    One explicit stack instead of nested ``str`` calls: linear in the text's length at any depth.
+    """
+    out: list[str] = []
+    stack: list[Any] = [root]
+    while stack:
+        item = stack.pop()
+        if isinstance(item, str):
+            out.append(item)
+        else:
+            stack.extend(reversed(item._pieces()))
+    return "".join(out)
 
 
 # --------------------------------------------------------------------------- expressions
@@ -100,8 +126,19 @@ class Expr:
     def signal_names(self) -> tuple[str, ...]:
         """Signal names this expression reads, in order of first appearance."""
         names: dict[str, None] = {}
-        _collect_expr_signals(self, names)
+        stack: list[Expr] = [self]
+        while stack:
+            expr = stack.pop()
+            if isinstance(expr, Var):
+                names.setdefault(expr.name, None)
+            stack.extend(reversed(parts(expr)))
         return tuple(names)
+
+    def __str__(self) -> str:
+        return _render(self)
+
+    def _pieces(self) -> list[Any]:
+        return [repr(self)]  # a node class from elsewhere, with no syntax of its own
 
 
 ExprLike = Union[Expr, int, float]
@@ -117,8 +154,8 @@ class Var(Expr):
         if not self.name.isidentifier() or self.name in RESERVED:
             raise ValueError(f"{self.name!r} cannot name a signal (reserved or not an identifier)")
 
-    def __str__(self) -> str:
-        return self.name
+    def _pieces(self) -> list[Any]:
+        return [self.name]
 
 
 @dataclass(frozen=True, eq=True)
@@ -136,11 +173,11 @@ class Num(Expr):
     def precedence(self) -> int:  # type: ignore[override]
         return _E_UNARY if self.value < 0 else _E_ATOM
 
-    def __str__(self) -> str:
+    def _pieces(self) -> list[Any]:
         v = self.value
         if v.is_integer() and abs(v) < 1e16:
-            return str(int(v))
-        return repr(v)
+            return [str(int(v))]
+        return [repr(v)]
 
 
 @dataclass(frozen=True, eq=True)
@@ -150,11 +187,11 @@ class Neg(Expr):
     operand: Expr
     precedence: ClassVar[int] = _E_UNARY
 
-    def __str__(self) -> str:
-        inner = str(self.operand)
+    def _pieces(self) -> list[Any]:
         if isinstance(self.operand, Num) and self.operand.precedence == _E_ATOM:
-            return f"-({inner})"  # keep `-3` for Num(-3): a literal folds into the number
-        return "-" + (" " if inner.startswith("-") else "") + _wrap(inner, self.operand.precedence, _E_UNARY)
+            return ["-(", self.operand, ")"]  # keep `-3` for Num(-3): a literal folds into the number
+        space = " " if _starts_with_minus(self.operand) else ""
+        return ["-" + space, *_wrapped(self.operand, _E_UNARY)]
 
 
 @dataclass(frozen=True, eq=True)
@@ -173,15 +210,16 @@ class BinOp(Expr):
     def precedence(self) -> int:  # type: ignore[override]
         return {"+": _E_ADD, "-": _E_ADD, "*": _E_MUL, "/": _E_MUL, "^": _E_POW}[self.op]
 
-    def __str__(self) -> str:
-        own = self.precedence
+    def _left_needs(self) -> int:
+        """The precedence the left operand must have to print without parentheses."""
+        return _E_ATOM if self.op == "^" else self.precedence
+
+    def _pieces(self) -> list[Any]:
         if self.op == "^":  # right-associative; the exponent may carry a unary minus
-            left = _wrap(str(self.left), self.left.precedence, _E_ATOM)
-            right = _wrap(str(self.right), self.right.precedence, _E_UNARY)
+            right_needs = _E_UNARY
         else:  # left-associative
-            left = _wrap(str(self.left), self.left.precedence, own)
-            right = _wrap(str(self.right), self.right.precedence, own + 1)
-        return f"{left} {self.op} {right}"
+            right_needs = self.precedence + 1
+        return [*_wrapped(self.left, self._left_needs()), f" {self.op} ", *_wrapped(self.right, right_needs)]
 
 
 @dataclass(frozen=True, eq=True)
@@ -199,8 +237,11 @@ class Call(Expr):
         if (arity > 0 and len(self.args) != arity) or len(self.args) == 0:
             raise ValueError(f"{self.func} takes {arity if arity > 0 else 'one or more'} argument(s)")
 
-    def __str__(self) -> str:
-        return f"{self.func}({', '.join(str(a) for a in self.args)})"
+    def _pieces(self) -> list[Any]:
+        pieces: list[Any] = [f"{self.func}("]
+        for i, arg in enumerate(self.args):
+            pieces += [", ", arg] if i else [arg]
+        return [*pieces, ")"]
 
 
 def as_expr(value: ExprLike) -> Expr:
@@ -212,17 +253,16 @@ def as_expr(value: ExprLike) -> Expr:
     return Num(float(value))
 
 
-def _collect_expr_signals(expr: Expr, names: dict[str, None]) -> None:
-    if isinstance(expr, Var):
-        names.setdefault(expr.name, None)
-    elif isinstance(expr, Neg):
-        _collect_expr_signals(expr.operand, names)
-    elif isinstance(expr, BinOp):
-        _collect_expr_signals(expr.left, names)
-        _collect_expr_signals(expr.right, names)
-    elif isinstance(expr, Call):
-        for arg in expr.args:
-            _collect_expr_signals(arg, names)
+def _starts_with_minus(expr: Expr) -> bool:
+    """Whether ``str(expr)`` starts with ``-``, found down the left edge without printing it."""
+    while True:
+        if isinstance(expr, Num):
+            return expr._pieces()[0].startswith("-")
+        if isinstance(expr, Neg):
+            return True
+        if not isinstance(expr, BinOp) or expr.left.precedence < expr._left_needs():
+            return False  # a name, a call, or a parenthesised left operand
+        expr = expr.left
 
 
 # --------------------------------------------------------------------------- formulas
@@ -265,24 +305,33 @@ class Formula:
     @property
     def signals(self) -> tuple[str, ...]:
         """Signal names the formula reads, in order of first appearance."""
-        names: dict[str, None] = {}
-        for node in self.walk():
-            if isinstance(node, Predicate):
-                for name in node.lhs.signal_names() + node.rhs.signal_names():
-                    names.setdefault(name, None)
-        return tuple(names)
+        return _derived(self, "_signals", _signals_of)
 
     def walk(self) -> list[Formula]:
         """Every node of the formula, parents before children (pre-order)."""
-        out: list[Formula] = [self]
-        for child in self.children:
-            out.extend(child.walk())
+        out: list[Formula] = []
+        stack: list[Formula] = [self]
+        while stack:
+            node = stack.pop()
+            out.append(node)
+            stack.extend(reversed(node.children))
         return out
 
     @property
     def is_temporal(self) -> bool:
         """Whether any temporal operator occurs in the formula."""
-        return any(isinstance(n, (Next, Eventually, Always, Until, Then)) for n in self.walk())
+        return _derived(self, "_temporal", _temporal_of)
+
+    @property
+    def depth(self) -> int:
+        """Nesting depth of the formula's operators (1 for a predicate or constant; arithmetic not counted)."""
+        return _derived(self, "_depth", _depth_of)
+
+    def __str__(self) -> str:
+        return _render(self)
+
+    def _pieces(self) -> list[Any]:
+        return [repr(self)]  # a node class from elsewhere, with no syntax of its own
 
     # Semantics (the evaluators live in their own modules) ---------------------------
     def robustness(self, trace: Trace, rho_max: float = math.inf) -> float | np.ndarray:
@@ -357,8 +406,30 @@ def _as_formula(value: Any) -> Formula:
     raise TypeError(f"expected a Formula, got {type(value).__name__}: {value!r}")
 
 
-def _child_str(child: Formula, needed: int) -> str:
-    return _wrap(str(child), child.precedence, needed)
+def _derived(node: Formula, attribute: str, rule: Callable[[Formula, list[Any]], Any]) -> Any:
+    """A property of ``node`` computed from its children's by ``rule``, bottom-up, kept on each node."""
+    cached = node.__dict__.get(attribute, _MISSING)
+    if cached is not _MISSING:
+        return cached
+    for item in _postorder_missing(node, attribute, lambda n: n.children):
+        object.__setattr__(item, attribute, rule(item, [c.__dict__[attribute] for c in item.children]))
+    return node.__dict__[attribute]
+
+
+def _signals_of(node: Formula, children: list[tuple[str, ...]]) -> tuple[str, ...]:
+    if isinstance(node, Predicate):
+        return tuple(dict.fromkeys(node.lhs.signal_names() + node.rhs.signal_names()))
+    if len(children) == 1:
+        return children[0]
+    return tuple(dict.fromkeys(name for names in children for name in names))
+
+
+def _temporal_of(node: Formula, children: list[bool]) -> bool:
+    return isinstance(node, (Next, Eventually, Always, Until, Then)) or any(children)
+
+
+def _depth_of(node: Formula, children: list[int]) -> int:
+    return 1 + max(children, default=0)
 
 
 @dataclass(frozen=True, eq=True)
@@ -367,8 +438,8 @@ class Constant(Formula):
 
     value: bool
 
-    def __str__(self) -> str:
-        return "true" if self.value else "false"
+    def _pieces(self) -> list[Any]:
+        return ["true" if self.value else "false"]
 
 
 @dataclass(frozen=True, eq=True)
@@ -383,8 +454,8 @@ class Predicate(Formula):
         if self.op not in COMPARISONS:
             raise ValueError(f"unknown comparison {self.op!r}; use one of {COMPARISONS}")
 
-    def __str__(self) -> str:
-        return f"{self.lhs} {self.op} {self.rhs}"
+    def _pieces(self) -> list[Any]:
+        return [self.lhs, f" {self.op} ", self.rhs]
 
 
 @dataclass(frozen=True, eq=True)
@@ -398,8 +469,8 @@ class Not(Formula):
     def children(self) -> tuple[Formula, ...]:
         return (self.child,)
 
-    def __str__(self) -> str:
-        return "!" + _child_str(self.child, _F_UNARY)
+    def _pieces(self) -> list[Any]:
+        return ["!", *_wrapped(self.child, _F_UNARY)]
 
 
 class _NAry(Formula):
@@ -421,8 +492,13 @@ class _NAry(Formula):
             raise ValueError(f"{type(self).__name__} needs at least two operands, got {len(flat)}")
         object.__setattr__(self, "operands", tuple(flat))
 
-    def __str__(self) -> str:
-        return f" {self.symbol} ".join(_child_str(c, self.precedence + 1) for c in self.children)
+    def _pieces(self) -> list[Any]:
+        pieces: list[Any] = []
+        for i, child in enumerate(self.children):
+            if i:
+                pieces.append(f" {self.symbol} ")
+            pieces += _wrapped(child, self.precedence + 1)
+        return pieces
 
 
 @dataclass(frozen=True, eq=True)
@@ -454,9 +530,9 @@ class _Binary(Formula):
     def children(self) -> tuple[Formula, ...]:
         return (self.left, self.right)
 
-    def __str__(self) -> str:
+    def _pieces(self) -> list[Any]:
         own = self.precedence
-        return f"{_child_str(self.left, own + 1)} {self.symbol} {_child_str(self.right, own)}"
+        return [*_wrapped(self.left, own + 1), f" {self.symbol} ", *_wrapped(self.right, own)]
 
 
 @dataclass(frozen=True, eq=True)
@@ -498,8 +574,8 @@ class _Unary(Formula):
     def children(self) -> tuple[Formula, ...]:
         return (self.child,)
 
-    def __str__(self) -> str:
-        return f"{self.symbol} " + _child_str(self.child, _F_UNARY)
+    def _pieces(self) -> list[Any]:
+        return [f"{self.symbol} ", *_wrapped(self.child, _F_UNARY)]
 
 
 @dataclass(frozen=True, eq=True)
@@ -531,23 +607,156 @@ FORMULA_NODES: tuple[type[Formula], ...] = (
 )
 
 
+_MISSING = object()
+
+
+def parts(node: Any) -> tuple[Any, ...]:
+    """A node's direct sub-nodes, formulas and expressions alike (a predicate's are its two sides)."""
+    if isinstance(node, Formula):
+        return (node.lhs, node.rhs) if isinstance(node, Predicate) else node.children
+    if isinstance(node, Neg):
+        return (node.operand,)
+    if isinstance(node, BinOp):
+        return (node.left, node.right)
+    if isinstance(node, Call):
+        return node.args
+    return ()
+
+
+def _postorder_missing(root: Any, attribute: str, children: Callable[[Any], tuple[Any, ...]]) -> list[Any]:
+    """The nodes under ``root`` that lack ``attribute``, children before parents, each once.
+
+    Nodes that have it are not entered: what is cached below them is already complete.
+    """
+    order: list[Any] = []
+    seen: set[int] = set()
+    stack: list[tuple[Any, bool]] = [(root, False)]
+    while stack:
+        node, expanded = stack.pop()
+        if expanded:
+            order.append(node)
+            continue
+        if id(node) in seen or attribute in node.__dict__:
+            continue
+        seen.add(id(node))
+        stack.append((node, True))
+        stack.extend((child, False) for child in reversed(children(node)))
+    return order
+
+
+_FIELDS: dict[type, tuple[str, ...]] = {}  # each node class's dataclass fields (not its ClassVars), in order
+
+
+def _fields(cls: type) -> tuple[str, ...]:
+    """The dataclass fields of a node class (none for a class that is not a dataclass)."""
+    names = _FIELDS.get(cls)
+    if names is None:
+        names = _FIELDS[cls] = tuple(f.name for f in dataclasses.fields(cls)) if dataclasses.is_dataclass(cls) else ()
+    return names
+
+
 def _cached_hash(self: Any) -> int:
-    """Structural hash, computed once per node: evaluators key their caches by node."""
-    try:
-        return self.__dict__["_hash"]
-    except KeyError:
-        value = hash((type(self).__name__, *(getattr(self, f) for f in self.__dataclass_fields__)))
-        object.__setattr__(self, "_hash", value)
-        return value
+    """Structural hash, computed once per node (bottom-up, no recursion): evaluators key their caches by node."""
+    cached = self.__dict__.get("_hash")
+    if cached is not None:
+        return cached
+    for node in _postorder_missing(self, "_hash", parts):
+        fields = _fields(type(node))
+        object.__setattr__(node, "_hash", hash((type(node).__name__, *(getattr(node, f) for f in fields))))
+    return self.__dict__["_hash"]
 
 
-def _state_without_hash(self: Any) -> dict[str, Any]:
-    """Pickle state without the cached hash: string hashes differ between processes."""
-    state = dict(self.__dict__)
-    state.pop("_hash", None)
-    return state
+_SHALLOW = 200  # nodes up to this height compare by plain recursion: bounded, and faster than a stack
+_GETTERS: dict[type, Callable[[Any], Any]] = {}
+
+
+def _height(node: Any) -> int:
+    """Height of the node's tree, expressions included (1 for a leaf); kept on each node."""
+    cached = node.__dict__.get("_height")
+    if cached is not None:
+        return cached
+    for item in _postorder_missing(node, "_height", parts):
+        object.__setattr__(item, "_height", 1 + max((c.__dict__["_height"] for c in parts(item)), default=0))
+    return node.__dict__["_height"]
+
+
+def _structural_eq(self: Any, other: Any) -> Any:
+    """Structural equality, as the dataclasses define it (field by field), at any depth."""
+    if self is other:
+        return True
+    if type(other) is not type(self):
+        return NotImplemented
+    hash_a, hash_b = self.__dict__.get("_hash"), other.__dict__.get("_hash")
+    if hash_a is not None and hash_b is not None and hash_a != hash_b:
+        return False
+    if _height(self) <= _SHALLOW:
+        getter = _GETTERS.get(type(self))
+        if getter is None:
+            names = _fields(type(self))
+            getter = _GETTERS[type(self)] = operator.attrgetter(*names) if names else (lambda node: ())
+        return getter(self) == getter(other)  # the fields' own __eq__: recursion no deeper than _SHALLOW
+    return _deep_eq(self, other)
+
+
+def _deep_eq(self: Any, other: Any) -> bool:
+    """Structural equality compared pair by pair on an explicit stack."""
+    stack: list[tuple[Any, Any]] = [(self, other)]
+    while stack:
+        a, b = stack.pop()
+        if a is b:
+            continue
+        if type(a) is not type(b):
+            return False
+        hash_a, hash_b = a.__dict__.get("_hash"), b.__dict__.get("_hash")
+        if hash_a is not None and hash_b is not None and hash_a != hash_b:
+            return False
+        for field in _fields(type(a)):
+            x, y = getattr(a, field), getattr(b, field)
+            if isinstance(x, tuple):
+                if not isinstance(y, tuple) or len(x) != len(y):
+                    return False
+                stack.extend(zip(x, y))
+            elif isinstance(x, (Formula, Expr)):
+                stack.append((x, y))
+            elif type(x) is not type(y) or x != y:
+                return False
+    return True
+
+
+def _repr(self: Any) -> str:
+    """``Class(field=value, ...)`` as the dataclasses print it, from an explicit stack."""
+    out: list[str] = []
+    stack: list[Any] = [self]
+    while stack:
+        item = stack.pop()
+        if isinstance(item, str):
+            out.append(item)
+            continue
+        pieces: list[Any] = [f"{type(item).__name__}("]
+        for i, field in enumerate(_fields(type(item))):
+            pieces.append(f"{', ' if i else ''}{field}=")
+            value = getattr(item, field)
+            if isinstance(value, tuple):
+                pieces.append("(")
+                for j, element in enumerate(value):
+                    pieces += [", ", element] if j else [element]
+                pieces.append(",)" if len(value) == 1 else ")")
+            elif isinstance(value, (Formula, Expr)):
+                pieces.append(value)
+            else:
+                pieces.append(repr(value))
+        pieces.append(")")
+        stack.extend(reversed(pieces))
+    return "".join(out)
+
+
+def _state_without_caches(self: Any) -> dict[str, Any]:
+    """Pickle state without the cached values: string hashes differ between processes."""
+    return {k: v for k, v in self.__dict__.items() if not k.startswith("_")}
 
 
 for _cls in (*FORMULA_NODES, Var, Num, Neg, BinOp, Call):
     _cls.__hash__ = _cached_hash  # type: ignore[method-assign]
-    _cls.__getstate__ = _state_without_hash  # type: ignore[attr-defined]
+    _cls.__eq__ = _structural_eq  # type: ignore[method-assign]
+    _cls.__repr__ = _repr  # type: ignore[method-assign]
+    _cls.__getstate__ = _state_without_caches  # type: ignore[attr-defined]

@@ -37,18 +37,33 @@ def smoothing_bracket(formula: Formula, horizon: int, beta: float) -> tuple[floa
     return below / beta, above / beta
 
 
-def _bracket(node: Formula, horizon: int) -> tuple[float, float]:
-    """Bracket in units of 1/β."""
+def _bracket(root: Formula, horizon: int) -> tuple[float, float]:
+    """Bracket in units of 1/β, node by node from the leaves up (an explicit stack: any depth)."""
+    done: dict[int, tuple[float, float]] = {}  # by node identity: a shared sub-formula is bracketed once
+    stack: list[tuple[Formula, bool]] = [(root, False)]
+    while stack:
+        node, expanded = stack.pop()
+        if id(node) in done:
+            continue
+        if not expanded:
+            stack.append((node, True))
+            stack.extend((child, False) for child in node.children if id(child) not in done)
+            continue
+        done[id(node)] = _node_bracket(node, [done[id(c)] for c in node.children], horizon)
+    return done[id(root)]
+
+
+def _node_bracket(node: Formula, parts: list[tuple[float, float]], horizon: int) -> tuple[float, float]:
+    """A node's bracket from its operands' brackets ``parts``."""
     log_t = math.log(horizon)
     if isinstance(node, (Constant, Predicate)):
         return 0.0, 0.0
     if isinstance(node, Not):
-        below, above = _bracket(node.child, horizon)
+        below, above = parts[0]
         return above, below
     if isinstance(node, Next):
-        return _bracket(node.child, horizon)
+        return parts[0]
     if isinstance(node, (And, Or, Implies)):
-        parts = [_bracket(c, horizon) for c in node.children]
         if isinstance(node, Implies):
             parts[0] = parts[0][::-1]  # max(-φ, ψ): φ's error is negated
         below = max(p[0] for p in parts)
@@ -56,14 +71,13 @@ def _bracket(node: Formula, horizon: int) -> tuple[float, float]:
         grow = math.log(len(parts))
         return (below + grow, above) if isinstance(node, And) else (below, above + grow)
     if isinstance(node, Eventually):
-        below, above = _bracket(node.child, horizon)
+        below, above = parts[0]
         return below, above + log_t
     if isinstance(node, Always):
-        below, above = _bracket(node.child, horizon)
+        below, above = parts[0]
         return below + log_t, above
     if isinstance(node, (Until, Then)):
-        left_below, left_above = _bracket(node.left, horizon)
-        right_below, right_above = _bracket(node.right, horizon)
+        (left_below, left_above), (right_below, right_above) = parts
         inner_terms = math.log(max(horizon - 1, 1))
         if isinstance(node, Until):  # smin over t'' of φ
             inner = (left_below + inner_terms, left_above)

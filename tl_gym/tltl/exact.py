@@ -13,7 +13,7 @@ s_{t''..t'-1}, which costs O(N·T²) time (and O(N·T) memory).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Generator
 from dataclasses import dataclass
 from typing import Any
 
@@ -37,7 +37,11 @@ from tl_gym.tltl.ast import (
     Until,
 )
 from tl_gym.tltl.expressions import evaluate_expression, margin_bound
+from tl_gym.tltl.iterative import resolve
 from tl_gym.tltl.trace import Trace, check_rho_max, chunks, prepare
+
+# A rule that needs its operands' values yields their keys ``(node, first_only)`` and gets the values back.
+_Rule = Generator[tuple[Formula, bool], np.ndarray, np.ndarray]
 
 
 @dataclass(frozen=True)
@@ -123,16 +127,27 @@ class _Evaluator:
         return np.full((self.n, self.length if length is None else length), value, dtype=self.alg.dtype)
 
     def __call__(self, node: Formula, first_only: bool = False) -> np.ndarray:
-        """Values of ``node``; callers must not modify them in place (they are shared)."""
+        """Values of ``node``; callers must not modify them in place (they are shared).
+
+        Rules ``yield`` the ``(child, first_only)`` keys they need (`tl_gym.tltl.iterative.resolve`
+        evaluates those first, without recursion, so any nesting depth works).
+        """
         key = (node, first_only)
         cached = self.cache.get(key)
         if cached is not None:
             return cached
+        return resolve(key, self.cache, self._start, self._finish)
+
+    def _start(self, key: tuple[Formula, bool]) -> Any:
+        node, first_only = key
         try:
             rule = _RULES[type(node)]
         except KeyError:
             raise TypeError(f"no evaluation rule for formula node {type(node).__name__}") from None
-        values = self.cache[key] = rule(self, node, first_only)
+        return rule(self, node, first_only)
+
+    def _finish(self, key: tuple[Formula, bool], values: np.ndarray) -> np.ndarray:
+        self.cache[key] = values
         return values
 
     def on_prefix(self, node: Formula, length: int) -> np.ndarray:
@@ -169,49 +184,51 @@ class _Evaluator:
         """Whether the margin is known finite from the signals' magnitudes (`margin_bound`)."""
         return margin_bound(node.lhs, node.rhs, tuple(self.magnitudes.items())) < 1e307
 
-    def not_(self, node: Not, first_only: bool) -> np.ndarray:
-        return self.alg.negate(self(node.child, first_only))
+    def not_(self, node: Not, first_only: bool) -> _Rule:
+        return self.alg.negate((yield node.child, first_only))
 
-    def and_(self, node: And, first_only: bool) -> np.ndarray:
-        out = self.alg.minimum(self(node.operands[0], first_only), self(node.operands[1], first_only))
+    def and_(self, node: And, first_only: bool) -> _Rule:
+        return (yield from self._extreme_of_operands(node, first_only, self.alg.minimum))
+
+    def or_(self, node: Or, first_only: bool) -> _Rule:
+        return (yield from self._extreme_of_operands(node, first_only, self.alg.maximum))
+
+    def _extreme_of_operands(self, node: And | Or, first_only: bool, pick: np.ufunc) -> _Rule:
+        first = yield node.operands[0], first_only
+        out = pick(first, (yield node.operands[1], first_only))
         for child in node.operands[2:]:
-            self.alg.minimum(out, self(child, first_only), out=out)
+            pick(out, (yield child, first_only), out=out)
         return out
 
-    def or_(self, node: Or, first_only: bool) -> np.ndarray:
-        out = self.alg.maximum(self(node.operands[0], first_only), self(node.operands[1], first_only))
-        for child in node.operands[2:]:
-            self.alg.maximum(out, self(child, first_only), out=out)
-        return out
+    def implies(self, node: Implies, first_only: bool) -> _Rule:
+        left = yield node.left, first_only
+        return self.alg.maximum(self.alg.negate(left), (yield node.right, first_only))
 
-    def implies(self, node: Implies, first_only: bool) -> np.ndarray:
-        return self.alg.maximum(self.alg.negate(self(node.left, first_only)), self(node.right, first_only))
-
-    def next_(self, node: Next, first_only: bool) -> np.ndarray:
+    def next_(self, node: Next, first_only: bool) -> _Rule:
         if first_only:
             if self.length == 1:
                 return self.full(self.alg.bottom, 1)
-            return self(node.child)[:, 1:2]
-        child = self(node.child)
+            return (yield node.child, False)[:, 1:2]
+        child = yield node.child, False
         out = np.empty_like(child)
         out[:, :-1] = child[:, 1:]
         out[:, -1] = self.alg.bottom  # no next state: the paper's "k > 0" fails
         return out
 
-    def eventually(self, node: Eventually, first_only: bool) -> np.ndarray:
+    def eventually(self, node: Eventually, first_only: bool) -> _Rule:
         if first_only:
             hoisted = self._monotone_extreme(node.child, largest=True)
             if hoisted is not None:
                 return hoisted
-        child = self(node.child)
+        child = yield node.child, False
         return self.alg.maximum.reduce(child, axis=1, keepdims=True) if first_only else _suffix(self.alg.maximum, child)
 
-    def always(self, node: Always, first_only: bool) -> np.ndarray:
+    def always(self, node: Always, first_only: bool) -> _Rule:
         if first_only:
             hoisted = self._monotone_extreme(node.child, largest=False)
             if hoisted is not None:
                 return hoisted
-        child = self(node.child)
+        child = yield node.child, False
         return self.alg.minimum.reduce(child, axis=1, keepdims=True) if first_only else _suffix(self.alg.minimum, child)
 
     def _monotone_extreme(self, node: Formula, largest: bool) -> np.ndarray | None:
@@ -241,23 +258,25 @@ class _Evaluator:
         extreme = ends[1] if grows == largest else ends[0]
         return extreme - constant if grows else constant - extreme
 
-    def until(self, node: Until, first_only: bool) -> np.ndarray:
+    def until(self, node: Until, first_only: bool) -> _Rule:
         alg = self.alg
         if node.left.is_temporal:
-            out = self._binary_on_segments(node, alg.minimum, alg.empty_min)
+            out = yield from self._binary_on_segments(node, alg.minimum, alg.empty_min)
         elif first_only:  # max_t' min(ψ(t'), min_{t'' < t'} φ(t'')): one prefix scan
-            before = _exclusive_prefix(alg.minimum, self(node.left), alg.empty_min)
-            return alg.maximum.reduce(alg.minimum(self(node.right), before), axis=1, keepdims=True)
+            before = _exclusive_prefix(alg.minimum, (yield node.left, False), alg.empty_min)
+            return alg.maximum.reduce(alg.minimum((yield node.right, False), before), axis=1, keepdims=True)
         else:
-            out = _until_scan(alg, self(node.left), self(node.right))
+            left = yield node.left, False
+            out = _until_scan(alg, left, (yield node.right, False))
         return out[:, :1] if first_only else out
 
-    def then(self, node: Then, first_only: bool) -> np.ndarray:
+    def then(self, node: Then, first_only: bool) -> _Rule:
         alg = self.alg
         if node.left.is_temporal:
-            out = self._binary_on_segments(node, alg.maximum, alg.empty_max)
+            out = yield from self._binary_on_segments(node, alg.maximum, alg.empty_max)
             return out[:, :1] if first_only else out
-        left, right = self(node.left), self(node.right)
+        left = yield node.left, False
+        right = yield node.right, False
         if first_only:  # max_t' min(ψ(t'), max_{t'' < t'} φ(t'')): one prefix scan
             before = _exclusive_prefix(alg.maximum, left, alg.empty_max)
             return alg.maximum.reduce(alg.minimum(right, before), axis=1, keepdims=True)
@@ -267,9 +286,9 @@ class _Evaluator:
         later_right[:, :-1] = _suffix(alg.maximum, right)[:, 1:]
         return _suffix(alg.maximum, alg.minimum(left, later_right))
 
-    def _binary_on_segments(self, node: Until | Then, inner: np.ufunc, inner_empty: Any) -> np.ndarray:
+    def _binary_on_segments(self, node: Until | Then, inner: np.ufunc, inner_empty: Any) -> _Rule:
         """U/T with a temporal left operand, judged on each segment s_{t''..t'-1}: O(N·T²) time."""
-        right = self(node.right)
+        right = yield node.right, False
         out = self.full(self.alg.empty_max)
         for t_prime in range(self.length):
             # reduced[t] = inner reduction of φ(s_{t''..t'-1}) over t'' in [t, t'); empty at t = t'

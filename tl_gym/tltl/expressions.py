@@ -1,4 +1,9 @@
-"""Evaluation of the arithmetic inside predicates, for numpy arrays and torch tensors."""
+"""Evaluation of the arithmetic inside predicates, for numpy arrays and torch tensors.
+
+Every function here walks the expression in post-order on an explicit stack (the order
+is computed once per expression, `postorder`), so a sum of 10,000 terms or 10,000 nested
+minus signs evaluates, differentiates and is bounded without Python recursion.
+"""
 
 from __future__ import annotations
 
@@ -9,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from tl_gym.tltl.ast import BinOp, Call, Expr, Neg, Num, Var
+from tl_gym.tltl.ast import BinOp, Call, Expr, Neg, Num, Var, parts
 from tl_gym.tltl.trace import is_torch
 
 
@@ -27,49 +32,89 @@ def _functions(sample: Any) -> dict[str, Any]:
     }
 
 
+def postorder(expr: Expr) -> tuple[Expr, ...]:
+    """Every node of ``expr``, operands before their operation (one entry per occurrence).
+
+    Computed once per expression and kept on it (expressions are immutable).
+    """
+    cached = expr.__dict__.get("_postorder")
+    if cached is not None:
+        return cached
+    order: list[Expr] = []
+    stack: list[tuple[Expr, bool]] = [(expr, False)]
+    while stack:
+        node, expanded = stack.pop()
+        if expanded:
+            order.append(node)
+        else:
+            stack.append((node, True))
+            stack.extend((child, False) for child in reversed(parts(node)))
+    result = tuple(order)
+    object.__setattr__(expr, "_postorder", result)
+    return result
+
+
+def _unknown(e: Expr) -> TypeError:
+    return TypeError(f"no evaluation rule for expression node {type(e).__name__}")
+
+
 def evaluate_expression(expr: Expr, signals: dict[str, Any], sample: Any) -> Any:
     """Value of ``expr`` on the ``(N, T)`` signals; ``sample`` picks the array library.
 
-    Numbers stay Python floats so that they broadcast against the signals.
-    ``min``/``max`` inside a predicate are the exact ones: they are part of the
-    predicate's function f(s), not of the robustness (smoothing leaves them alone).
+    Numbers are numpy scalars so that they broadcast against the signals (and 0/0 is
+    NaN, refused later, not ZeroDivisionError). ``min``/``max`` inside a predicate are
+    the exact ones: they are part of the predicate's function f(s), not of the
+    robustness (smoothing leaves them alone).
     """
     fns = _functions(sample)
-
-    def ev(e: Expr) -> Any:
+    values: list[Any] = []  # operands awaiting their operation
+    for e in postorder(expr):
         if isinstance(e, Var):
-            return signals[e.name]
-        if isinstance(e, Num):
-            return np.float64(e.value)  # numpy division: 0/0 is NaN (refused later), not ZeroDivisionError
-        if isinstance(e, Neg):
-            return -ev(e.operand)
-        if isinstance(e, BinOp):
-            a, b = ev(e.left), ev(e.right)
-            if e.op == "+":
-                return a + b
-            if e.op == "-":
-                return a - b
-            if e.op == "*":
-                return a * b
-            if e.op == "/":
-                return a / b
-            if _is_square(a, b):
-                return a * a  # what pow does, without its general path
-            return fns["pow"](np.float64(a) if isinstance(a, float) else a, b)
-        if isinstance(e, Call):
-            args = [ev(a) for a in e.args]
-            if e.func in ("min", "max"):
-                return reduce(fns[e.func], args) if len(args) > 1 else args[0]
-            arg = args[0]
-            if isinstance(arg, float):
-                arg = np.float64(arg)
-            return fns[e.func](arg)
-        raise TypeError(f"no evaluation rule for expression node {type(e).__name__}")
+            values.append(signals[e.name])
+        elif isinstance(e, Num):
+            values.append(np.float64(e.value))
+        elif isinstance(e, Neg):
+            values[-1] = -values[-1]
+        elif isinstance(e, BinOp):
+            b = values.pop()
+            values[-1] = _arithmetic(e.op, values[-1], b, fns)
+        elif isinstance(e, Call):
+            args = values[len(values) - len(e.args):]
+            del values[len(values) - len(e.args):]
+            values.append(_call(e.func, args, fns))
+        else:
+            raise _unknown(e)
+    return values[0]
 
-    return ev(expr)
+
+def _arithmetic(op: str, a: Any, b: Any, fns: dict[str, Any]) -> Any:
+    if op == "+":
+        return a + b
+    if op == "-":
+        return a - b
+    if op == "*":
+        return a * b
+    if op == "/":
+        return a / b
+    if _is_square(a, b):
+        return a * a  # what pow does, without its general path
+    return fns["pow"](np.float64(a) if isinstance(a, float) else a, b)
+
+
+def _call(func: str, args: list[Any], fns: dict[str, Any]) -> Any:
+    if func in ("min", "max"):
+        return reduce(fns[func], args) if len(args) > 1 else args[0]
+    arg = args[0]
+    if isinstance(arg, float):
+        arg = np.float64(arg)
+    return fns[func](arg)
 
 
 GradientTerm = tuple[str, Any, float, bool]  # (signal, array, coefficient, owned): coefficient · array
+
+# A node's backward rule: (grad, coef, owned) -> what to send to each operand, in order, as
+# (operand's rule, grad, coef, owned); a signal's rule is its name.
+_Back = Any
 
 
 def evaluate_with_gradient(expr: Expr, signals: dict[str, np.ndarray]) -> tuple[Any, Any]:
@@ -83,9 +128,10 @@ def evaluate_with_gradient(expr: Expr, signals: dict[str, np.ndarray]) -> tuple[
 
     ``min``/``max`` pass the gradient to the first operand attaining the extreme;
     ``abs`` has gradient 0 at 0 (subgradients, as torch does).
-    """
-    _Back = Any  # (grad, coef, owned, terms) -> None
 
+    Both passes run on explicit stacks: the forward pass in post-order, the backward pass
+    from the root down, each operation's operands in the order its rule lists them.
+    """
     # Intermediate arrays that nothing reads again, by id (held here, so an id is never reused while
     # listed): the operation that consumes one may write its result into it.
     spare: dict[int, np.ndarray] = {}
@@ -102,28 +148,14 @@ def evaluate_with_gradient(expr: Expr, signals: dict[str, np.ndarray]) -> tuple[
                 return spare.pop(id(operand))
         return None
 
-    def ev(e: Expr) -> tuple[Any, _Back | None]:
-        if isinstance(e, Var):
-            def back_var(grad: Any, coef: float, owned: bool, terms: list[GradientTerm]) -> None:
-                terms.append((e.name, grad, coef, owned))
-            return signals[e.name], back_var
-        if isinstance(e, Num):
-            return np.float64(e.value), None
-        if isinstance(e, Neg):
-            value, back = ev(e.operand)
-            out = np.negative(value, out=into(value, shape=np.shape(value)))
-            release(out)
-            if back is None:
-                return out, None
-            return out, lambda g, c, o, t: back(g, -c, o, t)
-        if isinstance(e, BinOp):
-            return binary(e)
-        if isinstance(e, Call):
-            return call(e)
-        raise TypeError(f"no evaluation rule for expression node {type(e).__name__}")
+    def negation(value: Any, back: _Back | None) -> tuple[Any, _Back | None]:
+        out = np.negative(value, out=into(value, shape=np.shape(value)))
+        release(out)
+        if back is None:
+            return out, None
+        return out, lambda g, c, o: [(back, g, -c, o)]
 
-    def binary(e: BinOp) -> tuple[Any, _Back | None]:
-        (a, back_a), (b, back_b) = ev(e.left), ev(e.right)
+    def binary(e: BinOp, a: Any, back_a: _Back | None, b: Any, back_b: _Back | None) -> tuple[Any, _Back | None]:
         if back_a is None and back_b is None:
             return _apply(e.op, a, b), None
         scalar_a, scalar_b = np.ndim(a) == 0, np.ndim(b) == 0
@@ -133,47 +165,48 @@ def evaluate_with_gradient(expr: Expr, signals: dict[str, np.ndarray]) -> tuple[
         if back_b is None or e.op in ("+", "-", "*"):  # a quotient's or a power's backward wrt b reads the result
             release(out)
 
-        def back(grad: Any, coef: float, owned: bool, terms: list[GradientTerm]) -> None:
+        def back(grad: Any, coef: float, owned: bool) -> list[Any]:
             both = back_a is not None and back_b is not None  # then the two sides share ``grad``
+            sends: list[Any] = []
             if e.op in ("+", "-"):
                 if back_a is not None:
-                    back_a(grad, coef, owned and not both, terms)
+                    sends.append((back_a, grad, coef, owned and not both))
                 if back_b is not None:
-                    back_b(grad, coef if e.op == "+" else -coef, owned and not both, terms)
+                    sends.append((back_b, grad, coef if e.op == "+" else -coef, owned and not both))
             elif e.op == "*":
                 if back_a is not None:
                     if scalar_b:
-                        back_a(grad, coef * float(b), owned and not both, terms)
+                        sends.append((back_a, grad, coef * float(b), owned and not both))
                     else:
-                        back_a(_on_grad(np.multiply, grad, b, owned and not both), coef, True, terms)
+                        sends.append((back_a, _on_grad(np.multiply, grad, b, owned and not both), coef, True))
                 if back_b is not None:
                     if scalar_a:
-                        back_b(grad, coef * float(a), owned, terms)
+                        sends.append((back_b, grad, coef * float(a), owned))
                     else:
-                        back_b(_on_grad(np.multiply, grad, a, owned), coef, True, terms)
+                        sends.append((back_b, _on_grad(np.multiply, grad, a, owned), coef, True))
             elif e.op == "/":
                 if back_b is not None:  # d(a/b)/db = −out / b
-                    back_b(_on_grad(np.divide, _on_grad(np.multiply, grad, out, False), b, True), -coef, True, terms)
+                    slope = _on_grad(np.divide, _on_grad(np.multiply, grad, out, False), b, True)
+                    sends.append((back_b, slope, -coef, True))
                 if back_a is not None:
                     if scalar_b:
-                        back_a(grad, coef / float(b), owned, terms)
+                        sends.append((back_a, grad, coef / float(b), owned))
                     else:
-                        back_a(_on_grad(np.divide, grad, b, owned), coef, True, terms)
+                        sends.append((back_a, _on_grad(np.divide, grad, b, owned), coef, True))
             else:  # power
                 if back_b is not None:  # d(a^b)/db = out · log a
                     slope = _on_grad(np.multiply, grad, out, False)
-                    back_b(_on_grad(np.multiply, slope, np.log(a), True), coef, True, terms)
+                    sends.append((back_b, _on_grad(np.multiply, slope, np.log(a), True), coef, True))
                 if back_a is not None:
                     if _is_square(a, b):
-                        back_a(_on_grad(np.multiply, grad, a, owned), 2.0 * coef, True, terms)
+                        sends.append((back_a, _on_grad(np.multiply, grad, a, owned), 2.0 * coef, True))
                     else:
-                        back_a(_on_grad(np.multiply, grad, b * np.power(a, b - 1.0), owned), coef, True, terms)
+                        sends.append((back_a, _on_grad(np.multiply, grad, b * np.power(a, b - 1.0), owned), coef, True))
+            return sends
 
         return out, back
 
-    def call(e: Call) -> tuple[Any, _Back | None]:
-        parts = [ev(a) for a in e.args]
-        values = [p[0] for p in parts]
+    def call(e: Call, values: list[Any], backs: list[_Back | None]) -> tuple[Any, _Back | None]:
         if e.func in ("min", "max"):
             stacked = np.stack(np.broadcast_arrays(*values))
             pick = stacked.argmin(0) if e.func == "min" else stacked.argmax(0)
@@ -186,35 +219,58 @@ def evaluate_with_gradient(expr: Expr, signals: dict[str, np.ndarray]) -> tuple[
             out = {"abs": np.abs, "sqrt": np.sqrt, "exp": np.exp, "log": np.log}[e.func](x, out=target)
         if e.func in ("min", "max") or not reads_out:
             release(out)
-        if all(p[1] is None for p in parts):
+        if all(b is None for b in backs):
             return out, None
 
-        def back(grad: Any, coef: float, owned: bool, terms: list[GradientTerm]) -> None:
+        def back(grad: Any, coef: float, owned: bool) -> list[Any]:
             if e.func in ("min", "max"):
-                for i, (_, back_i) in enumerate(parts):
-                    if back_i is not None:
-                        back_i(grad * (pick == i), coef, True, terms)
-                return
-            x, back_x = values[0], parts[0][1]
+                return [(b_i, grad * (pick == i), coef, True) for i, b_i in enumerate(backs) if b_i is not None]
+            x, back_x = values[0], backs[0]
             if e.func == "sqrt":
-                back_x(_on_grad(np.divide, grad, out, owned), 0.5 * coef, True, terms)
-            elif e.func == "exp":
-                back_x(_on_grad(np.multiply, grad, out, owned), coef, True, terms)
-            elif e.func == "log":
-                back_x(_on_grad(np.divide, grad, x, owned), coef, True, terms)
-            else:  # abs
-                back_x(_on_grad(np.multiply, grad, np.sign(x), owned), coef, True, terms)
+                return [(back_x, _on_grad(np.divide, grad, out, owned), 0.5 * coef, True)]
+            if e.func == "exp":
+                return [(back_x, _on_grad(np.multiply, grad, out, owned), coef, True)]
+            if e.func == "log":
+                return [(back_x, _on_grad(np.divide, grad, x, owned), coef, True)]
+            return [(back_x, _on_grad(np.multiply, grad, np.sign(x), owned), coef, True)]  # abs
 
         return out, back
 
+    values: list[Any] = []  # operands awaiting their operation, and their backward rules
+    backs: list[_Back | None] = []
     with np.errstate(all="ignore"):  # undefined arithmetic is the caller's to find and refuse
-        value, back = ev(expr)
+        for e in postorder(expr):
+            if isinstance(e, Var):
+                values.append(signals[e.name])
+                backs.append(e.name)
+            elif isinstance(e, Num):
+                values.append(np.float64(e.value))
+                backs.append(None)
+            elif isinstance(e, Neg):
+                values[-1], backs[-1] = negation(values[-1], backs[-1])
+            elif isinstance(e, BinOp):
+                b, back_b = values.pop(), backs.pop()
+                values[-1], backs[-1] = binary(e, values[-1], backs[-1], b, back_b)
+            elif isinstance(e, Call):
+                k = len(values) - len(e.args)
+                value, back = call(e, values[k:], backs[k:])
+                del values[k:], backs[k:]
+                values.append(value)
+                backs.append(back)
+            else:
+                raise _unknown(e)
+    value, root = values[0], backs[0]
 
     def gradient(grad: Any, coef: float = 1.0, owned: bool = False) -> list[GradientTerm]:
         terms: list[GradientTerm] = []
-        if back is not None:
-            with np.errstate(all="ignore"):
-                back(grad, coef, owned, terms)
+        pending = [] if root is None else [(root, grad, coef, owned)]
+        with np.errstate(all="ignore"):
+            while pending:
+                back, g, c, o = pending.pop()
+                if isinstance(back, str):  # a signal
+                    terms.append((back, g, c, o))
+                else:  # its operands, first listed first (each one's whole sub-tree before the next)
+                    pending.extend(reversed(back(g, c, o)))
         return terms
 
     return value, gradient
@@ -253,13 +309,8 @@ def can_be_non_finite(expr: Expr) -> bool:
     Sums and products can still overflow; evaluators that must refuse non-finite values
     check the values themselves.
     """
-    if isinstance(expr, (Var, Num)):
-        return False
-    if isinstance(expr, Neg):
-        return can_be_non_finite(expr.operand)
-    if isinstance(expr, BinOp):
-        return expr.op in ("/", "^") or can_be_non_finite(expr.left) or can_be_non_finite(expr.right)
-    return True
+    plain = (Var, Num, Neg, BinOp)
+    return any(not isinstance(e, plain) or (isinstance(e, BinOp) and e.op in ("/", "^")) for e in postorder(expr))
 
 
 def value_range(expr: Expr, magnitudes: dict[str, float]) -> tuple[float, float] | None:
@@ -270,58 +321,75 @@ def value_range(expr: Expr, magnitudes: dict[str, float]) -> tuple[float, float]
     beyond 1e300). Evaluators use it to skip the NaN and range checks of a predicate whose
     values are known to be finite, e.g. ``sqrt((x - 150)^2 + (y - 150)^2)`` on finite signals.
     """
-    def rng(e: Expr) -> tuple[float, float] | None:
-        if isinstance(e, Var):
-            m = magnitudes[e.name]
-            return -m, m
-        if isinstance(e, Num):
-            return e.value, e.value
-        if isinstance(e, Neg):
-            inner = rng(e.operand)
-            return None if inner is None else (-inner[1], -inner[0])
-        if isinstance(e, BinOp):
-            a, b = rng(e.left), rng(e.right)
-            if a is None or b is None:
-                return None
-            if e.op == "+":
-                return a[0] + b[0], a[1] + b[1]
-            if e.op == "-":
-                return a[0] - b[1], a[1] - b[0]
-            if e.op == "*":
-                corners = [x * y for x in a for y in b]
-                return min(corners), max(corners)
-            if e.op == "/":
-                if b[0] <= 0.0 <= b[1]:
-                    return None
-                corners = [x / y for x in a for y in b]
-                return min(corners), max(corners)
-            if b == (2.0, 2.0):  # a square
-                top = max(a[0] * a[0], a[1] * a[1])
-                return (0.0 if a[0] <= 0.0 <= a[1] else min(a[0] * a[0], a[1] * a[1])), top
-            return None
-        if isinstance(e, Call):
-            args = [rng(a) for a in e.args]
-            if any(a is None for a in args):
-                return None
-            if e.func in ("min", "max"):
-                pick = min if e.func == "min" else max
-                return pick(a[0] for a in args), pick(a[1] for a in args)  # type: ignore[index]
-            (low, high), = args  # type: ignore[misc]
-            if e.func == "abs":
-                return (0.0 if low <= 0.0 <= high else min(abs(low), abs(high))), max(abs(low), abs(high))
-            if e.func == "sqrt":
-                return None if low < 0.0 else (math.sqrt(low), math.sqrt(high))
-            if e.func == "log":
-                return None if low <= 0.0 else (math.log(low), math.log(high))
-            if e.func == "exp":
-                return None if high > 690.0 else (math.exp(low), math.exp(high))
-        return None
-
     with np.errstate(all="ignore"):
-        out = rng(expr)
+        out = _interval(expr, magnitudes)
     if out is None or not (-1e300 < out[0] <= out[1] < 1e300):
         return None
     return out
+
+
+Interval = tuple[float, float]
+
+
+def _interval(expr: Expr, magnitudes: dict[str, float]) -> Interval | None:
+    """Interval arithmetic over ``expr`` in post-order (None: unknown, maybe undefined)."""
+    stack: list[Interval | None] = []
+    for e in postorder(expr):
+        if isinstance(e, Var):
+            m = magnitudes[e.name]
+            stack.append((-m, m))
+        elif isinstance(e, Num):
+            stack.append((e.value, e.value))
+        elif isinstance(e, Neg):
+            inner = stack[-1]
+            stack[-1] = None if inner is None else (-inner[1], -inner[0])
+        elif isinstance(e, BinOp):
+            b = stack.pop()
+            a = stack[-1]
+            stack[-1] = None if a is None or b is None else _binary_interval(e.op, a, b)
+        elif isinstance(e, Call):
+            k = len(stack) - len(e.args)
+            args = stack[k:]
+            del stack[k:]
+            stack.append(None if any(a is None for a in args) else _call_interval(e.func, args))  # type: ignore[arg-type]
+        else:
+            return None
+    return stack[0]
+
+
+def _binary_interval(op: str, a: Interval, b: Interval) -> Interval | None:
+    if op == "+":
+        return a[0] + b[0], a[1] + b[1]
+    if op == "-":
+        return a[0] - b[1], a[1] - b[0]
+    if op == "*":
+        corners = [x * y for x in a for y in b]
+        return min(corners), max(corners)
+    if op == "/":
+        if b[0] <= 0.0 <= b[1]:
+            return None
+        corners = [x / y for x in a for y in b]
+        return min(corners), max(corners)
+    if b == (2.0, 2.0):  # a square
+        top = max(a[0] * a[0], a[1] * a[1])
+        return (0.0 if a[0] <= 0.0 <= a[1] else min(a[0] * a[0], a[1] * a[1])), top
+    return None
+
+
+def _call_interval(func: str, args: list[Interval]) -> Interval | None:
+    if func in ("min", "max"):
+        pick = min if func == "min" else max
+        return pick(a[0] for a in args), pick(a[1] for a in args)
+    (low, high), = args
+    if func == "abs":
+        return (0.0 if low <= 0.0 <= high else min(abs(low), abs(high))), max(abs(low), abs(high))
+    if func == "sqrt":
+        return None if low < 0.0 else (math.sqrt(low), math.sqrt(high))
+    if func == "log":
+        return None if low <= 0.0 else (math.log(low), math.log(high))
+    if func == "exp":
+        return None if high > 690.0 else (math.exp(low), math.exp(high))
+    return None
 
 
 @functools.lru_cache(maxsize=4096)

@@ -1,4 +1,4 @@
-"""Text to syntax tree: a recursive-descent parser for TLTL.
+"""Text to syntax tree: a recursive-descent parser for TLTL, with no recursion limit.
 
 Precedence, tightest first: arithmetic, comparison, unary (``! F G X``), ``U``/``T``
 (right-associative), ``&``, ``|``, ``->`` (right-associative). Every error is a
@@ -8,7 +8,9 @@ Precedence, tightest first: arithmetic, comparison, unary (``! F G X``), ``U``/`
 from __future__ import annotations
 
 import re
+from collections.abc import Generator
 from dataclasses import dataclass
+from typing import Any
 
 from tl_gym.errors import SpecError
 from tl_gym.tltl.ast import (
@@ -34,6 +36,7 @@ from tl_gym.tltl.ast import (
     Until,
     Var,
 )
+from tl_gym.tltl.iterative import drive
 
 # Keywords spelled out, mapped to their symbol.
 _KEYWORDS = {
@@ -85,10 +88,52 @@ def _tokenize(text: str) -> list[_Token]:
     return tokens
 
 
+_Production = Generator[Any, Any, Any]  # a grammar rule: yields the rules it descends into
+
+# Tokens that no arithmetic expression contains: a '(' group holding one is a formula group.
+_FORMULA_SYMBOLS = frozenset((*COMPARISONS, "&", "|", "!", "->", "F", "G", "X", "U", "T"))
+
+
+def _formula_groups(tokens: list[_Token]) -> set[int]:
+    """Indices of the '(' tokens whose group (up to the matching ')', or the end) holds a formula token.
+
+    A group that holds a comparison, a connective, a temporal operator or ``true``/``false``
+    can only be a parenthesised formula; any other group can only be arithmetic. Deciding
+    this in one pass spares the parser trying both readings at every '(' — quadratic
+    work (and recursion) on ``((((x > 1))))``.
+    """
+    marked: set[int] = set()
+    open_groups: list[int] = []
+    for i, token in enumerate(tokens):
+        if token.kind == "op" and token.text == "(":
+            open_groups.append(i)
+        elif token.kind == "op" and token.text == ")":
+            if open_groups:
+                closed = open_groups.pop()
+                if closed in marked and open_groups:
+                    marked.add(open_groups[-1])
+        elif open_groups and (
+            (token.kind == "op" and token.text in _FORMULA_SYMBOLS)
+            or (token.kind == "ident" and token.text in ("true", "false"))
+        ):
+            marked.add(open_groups[-1])
+    for inner, outer in zip(reversed(open_groups), reversed(open_groups[:-1])):  # unclosed groups nest too
+        if inner in marked:
+            marked.add(outer)
+    return marked
+
+
 class _Parser:
+    """Recursive descent written as generators (`tl_gym.tltl.iterative.drive`): no depth limit.
+
+    Each grammar rule yields the rules it descends into instead of calling them, so
+    10,000 nested parentheses or operators use no Python stack.
+    """
+
     def __init__(self, text: str):
         self.text = text
         self.tokens = _tokenize(text)
+        self.formula_groups = _formula_groups(self.tokens)
         self.pos = 0
         self.last_primary: Formula | None = None
 
@@ -124,74 +169,75 @@ class _Parser:
     def parse(self) -> Formula:
         if self.tok.kind == "end":
             raise self.error("empty formula")
-        formula = self.implies()
+        formula = drive(self.implies())
         if self.tok.kind != "end":
             if self.tok.text in COMPARISONS and isinstance(self.last_primary, Predicate):
                 raise self.error("comparisons do not chain; join them with '&'")
             raise self.error(f"unexpected {self.describe(self.tok)} after a complete formula")
         return formula
 
-    def implies(self) -> Formula:
-        left = self.disjunction()
-        if self.accept("->"):
-            return Implies(left, self.implies())
-        return left
+    def implies(self) -> _Production:
+        # right-associative: collect the chain, then nest it from the right
+        chain = [(yield self.disjunction())]
+        while self.accept("->"):
+            chain.append((yield self.disjunction()))
+        formula = chain.pop()
+        while chain:
+            formula = Implies(chain.pop(), formula)
+        return formula
 
-    def disjunction(self) -> Formula:
-        operands = [self.conjunction()]
+    def disjunction(self) -> _Production:
+        operands = [(yield self.conjunction())]
         while self.accept("|"):
-            operands.append(self.conjunction())
+            operands.append((yield self.conjunction()))
         return operands[0] if len(operands) == 1 else Or(tuple(operands))
 
-    def conjunction(self) -> Formula:
-        operands = [self.binary_temporal()]
+    def conjunction(self) -> _Production:
+        operands = [(yield self.binary_temporal())]
         while self.accept("&"):
-            operands.append(self.binary_temporal())
+            operands.append((yield self.binary_temporal()))
         return operands[0] if len(operands) == 1 else And(tuple(operands))
 
-    def binary_temporal(self) -> Formula:
-        left = self.unary()
-        if self.accept("U"):
-            return Until(left, self.binary_temporal())
-        if self.accept("T"):
-            return Then(left, self.binary_temporal())
-        return left
+    def binary_temporal(self) -> _Production:
+        # right-associative: a U b T c is a U (b T c)
+        operands = [(yield self.unary())]
+        kinds: list[type[Formula]] = []
+        while (token := self.accept("U", "T")) is not None:
+            kinds.append(Until if token.text == "U" else Then)
+            operands.append((yield self.unary()))
+        formula = operands.pop()
+        while kinds:
+            formula = kinds.pop()(operands.pop(), formula)  # type: ignore[call-arg]
+        return formula
 
-    def unary(self) -> Formula:
-        for symbol, node in (("!", Not), ("F", Eventually), ("G", Always), ("X", Next)):
-            if self.accept(symbol):
-                return node(self.unary())
-        return self.primary()
+    def unary(self) -> _Production:
+        prefixes: list[type[Formula]] = []
+        while (token := self.accept("!", "F", "G", "X")) is not None:
+            prefixes.append({"!": Not, "F": Eventually, "G": Always, "X": Next}[token.text])
+        formula = yield self.primary()
+        while prefixes:
+            formula = prefixes.pop()(formula)  # type: ignore[call-arg]
+        return formula
 
-    def primary(self) -> Formula:
+    def primary(self) -> _Production:
         token = self.tok
         if token.kind == "ident" and token.text in ("true", "false"):
             self.pos += 1
             self.last_primary = Constant(token.text == "true")
             return self.last_primary
-        if token.kind == "op" and token.text == "(":
-            # '(' opens either a parenthesised formula or an arithmetic group of a
-            # predicate; try the predicate first and keep the error that got furthest.
-            start = self.pos
-            try:
-                return self.predicate()
-            except SpecError as as_predicate:
-                self.pos = start
-                try:
-                    self.expect("(", "'('")
-                    inner = self.implies()
-                    self.expect(")", "')' to close the '(' at column " + str(token.column))
-                    return inner
-                except SpecError as as_formula:
-                    raise max(as_predicate, as_formula, key=lambda e: e.column) from None
-        if token.kind in ("num", "ident") or (token.kind == "op" and token.text == "-"):
-            return self.predicate()
+        if token.kind == "op" and token.text == "(" and self.pos in self.formula_groups:
+            self.pos += 1  # a parenthesised formula (an arithmetic group starts a predicate, below)
+            inner = yield self.implies()
+            self.expect(")", "')' to close the '(' at column " + str(token.column))
+            return inner
+        if token.kind in ("num", "ident") or (token.kind == "op" and token.text in ("-", "(")):
+            return (yield self.predicate())
         if token.kind == "end":
             raise self.error("the formula ends where an operand was expected")
         raise self.error(f"expected a predicate, 'true', 'false' or '(', found {self.describe(token)}")
 
-    def predicate(self) -> Formula:
-        lhs = self.expression()
+    def predicate(self) -> _Production:
+        lhs = yield self.expression()
         token = self.tok
         if token.kind != "op" or token.text not in COMPARISONS:
             raise self.error(
@@ -199,40 +245,63 @@ class _Parser:
                 f"found {self.describe(token)}"
             )
         self.pos += 1
-        self.last_primary = Predicate(lhs, token.text, self.expression())
+        self.last_primary = Predicate(lhs, token.text, (yield self.expression()))
         return self.last_primary
 
     # arithmetic -------------------------------------------------------------------------
-    def expression(self) -> Expr:
-        left = self.term()
+    def plain(self, binds_tighter: tuple[str, ...]) -> Expr | None:
+        """A lone number or signal name that no operator in ``binds_tighter`` extends, or None.
+
+        The common operand, read without descending through the grammar's levels.
+        """
+        token, nxt = self.tok, self.peek(1)
+        if nxt.kind == "op" and nxt.text in binds_tighter:
+            return None
+        if token.kind == "num" and float(token.raw) != float("inf"):
+            self.pos += 1
+            return Num(float(token.raw))
+        if token.kind == "ident" and token.text not in RESERVED:
+            self.pos += 1
+            return Var(token.text)
+        return None
+
+    def expression(self) -> _Production:
+        left = self.plain(("*", "/", "^", "(")) or (yield self.term())
         while (token := self.accept("+", "-")) is not None:
-            left = BinOp(token.text, left, self.term())
+            right = self.plain(("*", "/", "^", "(")) or (yield self.term())
+            left = BinOp(token.text, left, right)
         return left
 
-    def term(self) -> Expr:
-        left = self.factor()
+    def term(self) -> _Production:
+        left = self.plain(("^", "(")) or (yield self.factor())
         while (token := self.accept("*", "/")) is not None:
-            left = BinOp(token.text, left, self.factor())
+            left = BinOp(token.text, left, self.plain(("^", "(")) or (yield self.factor()))
         return left
 
-    def factor(self) -> Expr:
-        if self.accept("-"):
+    def factor(self) -> _Production:
+        negations = 0
+        while self.accept("-"):
             nxt = self.peek(1)
             if self.tok.kind == "num" and not (nxt.kind == "op" and nxt.text == "^"):
                 # A negative literal is one number, so `-3` prints and parses back alike.
                 value = float(self.tok.raw)
                 self.pos += 1
-                return Num(-value)
-            return Neg(self.factor())
-        return self.power()
+                expr: Expr = Num(-value)
+                break
+            negations += 1
+        else:
+            expr = yield self.power()
+        for _ in range(negations):
+            expr = Neg(expr)
+        return expr
 
-    def power(self) -> Expr:
-        base = self.atom()
+    def power(self) -> _Production:
+        base = yield self.atom()
         if self.accept("^"):
-            return BinOp("^", base, self.factor())
+            return BinOp("^", base, (yield self.factor()))
         return base
 
-    def atom(self) -> Expr:
+    def atom(self) -> _Production:
         token = self.tok
         if token.kind == "num":
             self.pos += 1
@@ -243,7 +312,7 @@ class _Parser:
         if token.kind == "ident":
             self.pos += 1
             if token.text in FUNCTIONS:
-                return self.call(token)
+                return (yield self.call(token))
             if token.text in RESERVED:
                 raise self.error(f"{token.raw!r} is reserved and cannot name a signal", token)
             if self.tok.kind == "op" and self.tok.text == "(":
@@ -251,18 +320,18 @@ class _Parser:
                 raise self.error(f"unknown function {token.raw!r} (functions: {known})", token)
             return Var(token.text)
         if self.accept("("):
-            inner = self.expression()
+            inner = yield self.expression()
             self.expect(")", f"')' to close the '(' at column {token.column}")
             return inner
         if token.kind == "op" and token.text in ("F", "G", "X", "U", "T"):
             raise self.error(f"{token.raw!r} is a temporal operator and cannot name a signal", token)
         raise self.error(f"expected a number, a signal name or '(', found {self.describe(token)}")
 
-    def call(self, name: _Token) -> Expr:
+    def call(self, name: _Token) -> _Production:
         self.expect("(", f"'(' after the function {name.raw!r}")
-        args = [self.expression()]
+        args = [(yield self.expression())]
         while self.accept(","):
-            args.append(self.expression())
+            args.append((yield self.expression()))
         self.expect(")", f"')' to close the call to {name.raw!r}")
         arity = FUNCTIONS[name.text]
         if arity > 0 and len(args) != arity:

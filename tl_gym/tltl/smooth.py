@@ -44,7 +44,7 @@ from __future__ import annotations
 import functools
 import math
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Generator
 from typing import Any
 
 import numpy as np
@@ -68,6 +68,7 @@ from tl_gym.tltl.ast import (
     Var,
 )
 from tl_gym.tltl.expressions import evaluate_with_gradient, margin_bound
+from tl_gym.tltl.iterative import resolve
 from tl_gym.tltl.trace import Trace, check_rho_max, chunks, is_torch, prepare
 
 _INF = 1e300  # stands for +∞ in β-scaled units
@@ -77,6 +78,9 @@ _N_ARGS = 10  # non-tensor arguments of the autograd Function
 
 _Key = tuple[Formula, bool]
 _Backward = Callable[[np.ndarray], None]
+# A rule that needs its operands' values yields their keys and gets the values back; it returns
+# its value and its backward rule.
+_Rule = Generator[_Key, np.ndarray, tuple[np.ndarray, _Backward]]
 
 
 def _smin2(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -125,15 +129,23 @@ class _Smoother:
         return np.full((self.length if length is None else length, self.n), value)
 
     def __call__(self, node: Formula, first_only: bool = False) -> np.ndarray:
+        """Smoothed values of ``node``, operands first (rules yield the keys they need: no recursion)."""
         key = (node, first_only)
         cached = self.values.get(key)
         if cached is not None:
             return cached
+        return resolve(key, self.values, self._start, self._finish)
+
+    def _start(self, key: _Key) -> Any:
+        node, first_only = key
         try:
             rule = _RULES[type(node)]
         except KeyError:
             raise TypeError(f"no smoothing rule for formula node {type(node).__name__}") from None
-        value, backward = rule(self, node, first_only)
+        return rule(self, node, first_only)
+
+    def _finish(self, key: _Key, result: tuple[np.ndarray, _Backward]) -> np.ndarray:
+        value, backward = result
         self.values[key] = value
         self.tape.append((key, backward))
         return value
@@ -304,15 +316,17 @@ class _Smoother:
 
         return z, backward
 
-    def not_(self, node: Not, first_only: bool) -> tuple[np.ndarray, _Backward]:
+    def not_(self, node: Not, first_only: bool) -> _Rule:
         def backward(g: np.ndarray) -> None:
             self.send(node.child, first_only, np.multiply(g, -self.gain(node.child, first_only), out=g), gained=True)
 
-        return -self(node.child, first_only), backward
+        return -(yield node.child, first_only), backward
 
-    def _nary(self, node: And | Or, first_only: bool, sign: float) -> tuple[np.ndarray, _Backward]:
+    def _nary(self, node: And | Or, first_only: bool, sign: float) -> _Rule:
         """``sign·lse(sign·children)``: smooth max (sign = 1) or min (sign = -1)."""
-        values = [self(c, first_only) for c in node.operands]
+        values = []
+        for child in node.operands:
+            values.append((yield child, first_only))
         key = (node, first_only)
         wanted = key in self.parts_wanted
         out, exps, total = lse.reduce_operands(values, sign, [self.spare(c, first_only) for c in node.operands],
@@ -338,14 +352,15 @@ class _Smoother:
 
         return out, backward
 
-    def and_(self, node: And, first_only: bool) -> tuple[np.ndarray, _Backward]:
-        return self._nary(node, first_only, -1.0)
+    def and_(self, node: And, first_only: bool) -> _Rule:
+        return (yield from self._nary(node, first_only, -1.0))
 
-    def or_(self, node: Or, first_only: bool) -> tuple[np.ndarray, _Backward]:
-        return self._nary(node, first_only, 1.0)
+    def or_(self, node: Or, first_only: bool) -> _Rule:
+        return (yield from self._nary(node, first_only, 1.0))
 
-    def implies(self, node: Implies, first_only: bool) -> tuple[np.ndarray, _Backward]:
-        neg_left, right = -self(node.left, first_only), self(node.right, first_only)
+    def implies(self, node: Implies, first_only: bool) -> _Rule:
+        neg_left = -(yield node.left, first_only)
+        right = yield node.right, first_only
         out = np.logaddexp(neg_left, right)
         self.retained.add((node, first_only))
 
@@ -356,8 +371,8 @@ class _Smoother:
 
         return out, backward
 
-    def next_(self, node: Next, first_only: bool) -> tuple[np.ndarray, _Backward]:
-        child = self(node.child)
+    def next_(self, node: Next, first_only: bool) -> _Rule:
+        child = yield node.child, False
         out = np.concatenate([child[1:], self.full(-self.top, 1)])  # no next state: −ρ_max
         if first_only:
             out = out[:1]
@@ -369,23 +384,24 @@ class _Smoother:
 
         return out, backward
 
-    def _over_time(self, node: Eventually | Always, first_only: bool, sign: float) -> tuple[np.ndarray, _Backward]:
+    def _over_time(self, node: Eventually | Always, first_only: bool, sign: float) -> _Rule:
         if first_only:  # one reduction over time
             if isinstance(node.child, And if sign > 0 else Or) and self.spare(node.child):
                 # the child is extreme ∓ log(total): reduce the extreme, dividing the weights by the total
                 self.parts_wanted.add((node.child, False))
-                self(node.child)
+                yield node.child, False
                 extreme, child_total = self.parts.pop((node.child, False))
                 reduced, exps, total = lse.reduce_forward(extreme, 0, sign, spare=True, divisor=child_total)
             else:
-                reduced, exps, total = lse.reduce_forward(self(node.child), 0, sign, self.spare(node.child))
+                child = yield node.child, False
+                reduced, exps, total = lse.reduce_forward(child, 0, sign, self.spare(node.child))
 
             def backward_first(g: np.ndarray) -> None:  # the child's gain goes into the per-trajectory factor
                 g_child = lse.reduce_backward(exps, total, g[0] * self.gain(node.child), 0)
                 self.send(node.child, False, g_child, gained=True)
 
             return reduced[None], backward_first
-        child = sign * self(node.child)
+        child = sign * (yield node.child, False)
         out = lse.suffix_forward(child)
 
         def backward(g: np.ndarray) -> None:
@@ -394,35 +410,36 @@ class _Smoother:
 
         return sign * out, backward
 
-    def eventually(self, node: Eventually, first_only: bool) -> tuple[np.ndarray, _Backward]:
-        return self._over_time(node, first_only, 1.0)
+    def eventually(self, node: Eventually, first_only: bool) -> _Rule:
+        return (yield from self._over_time(node, first_only, 1.0))
 
-    def always(self, node: Always, first_only: bool) -> tuple[np.ndarray, _Backward]:
-        return self._over_time(node, first_only, -1.0)
+    def always(self, node: Always, first_only: bool) -> _Rule:
+        return (yield from self._over_time(node, first_only, -1.0))
 
-    def until(self, node: Until, first_only: bool) -> tuple[np.ndarray, _Backward]:
-        return self._binary(node, first_only, -1.0)
+    def until(self, node: Until, first_only: bool) -> _Rule:
+        return (yield from self._binary(node, first_only, -1.0))
 
-    def then(self, node: Then, first_only: bool) -> tuple[np.ndarray, _Backward]:
-        return self._binary(node, first_only, 1.0)
+    def then(self, node: Then, first_only: bool) -> _Rule:
+        return (yield from self._binary(node, first_only, 1.0))
 
-    def _binary(self, node: Until | Then, first_only: bool, sign: float) -> tuple[np.ndarray, _Backward]:
+    def _binary(self, node: Until | Then, first_only: bool, sign: float) -> _Rule:
         """smax_{t'≥t} smin(ψ(t'), inner(t, t')): the nested smoothing of U and T.
 
         inner is the smin (U, sign -1) or smax (T, sign +1) of φ over t'' in [t, t');
         ``sign·lse(sign·φ)`` is that inner reduction.
         """
         if node.left.is_temporal:
-            return self._binary_on_segments(node, first_only, sign)
+            return (yield from self._binary_on_segments(node, first_only, sign))
         if first_only:
-            return self._binary_first(node, sign)
+            return (yield from self._binary_first(node, sign))
         if self.form == "linear" and isinstance(node, Then):
-            return self._then_linear(node)
-        return self._binary_quadratic(node, sign)
+            return (yield from self._then_linear(node))
+        return (yield from self._binary_quadratic(node, sign))
 
-    def _binary_first(self, node: Until | Then, sign: float) -> tuple[np.ndarray, _Backward]:
+    def _binary_first(self, node: Until | Then, sign: float) -> _Rule:
         """Position 0 only: inner(0, t') is a reduction over the prefix [0, t'): linear time."""
-        left, right = sign * self(node.left), self(node.right)
+        left = sign * (yield node.left, False)
+        right = yield node.right, False
         prefix = lse.prefix_forward(left)
         inner = sign * np.concatenate([self.full(-_INF, 1), prefix[:-1]])
         terms = _smin2(right, inner)
@@ -439,9 +456,10 @@ class _Smoother:
 
         return out, backward
 
-    def _then_linear(self, node: Then) -> tuple[np.ndarray, _Backward]:
+    def _then_linear(self, node: Then) -> _Rule:
         """ρ(φ T ψ, t) = max_{s ≥ t} min(φ(s), max_{t' > s} ψ(t')), smoothed: O(N·T)."""
-        left, right = self(node.left), self(node.right)
+        left = yield node.left, False
+        right = yield node.right, False
         right_suffix = lse.suffix_forward(right)
         later = np.concatenate([right_suffix[1:], self.full(-_INF, 1)])
         inner = _smin2(left, later)
@@ -458,9 +476,10 @@ class _Smoother:
 
         return out, backward
 
-    def _binary_quadratic(self, node: Until | Then, sign: float) -> tuple[np.ndarray, _Backward]:
+    def _binary_quadratic(self, node: Until | Then, sign: float) -> _Rule:
         """Every position, prescribed nesting: O(N·T²), in chunks of trajectories."""
-        left, right = sign * self(node.left), self(node.right)
+        left = sign * (yield node.left, False)
+        right = yield node.right, False
         chunk = max(1, _MAX_QUADRATIC_ELEMENTS // (self.length * self.length))
         parts = [slice(s, s + chunk) for s in range(0, self.n, chunk)]
         out = np.concatenate([_quadratic(left[:, p], right[:, p], sign)[0] for p in parts], axis=1)
@@ -474,9 +493,9 @@ class _Smoother:
 
         return out, backward
 
-    def _binary_on_segments(self, node: Until | Then, first_only: bool, sign: float) -> tuple[np.ndarray, _Backward]:
+    def _binary_on_segments(self, node: Until | Then, first_only: bool, sign: float) -> _Rule:
         """A temporal left operand judged on each truncated segment s_{t''..t'-1}: O(N·T²) time."""
-        right = self(node.right)
+        right = yield node.right, False
         subs = [self.on_prefix(t_prime) for t_prime in range(1, self.length)]
         matrix = np.full((self.length, self.length, self.n), -_INF)  # [t'', t', n]
         for t_prime, sub in enumerate(subs, start=1):
