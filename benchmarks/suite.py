@@ -156,6 +156,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=None, help="local processes (default: CPU count)")
     parser.add_argument("--out", default="runs/suite", help="results directory")
     parser.add_argument("--report-only", action="store_true", help="only redraw the report from finished runs")
+    parser.add_argument("--only", action="append", default=[], metavar="PATTERN",
+                        help='run only labels matching this shell pattern, e.g. "PPO*" (repeatable)')
     args = parser.parse_args(argv)
     variant = "quick" if args.quick else args.variant
     results: dict[str, tuple[str, list[RunResult]]] = {}
@@ -164,7 +166,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         sweep = load_config(path, variant=variant)
         out_dir = Path(args.out) / sweep.name
         if not args.report_only:
-            report = run_sweep(sweep, out_dir, workers=args.workers)
+            report = run_sweep(sweep, out_dir, workers=args.workers, only=args.only)
             failed += len(report.failed)
             for run_id, text in report.failed.items():
                 print(f"--- {run_id} failed:\n{text}", file=sys.stderr)
