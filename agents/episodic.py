@@ -13,7 +13,6 @@ from __future__ import annotations
 import abc
 import dataclasses
 import math
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -24,32 +23,28 @@ from .policy import LinearGaussianPolicy
 from .sampling import Rollouts, resolve_horizon
 
 
-@dataclass(frozen=True)
 class EpisodicSearchConfig:
-    """Fields of `TLPSConfig` and `REPSConfig` for feedback and exploration (checked by `check_search`)."""
+    """Checks of the feedback and exploration fields that `TLPSConfig` and `REPSConfig` both declare.
 
-    feedback: str = "open"
-    """``"open"``: the paper's policy, ``K_t`` fixed (``gains``, zeros by default). ``"fitted"``:
-    ``a_t = k_t + K_t (s_t ⊖ s̄_t)`` with ``K_t`` and the centre ``s̄_t`` refit each update by weighted
-    ridge regression (`tl_gym.agents.feedback`); ``gains`` must then be ``None``."""
-    feedback_features: Any = "auto"
-    """Observation components the fitted gains act on: ``"auto"`` (the components the formula's
-    signals are read from, found in the first batch, plus the angle components; all when no signal
-    is an observation component), ``"all"``, or a sequence of indices. Stored as a list."""
-    feedback_angles: Any = "auto"
-    """Angle components (deviations wrapped to [-π, π), circular centre): ``"auto"`` (Box bounds
-    exactly ±π) or a sequence of indices (``[]`` for none). Stored as a list."""
-    feedback_ridge: float = 0.01
-    """Ridge on the gain increment in standardised units (>= 0): a pull toward the previous gains."""
-    feedback_window: int = 5
-    """The regression's moments are pooled over steps ``t − window … t + window`` (>= 0)."""
-    exploration_floor: float | None = None
-    """Exploration schedule: the std floor at iteration ``m`` is
-    ``max(min_std, exploration_floor · 0.5^(m / exploration_halflife))``; 0 turns it off.
-    ``None``: 0.1 with ``feedback="fitted"`` (the gains learn from the drawn noise, which must not
-    collapse), 0 in open loop."""
-    exploration_halflife: float = 10.0
-    """Iterations over which the exploration floor halves (> 0)."""
+    A mixin of methods only (a dataclass base would put its fields before the agent's own):
+
+    - ``feedback``: ``"open"``, the paper's policy with ``K_t`` fixed (``gains``, zeros by default),
+      or ``"fitted"``, ``a_t = k_t + K_t (s_t ⊖ s̄_t)`` with ``K_t`` and the centre ``s̄_t`` refit
+      each update by weighted ridge regression (`tl_gym.agents.feedback`); ``gains`` must then
+      be ``None``.
+    - ``feedback_features``: the observation components the fitted gains act on: ``"auto"`` (the
+      components the formula's signals are read from, found in the first batch, plus the angle
+      components; all when no signal is an observation component), ``"all"``, or indices.
+    - ``feedback_angles``: angle components (deviations wrapped to [-π, π), circular centre):
+      ``"auto"`` (Box bounds exactly ±π) or indices (``[]`` for none).
+    - ``feedback_ridge`` (0.01): ridge on the gain increment in standardised units (>= 0), a
+      pull toward the previous gains; ``feedback_window`` (5): the regression's moments are
+      pooled over steps ``t − window … t + window``.
+    - ``exploration_floor``: the std floor at iteration ``m`` is
+      ``max(min_std, exploration_floor · 0.5^(m / exploration_halflife))``; ``None`` means 0.1
+      with fitted feedback (the gains learn from the drawn noise, which must not collapse) and
+      0 in open loop.
+    """
 
     def check_search(self) -> None:
         """Validate and normalise the shared fields (call from ``__post_init__``)."""

@@ -43,7 +43,7 @@ ETA_MIN = 1e-6
 
 @dataclass(frozen=True)
 class REPSConfig(EpisodicSearchConfig):
-    """Hyperparameters of `REPS`; the feedback and exploration fields are `EpisodicSearchConfig`'s."""
+    """Hyperparameters of `REPS`; the feedback and exploration fields are checked by `EpisodicSearchConfig`."""
 
     n_episodes: int = 40
     """Episodes sampled per update, ``N`` (>= 2); the batched env runs this many at once."""
@@ -63,6 +63,23 @@ class REPSConfig(EpisodicSearchConfig):
     """Fixed feedback gains ``K_t`` of the policy ``a = K_t s_t + k_t``: an array (or nested lists) of
     shape ``(act_dim, obs_dim)`` or ``(T, act_dim, obs_dim)``; ``None`` is zeros, the default (fixed
     gains around a mean path cancelled exploration in the feasibility studies). Stored as lists."""
+    feedback: str = 'open'
+    """``"open"`` (the default: the paper's baseline, ``K_t`` fixed by ``gains``) or ``"fitted"``
+    (`tl_gym.agents.feedback`; measured beside TLPS in docs/tlps.md)."""
+    feedback_features: Any = "auto"
+    """Components the fitted gains act on: ``"auto"`` (the signals' components and the angles),
+    ``"all"`` or a list of indices (see `EpisodicSearchConfig`). Stored as a list."""
+    feedback_angles: Any = "auto"
+    """Angle components: ``"auto"`` (Box bounds exactly ±π) or a list of indices. Stored as a list."""
+    feedback_ridge: float = 0.01
+    """Ridge on the fitted gains' increment, standardised units (>= 0): a pull toward the previous gains."""
+    feedback_window: int = 5
+    """The fit pools its moments over steps ``t − window … t + window`` (>= 0)."""
+    exploration_floor: float | None = None
+    """Std floor ``exploration_floor · 0.5^(m / exploration_halflife)`` at iteration ``m`` (>= 0, 0 is
+    off); ``None``: 0.1 with ``feedback="fitted"``, 0 with ``"open"``."""
+    exploration_halflife: float = 10.0
+    """Iterations over which the exploration floor halves (> 0)."""
 
     def __post_init__(self) -> None:
         if self.gains is not None:  # plain lists, so that the config stays JSON

@@ -3,8 +3,10 @@
 Li, Ma and Belta, "A Policy Search Method For Temporal Logic Specified
 Reinforcement Learning Tasks", ACC 2018, section IV. The policy is the
 time-varying linear-Gaussian ``π(a_t | s_t) = N(K_t s_t + k_t, C_t)`` of
-`LinearGaussianPolicy`, with fixed ``K_t`` and learned ``k_t``, ``C_t``; each
-episode draws its own feed-forward sequence ``k_t^i``.
+`LinearGaussianPolicy`, with learned ``k_t``, ``C_t``; each episode draws its own
+feed-forward sequence ``k_t^i``. The paper keeps ``K_t`` fixed; by default (issue 16)
+``K_t`` is refit too, acting on the deviation from the weighted mean state
+(``feedback="fitted"``, `tl_gym.agents.feedback`); ``feedback="open"`` is the paper's.
 
 A trajectory τ is what the formula reads: the recorded values of its signals,
 shape ``(T+1, S)`` (``x`` and ``y`` on the car), so TLPS runs on any env wrapped
@@ -19,7 +21,8 @@ by `tl_gym.TLTLRewardWrapper`. One update (Algorithm 1, lines 4–18):
    temperature α fixed or adapted to a KL bound;
 5. refit ``k_t`` and ``C_t`` by weighted maximum likelihood (l.14–17), with a
    standard-deviation floor that can decay over iterations (the paper's "covariance
-   damping schedule", section VI).
+   damping schedule", section VI), and with fitted feedback ``K_t`` and its centre by
+   weighted ridge regression on the drawn noise.
 
 Where this departs from the paper, and why, is in `docs/tlps.md`: the weights are
 not the literal softmax of densities, which does not learn (see `TLPSConfig.weights`).
@@ -49,9 +52,8 @@ SMOOTHING_FORMS = ("nested", "linear")
 class TLPSConfig(EpisodicSearchConfig):
     """Hyperparameters of `TLPS`; the defaults and the measurements behind them are in ``docs/tlps.md``.
 
-    The feedback and exploration fields (``feedback``, ``feedback_features``, ``feedback_angles``,
-    ``feedback_ridge``, ``feedback_window``, ``exploration_floor``, ``exploration_halflife``) are
-    `EpisodicSearchConfig`'s, shared with REPS.
+    The feedback and exploration fields (``feedback`` … ``exploration_halflife``) are shared with
+    REPS and checked by `EpisodicSearchConfig`.
     """
 
     n_episodes: int = 40
@@ -94,12 +96,31 @@ class TLPSConfig(EpisodicSearchConfig):
     covariance: str = "diag"
     """``"diag"`` or ``"full"`` covariance ``C_t`` per time step."""
     gains: Any = None
-    """Fixed feedback gains ``K_t`` of the policy ``a = K_t s_t + k_t``: an array (or nested lists) of
-    shape ``(act_dim, obs_dim)`` or ``(T, act_dim, obs_dim)``; ``None`` is zeros, the default (fixed
+    """Fixed feedback gains ``K_t`` of the policy ``a = K_t s_t + k_t`` with ``feedback="open"``: an array
+    (or nested lists) of shape ``(act_dim, obs_dim)`` or ``(T, act_dim, obs_dim)``; ``None`` is zeros (fixed
     gains around a mean path cancelled exploration in the feasibility studies). Stored as lists."""
     threads: int | None = 1
     """Torch threads during the trust-region solve (one is fastest for these small tensors);
     ``None`` keeps the process setting."""
+    feedback: str = 'fitted'
+    """``"fitted"`` (the default since issue 16): time-varying gains ``K_t`` on the deviation from the
+    weighted mean state, refit each update (`tl_gym.agents.feedback`); faster in the paper's setting
+    and the only way to learn from a wide start spread (docs/tlps.md). ``"open"``: the paper's
+    open-loop policy (``K_t`` fixed by ``gains``), kept for the ablation."""
+    feedback_features: Any = "auto"
+    """Components the fitted gains act on: ``"auto"`` (the signals' components and the angles),
+    ``"all"`` or a list of indices (see `EpisodicSearchConfig`). Stored as a list."""
+    feedback_angles: Any = "auto"
+    """Angle components: ``"auto"`` (Box bounds exactly ±π) or a list of indices. Stored as a list."""
+    feedback_ridge: float = 0.01
+    """Ridge on the fitted gains' increment, standardised units (>= 0): a pull toward the previous gains."""
+    feedback_window: int = 5
+    """The fit pools its moments over steps ``t − window … t + window`` (>= 0)."""
+    exploration_floor: float | None = None
+    """Std floor ``exploration_floor · 0.5^(m / exploration_halflife)`` at iteration ``m`` (>= 0, 0 is
+    off); ``None``: 0.1 with ``feedback="fitted"``, 0 with ``"open"``."""
+    exploration_halflife: float = 10.0
+    """Iterations over which the exploration floor halves (> 0)."""
 
     def __post_init__(self) -> None:
         if self.gains is not None:  # plain lists, so that the config stays JSON

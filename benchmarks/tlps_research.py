@@ -13,7 +13,9 @@ Writes, under ``docs/results/tlps_research/`` (or ``--out``):
 - ``tables.md``: the per-variant tables quoted in ``docs/tlps.md``;
 - ``solver_check.csv`` (``--solver-check``): the projected solver's gain in ρ̂ against
   SLSQP's on sampled car trajectories;
-- ``timing.csv`` (``--timing``): seconds per TLPS iteration on both tasks.
+- ``timing.csv`` (``--timing``): seconds per TLPS iteration on both tasks;
+- ``dynamics_check.csv`` (``--dynamics-check``): how well linear dynamics fitted to a batch
+  predict the response of its trajectories to changed actions.
 
 Runs are spread over ``--workers`` processes (one torch thread each).
 
@@ -351,6 +353,77 @@ def timing(out: Path, iterations: int = 5) -> list[dict[str, Any]]:
     return rows
 
 
+def _relative_error(predicted: np.ndarray, real: np.ndarray) -> float:
+    return float(np.linalg.norm(predicted - real) / np.linalg.norm(real))
+
+
+def dynamics_check(out: Path, seeds: int = 2, scale: float = 0.02) -> list[dict[str, Any]]:
+    """How well time-varying linear dynamics fitted to a batch predict its response (issue 16, deliverable 2).
+
+    Guided policy search maps improved trajectories back to actions through dynamics
+    ``δs_{t+1} ≈ A_t δs_t + B_t δa_t`` regressed on the batch (deviations from the mean
+    state, per step or pooled over ±5 steps). This fits them to 40 car episodes of three
+    policies (the initial one at std 0.5 and at std 0.1, and a fitted-feedback policy after
+    3 updates, closed loop ``A_t + B_t K_t``), perturbs every episode's feed-forward actions by
+    ``N(0, scale²)`` with the same env noise, and compares the predicted change of the x, y
+    trace with the real one: relative error over the whole trace and at steps 1, 5 and 50.
+    """
+    import torch
+    from tl_gym.agents import TLPS
+    from tl_gym.agents.feedback import deviation, weighted_centre, window_mean
+    from tl_gym.agents.sampling import rollout
+
+    torch.set_num_threads(1)
+
+    def fit(states: np.ndarray, actions: np.ndarray, angles: np.ndarray, window: int) -> tuple[np.ndarray, ...]:
+        n, horizon, act_dim = actions.shape
+        centre = weighted_centre(states, np.full((n, horizon + 1), 1.0 / n), angles)
+        dev = deviation(states, centre[None], angles)
+        x = np.concatenate([dev[:, :-1], actions - actions.mean(axis=0)], axis=2)
+        xx = window_mean(np.einsum("ntf,ntg->tfg", x, x) / n, window)
+        xy = window_mean(np.einsum("ntf,ntd->tfd", x, dev[:, 1:]) / n, window)
+        # standardised per step (a σ shared by all steps lets the ridge erase the tight early states)
+        scale = np.sqrt(np.diagonal(xx, axis1=1, axis2=2))
+        scale = np.where(scale > 1e-12, scale, 1.0)
+        normal = xx / scale[:, :, None] / scale[:, None, :] + 1e-6 * np.eye(x.shape[2])
+        coef = np.linalg.solve(normal, xy / scale[:, :, None]) / scale[:, :, None]
+        coef = np.swapaxes(coef, 1, 2)
+        dim = states.shape[2]
+        return coef[:, :, :dim], coef[:, :, dim:]
+
+    rows = []
+    for task in (1, 2):
+        for seed in range(seeds):
+            for label, feedback, iterations, std in (("initial", "open", 0, 0.5), ("tight", "open", 0, 0.1),
+                                                     ("fitted_3", "fitted", 3, None)):
+                agent = TLPS("TLCarNav-v0", seed=seed, env_kwargs={"task": task}, feedback=feedback).learn(iterations)
+                policy = agent.policy
+                if std is not None:
+                    policy.cov[:] = np.eye(policy.act_dim) * std**2
+                rng = np.random.default_rng(seed)
+                feedforward = policy.sample_feedforward(40, rng)
+                batch = rollout(agent.env, feedforward, policy.feedback, seed=seed)
+                delta_k = scale * rng.standard_normal(feedforward.shape)
+                moved = rollout(agent.env, feedforward + delta_k, policy.feedback, seed=seed)
+                real = np.stack([moved.traces[s] - batch.traces[s] for s in agent.signal_names], axis=-1)
+                for window in (0, 5):
+                    a, b = fit(batch.observations, batch.actions, policy.angles, window)
+                    closed = a + np.einsum("tda,tae->tde", b, policy.gains)
+                    ds = np.zeros((40, policy.obs_dim))
+                    predicted = np.zeros_like(real)
+                    for t in range(agent.horizon):
+                        ds = np.einsum("de,ne->nd", closed[t], ds) + np.einsum("da,na->nd", b[t], delta_k[:, t])
+                        predicted[:, t + 1] = ds[:, :2]  # the car's signals x, y are components 0, 1
+                    rows.append({"task": task, "seed": seed, "policy": label, "window": window,
+                                 "saturated": float(np.mean(np.abs(batch.actions) >= 1)),
+                                 **{f"rel_error_{name}": _relative_error(predicted[:, sl], real[:, sl])
+                                    for name, sl in (("trace", slice(1, None)), ("t1", 1), ("t5", 5), ("t50", 50))}})
+                    print({k: round(v, 3) if isinstance(v, float) else v for k, v in rows[-1].items()}, flush=True)
+                agent.close()
+    _write_csv(out / "dynamics_check.csv", rows)
+    return rows
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tasks", type=int, nargs="+", default=[1, 2])
@@ -361,6 +434,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", type=Path, default=OUT)
     parser.add_argument("--solver-check", action="store_true")
     parser.add_argument("--timing", action="store_true")
+    parser.add_argument("--dynamics-check", action="store_true")
     parser.add_argument("--no-runs", action="store_true", help="only the checks, summary and plots")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -368,6 +442,8 @@ def main(argv: list[str] | None = None) -> None:
         timing(args.out)
     if args.solver_check:
         solver_check(args.out)
+    if args.dynamics_check:
+        dynamics_check(args.out)
     if not args.no_runs:
         jobs = [(v, t, s, args.iterations or ITERATIONS[t], args.out)
                 for t in args.tasks for v in args.variants for s in args.seeds]

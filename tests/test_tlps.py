@@ -105,11 +105,11 @@ def test_runs_on_any_wrapped_env_through_its_signals():
 def test_fixed_feedback_gains_are_used_saved_and_checked(tmp_path):
     gains = np.zeros((2, 6))
     gains[1, 2] = -0.1  # steer against the heading
-    agent = TLPS("TLCarNav-v0", seed=0, n_episodes=4, solver_steps=2, gains=gains).learn(1)
+    agent = TLPS("TLCarNav-v0", seed=0, n_episodes=4, solver_steps=2, gains=gains, feedback="open").learn(1)
     assert agent.policy.feedback is not None and agent.policy.gains.shape == (200, 2, 6)
     assert np.all(agent.policy.gains[:, 1, 2] == -0.1)
     agent.save(tmp_path / "agent.zip")
     loaded = TLPS.load(tmp_path / "agent.zip")
     np.testing.assert_array_equal(loaded.policy.gains, agent.policy.gains)
     with pytest.raises(ValueError, match="gains must have shape"):
-        TLPS("TLCarNav-v0", n_episodes=4, gains=np.zeros((3, 3)))
+        TLPS("TLCarNav-v0", n_episodes=4, gains=np.zeros((3, 3)), feedback="open")
