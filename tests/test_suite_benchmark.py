@@ -1,0 +1,60 @@
+"""The suite benchmark: its configs expand, runs record fresh-episode evaluations, the report reads them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tomllib
+
+from benchmarks import results, suite
+from benchmarks.sweep import expand_config, load_config, run_sweep
+
+from .test_sweep import STAND_IN
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_every_suite_config_expands_in_every_variant_with_one_budget_per_task():
+    paths = suite.config_paths()
+    assert {p.stem for p in paths} >= {"car1", "car2", "car1_spread", "car2_spread", "pendulum", "mountaincar",
+                                       "parking"}
+    for path in paths:
+        data = tomllib.loads(path.read_text())
+        for variant in (None, *data.get("variants", {})):
+            sweep = load_config(path, variant=variant)
+            assert sweep.runs, (path, variant)
+        full = load_config(path)
+        labels = {run.label for run in full.runs}
+        assert labels == {"TLPS", "REPS", "PPO", "SAC", "PPO, terminal reward", "SAC, terminal reward"}, path
+        assert {run.iterations for run in full.runs} == {data["iterations"]}  # the same budget for every agent
+        sb3 = [run for run in full.runs if run.agent.startswith("sb3:")]
+        assert {run.hyperparameters["steps_per_iteration"] for run in sb3} == {
+            40 * (250 if path.stem == "mountaincar" else 100 if path.stem == "parking" else 200)}
+    with pytest.raises(ValueError, match="no suite config"):
+        suite.config_paths(["nope"])
+
+
+def test_runs_evaluate_along_training_and_the_report_reads_them(tmp_path):
+    sweep = expand_config({
+        "name": "tiny-suite", "env": "TLCarNav-v0", "seeds": [0, 1], "iterations": 5, "evaluate_episodes": 3,
+        "evaluate_every": 2, "agents": [{"label": "fast", "agent": STAND_IN, "hyperparameters": {"rate": 0.5}},
+                                        {"label": "slow", "agent": STAND_IN, "hyperparameters": {"rate": 0.1}}],
+    })
+    report = run_sweep(sweep, tmp_path, workers=0, progress=False)
+    assert not report.failed
+    runs = results.load_runs(tmp_path)
+    history = runs[0].history
+    # evaluated after iterations 2, 4 and the last (5); NaN elsewhere
+    assert np.isnan(history["eval_success_rate"]).tolist() == [True, False, True, False, False]
+    steps, success = suite.eval_curve([r for r in runs if r.spec.label == "fast"])
+    assert steps.tolist() == [200, 400, 500] and success.tolist() == [[0.0, 1.0, 1.0], [1.0, 1.0, 1.0]]
+    assert suite.steps_to_solve(steps, success[0]) == 400.0
+    table, rows = suite.task_table(runs)
+    assert "| fast | 2 | 500 | 100% (100%–100%) | 300 (2/2) |" in table
+    assert rows[1][0] == "slow" and rows[1][2] is None  # ρ = 0.1 m − 1 stays below 0: never solved
+    assert suite.headline("tiny", rows) == "| tiny | fast | 300 env steps (median, 2/2 seeds) |"
+    assert "none solved it" in suite.headline("tiny", rows[1:])
+    page = suite.write_report({"tiny": ("tiny", runs)}, "python -m benchmarks.suite", tmp_path)
+    assert (tmp_path / "suite_tiny.png").is_file() and "| tiny | fast |" in page.read_text()
