@@ -670,7 +670,7 @@ _SHALLOW = 200  # nodes up to this height compare by plain recursion: bounded, a
 _GETTERS: dict[type, Callable[[Any], Any]] = {}
 
 
-def _height(node: Any) -> int:
+def height(node: Any) -> int:
     """Height of the node's tree, expressions included (1 for a leaf); kept on each node."""
     cached = node.__dict__.get("_height")
     if cached is not None:
@@ -689,7 +689,7 @@ def _structural_eq(self: Any, other: Any) -> Any:
     hash_a, hash_b = self.__dict__.get("_hash"), other.__dict__.get("_hash")
     if hash_a is not None and hash_b is not None and hash_a != hash_b:
         return False
-    if _height(self) <= _SHALLOW:
+    if height(self) <= _SHALLOW:
         getter = _GETTERS.get(type(self))
         if getter is None:
             names = _fields(type(self))

@@ -74,8 +74,9 @@ from tl_gym.tltl.ast import (
     Then,
     Until,
     Var,
+    height,
 )
-from tl_gym.tltl.expressions import can_be_non_finite
+from tl_gym.tltl.expressions import can_be_non_finite, postorder
 from tl_gym.tltl.trace import check_rho_max
 
 State = Mapping[str, float]
@@ -85,8 +86,58 @@ _Scalar = Callable[[State], float]
 # --------------------------------------------------------------------------- temporal-free parts, on one state
 
 
+# Closures nest as deep as the formula; beyond this depth a loop over the nodes takes over
+# (no recursion at any depth, a little slower per node).
+_CLOSURE_DEPTH = 64
+_FLOAT_OPS: dict[str, Callable[[float, float], float]] = {
+    "+": lambda a, b: a + b, "-": lambda a, b: a - b, "*": lambda a, b: a * b, "/": lambda a, b: a / b,
+    "^": math.pow,
+}
+_FLOAT_FUNCTIONS: dict[str, Callable[[float], float]] = {
+    "abs": abs, "sqrt": math.sqrt, "exp": math.exp, "log": math.log,
+}
+
+
 def _compile_expr(expr: Expr) -> _Scalar:
-    """A closure computing ``expr`` on one state with Python floats."""
+    """A function computing ``expr`` on one state with Python floats."""
+    if height(expr) > _CLOSURE_DEPTH:
+        return _expression_loop(expr)
+    return _expression_closure(expr)
+
+
+def _expression_loop(expr: Expr) -> _Scalar:
+    """``expr`` on one state by one loop over its nodes in post-order (any depth)."""
+    program = postorder(expr)
+
+    def value(s: State) -> float:
+        stack: list[float] = []
+        for e in program:
+            if isinstance(e, Var):
+                stack.append(s[e.name])
+            elif isinstance(e, Num):
+                stack.append(e.value)
+            elif isinstance(e, Neg):
+                stack[-1] = -stack[-1]
+            elif isinstance(e, BinOp):
+                b = stack.pop()
+                stack[-1] = _FLOAT_OPS[e.op](stack[-1], b)
+            elif isinstance(e, Call):
+                k = len(stack) - len(e.args)
+                args = stack[k:]
+                del stack[k:]
+                if e.func in ("min", "max"):
+                    stack.append(min(args) if e.func == "min" else max(args))
+                else:
+                    stack.append(_FLOAT_FUNCTIONS[e.func](args[0]))
+            else:
+                raise TypeError(f"no evaluation rule for expression node {type(e).__name__}")
+        return stack[0]
+
+    return value
+
+
+def _expression_closure(expr: Expr) -> _Scalar:
+    """A closure computing ``expr`` on one state (recursion bounded by `_CLOSURE_DEPTH`)."""
     if isinstance(expr, Var):
         name = expr.name
         return lambda s: s[name]
@@ -94,10 +145,10 @@ def _compile_expr(expr: Expr) -> _Scalar:
         value = expr.value
         return lambda s: value
     if isinstance(expr, Neg):
-        inner = _compile_expr(expr.operand)
+        inner = _expression_closure(expr.operand)
         return lambda s: -inner(s)
     if isinstance(expr, BinOp):
-        a, b = _compile_expr(expr.left), _compile_expr(expr.right)
+        a, b = _expression_closure(expr.left), _expression_closure(expr.right)
         ops: dict[str, _Scalar] = {
             "+": lambda s: a(s) + b(s),
             "-": lambda s: a(s) - b(s),
@@ -107,7 +158,7 @@ def _compile_expr(expr: Expr) -> _Scalar:
         }
         return ops[expr.op]
     if isinstance(expr, Call):
-        args = [_compile_expr(arg) for arg in expr.args]
+        args = [_expression_closure(arg) for arg in expr.args]
         if expr.func in ("min", "max"):
             reduce_ = min if expr.func == "min" else max
             return lambda s: reduce_(f(s) for f in args)
@@ -136,21 +187,49 @@ def _compile_predicate(node: Predicate) -> _Scalar:
 
 
 def compile_state_formula(formula: Formula, rho_max: float) -> _Scalar:
-    """Robustness of a temporal-free formula on one state, as a closure of that state."""
+    """Robustness of a temporal-free formula on one state, as a function of that state."""
+    if formula.is_temporal:
+        temporal = next(n for n in formula.walk() if isinstance(n, (Next, Eventually, Always, Until, Then)))
+        raise TypeError(f"{type(temporal).__name__} is temporal; compile_state_formula takes temporal-free formulas")
+    if formula.depth > _CLOSURE_DEPTH:
+        window = _engine_window_formula(formula, rho_max)
+        return lambda s: window([s], 0)
+    return _state_closure(formula, rho_max)
+
+
+def _engine_window_formula(formula: Formula, rho_max: float) -> _WindowFn:
+    """Robustness at ``window[i]`` by the exact evaluator on the window's states (any depth).
+
+    The window is a trace of its own, so ``X`` past its end is −ρ_max, as in `compile_window_formula`.
+    """
+    names = formula.signals
+
+    def value(window: list, i: int) -> float:
+        if not names:  # a formula of constants still needs a length
+            trace = {"_": np.zeros(len(window))}
+        else:
+            trace = {n: np.array([float(state[n]) for state in window]) for n in names}
+        return float(formula.robustness_over_time(trace, rho_max)[i])
+
+    return value
+
+
+def _state_closure(formula: Formula, rho_max: float) -> _Scalar:
+    """Nested closures for a temporal-free formula (recursion bounded by `_CLOSURE_DEPTH`)."""
     if isinstance(formula, Constant):
         value = float(rho_max) if formula.value else -float(rho_max)
         return lambda s: value
     if isinstance(formula, Predicate):
         return _compile_predicate(formula)
     if isinstance(formula, Not):
-        inner = compile_state_formula(formula.child, rho_max)
+        inner = _state_closure(formula.child, rho_max)
         return lambda s: -inner(s)
     if isinstance(formula, (And, Or)):
-        parts = [compile_state_formula(c, rho_max) for c in formula.operands]
+        parts = [_state_closure(c, rho_max) for c in formula.operands]
         reduce_ = min if isinstance(formula, And) else max
         return lambda s: reduce_(p(s) for p in parts)
     if isinstance(formula, Implies):
-        left, right = compile_state_formula(formula.left, rho_max), compile_state_formula(formula.right, rho_max)
+        left, right = _state_closure(formula.left, rho_max), _state_closure(formula.right, rho_max)
         return lambda s: max(-left(s), right(s))
     raise TypeError(f"{type(formula).__name__} is temporal; compile_state_formula takes temporal-free formulas")
 
@@ -163,16 +242,9 @@ def lookahead(formula: Formula) -> int | None:
 
     0 for a temporal-free formula, the nesting depth of ``X`` for a Boolean
     combination of ``X``'s over temporal-free formulas; None when ``F G U T`` occur.
+    Computed bottom-up on an explicit stack (any depth).
     """
-    if not formula.is_temporal:
-        return 0
-    if isinstance(formula, Next):
-        depth = lookahead(formula.child)
-        return None if depth is None else depth + 1
-    if isinstance(formula, (Not, And, Or, Implies)):
-        depths = [lookahead(c) for c in formula.children]
-        return None if any(d is None for d in depths) else max(depths)  # type: ignore[type-var]
-    return None
+    return _lookaheads(formula)[id(formula)]
 
 
 _WindowFn = Callable[[list, int], float]  # (states s_k … s_{k+d} (fewer at the trace's end), index) -> value
@@ -183,14 +255,23 @@ def compile_window_formula(formula: Formula, rho_max: float) -> _WindowFn:
 
     ``X φ`` beyond the end of the window is −ρ_max, the value of ``X`` at the last state.
     """
+    if formula.depth > _CLOSURE_DEPTH:
+        if lookahead(formula) is None:
+            raise TypeError(f"{type(formula).__name__} has no bounded lookahead")
+        return _engine_window_formula(formula, rho_max)
+    return _window_closure(formula, rho_max)
+
+
+def _window_closure(formula: Formula, rho_max: float) -> _WindowFn:
+    """Nested closures for a formula with bounded lookahead (recursion bounded by `_CLOSURE_DEPTH`)."""
     if not formula.is_temporal:
-        fn = compile_state_formula(formula, rho_max)
+        fn = _state_closure(formula, rho_max)
         return lambda w, i: fn(w[i])
     if isinstance(formula, Next):
-        inner = compile_window_formula(formula.child, rho_max)
+        inner = _window_closure(formula.child, rho_max)
         bottom = -float(rho_max)
         return lambda w, i: inner(w, i + 1) if i + 1 < len(w) else bottom
-    parts = [compile_window_formula(c, rho_max) for c in formula.children]
+    parts = [_window_closure(c, rho_max) for c in formula.children]
     if isinstance(formula, Not):
         return lambda w, i: -parts[0](w, i)
     if isinstance(formula, And):
@@ -598,16 +679,58 @@ def _never_again_parts(child: Formula) -> tuple[Formula, Formula] | None:
     return None
 
 
-def _compile_incremental(formula: Formula, rho_max: float, names: tuple[str, ...]) -> _Node | None:
-    """The incremental monitor of ``formula`` over the signals ``names``, or None outside the fragment."""
-    depth = lookahead(formula)
+def _compile_incremental(formula: Formula, rho_max: float, names: tuple[str, ...],
+                         verdicts: dict[int, bool] | None = None) -> _Node | None:
+    """The incremental monitor of ``formula`` over the signals ``names``, or None outside the fragment.
+
+    Boolean connectives over temporal parts are compiled bottom-up on an explicit stack (any
+    depth); ``verdicts`` receives, by node identity, whether each visited node is in the fragment.
+    """
+    lookaheads = _lookaheads(formula)
+    built: list[_Node | None] = []  # compiled operands awaiting their connective (one per occurrence)
+    stack: list[tuple[Formula, bool]] = [(formula, False)]
+    while stack:
+        node, expanded = stack.pop()
+        combination = isinstance(node, (Not, And, Or, Implies)) and lookaheads[id(node)] is None
+        if combination and not expanded:
+            stack.append((node, True))
+            stack.extend((child, False) for child in reversed(node.children))
+            continue
+        if combination:
+            k = len(built) - len(node.children)
+            children = built[k:]
+            del built[k:]
+            compiled = None if any(c is None for c in children) else _Combine(type(node), children)  # type: ignore[arg-type]
+        else:
+            compiled = _compile_part(node, rho_max, names, lookaheads[id(node)])
+        if verdicts is not None:
+            verdicts[id(node)] = compiled is not None
+        built.append(compiled)
+    return built[0]
+
+
+def _lookaheads(formula: Formula) -> dict[int, int | None]:
+    """`lookahead` of every node, by identity, in one bottom-up pass."""
+    done: dict[int, int | None] = {}
+    for node in reversed(formula.walk()):  # children before parents
+        if id(node) in done:
+            continue
+        if not node.is_temporal:
+            done[id(node)] = 0
+        elif isinstance(node, (Next, Not, And, Or, Implies)):
+            depths = [done[id(c)] for c in node.children]
+            done[id(node)] = None if any(d is None for d in depths) else (
+                max(depths) + (1 if isinstance(node, Next) else 0)  # type: ignore[type-var]
+            )
+        else:
+            done[id(node)] = None
+    return done
+
+
+def _compile_part(formula: Formula, rho_max: float, names: tuple[str, ...], depth: int | None) -> _Node | None:
+    """The incremental monitor of a formula that is not a Boolean connective over temporal parts."""
     if depth is not None:
         return _AtStart(compile_window_formula(formula, rho_max), depth, names)
-    if isinstance(formula, (Not, And, Or, Implies)):
-        children = [_compile_incremental(c, rho_max, names) for c in formula.children]
-        if any(c is None for c in children):
-            return None
-        return _Combine(type(formula), children)  # type: ignore[arg-type]
     if isinstance(formula, (Eventually, Always)):
         inner = formula.child
         if isinstance(inner, (Eventually, Always)) and type(inner) is not type(formula):
@@ -660,14 +783,19 @@ def outside_fragment(formula: Formula) -> Formula | None:
         >>> print(outside_fragment(parse("F(x > 1) & G(x > 2 -> F x < 0)")))
         G (x > 2 -> F x < 0)
     """
-    if is_incremental(formula):
+    verdicts: dict[int, bool] = {}
+    if _compile_incremental(formula, math.inf, formula.signals, verdicts) is not None:
         return None
-    if isinstance(formula, (Not, And, Or, Implies)):
-        for child in formula.children:
-            culprit = outside_fragment(child)
-            if culprit is not None:
-                return culprit
-    return formula
+    stack = [formula]  # reading order: the first culprit found depth-first, left to right
+    while stack:
+        node = stack.pop()
+        if verdicts[id(node)]:
+            continue
+        if isinstance(node, (Not, And, Or, Implies)) and not all(verdicts[id(c)] for c in node.children):
+            stack.extend(reversed(node.children))
+            continue
+        return node
+    return formula  # not reached: a connective outside the fragment has an operand outside it
 
 
 # --------------------------------------------------------------------------- the monitor
