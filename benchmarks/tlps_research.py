@@ -188,8 +188,8 @@ def table(rows: list[dict[str, Any]], task: int) -> str:
     """A markdown table per variant of ``task``: per-seed first iterations, medians, final evaluations."""
     key = "first_rho_positive" if task == 1 else "first_success_80"
     label = "mean ρ > 0 at" if task == 1 else "80 % at"
-    lines = [f"| variant | seeds | {label} (per seed) | median | eval success | eval mean ρ |",
-             "|---|---|---|---|---|---|"]
+    lines = [f"| variant | seeds | {label} (per seed) | median | eval success | median eval success | eval mean ρ |",
+             "|---|---|---|---|---|---|---|"]
     for variant in VARIANTS:
         runs = sorted((r for r in rows if r["task"] == task and r["variant"] == variant), key=lambda r: r["seed"])
         if not runs:
@@ -201,7 +201,7 @@ def table(rows: list[dict[str, Any]], task: int) -> str:
         rho = [r["eval_rho_stochastic"] for r in runs]
         lines.append(
             f"| {variant} | {len(runs)} | {per_seed} | {'–' if math.isinf(median) else f'{median:g}'} | "
-            f"{min(success):.1%}–{max(success):.1%} | {np.mean(rho):.2f} |"
+            f"{min(success):.1%}–{max(success):.1%} | {np.median(success):.1%} | {np.mean(rho):.2f} |"
         )
     return "\n".join(lines)
 
