@@ -249,8 +249,9 @@ def plot(out: Path, task: int, variants: list[str]) -> None:
         plt.close(fig)
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
     for variant, median in medians.items():
-        style = dict(lw=2.5, color="k") if variant == "default" else dict(lw=2.5, color="tab:red") \
-            if variant == "reps" else dict(lw=1.0)
+        style = {"default": dict(lw=2.5, color="k"), "reps": dict(lw=2.5, color="tab:red"),
+                 "fitted": dict(lw=2.5, color="tab:blue"), "reps_fitted": dict(lw=2.5, color="tab:orange"),
+                 }.get(variant, dict(lw=1.0))
         for ax, key in zip(axes, ("success_rate", "mean_robustness")):
             ax.plot(np.arange(1, len(median[key]) + 1), median[key], label=variant, **style)
     axes[0].set_ylabel("median success rate")
@@ -259,7 +260,8 @@ def plot(out: Path, task: int, variants: list[str]) -> None:
     for ax in axes:
         ax.set_xlabel("iteration")
     axes[1].legend(fontsize=7, ncol=2)
-    fig.suptitle(f"TLCarNav-v0 task {task}: medians over seeds (black: TLPS default, red: REPS ε = 2)")
+    fig.suptitle(f"TLCarNav-v0 task {task}: medians over seeds (black: TLPS open loop, red: REPS ε = 2;\n"
+                 "blue, orange: the same with fitted feedback, TLPS's default since issue 16)")
     fig.tight_layout()
     fig.savefig(out / f"task{task}_medians.png", dpi=80)
     plt.close(fig)
