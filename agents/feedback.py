@@ -282,7 +282,7 @@ def fit_feedback(
     zz = window_mean(np.einsum("nt,ntf,ntg->tfg", w, z, z), window)
     ez = window_mean(np.einsum("nt,nta,ntf->taf", w, e, z), window)
     lhs = zz + ridge * np.eye(len(feats))
-    # ΔK_t = ez_t lhs_t⁻¹, solved as lhs_tᵀ ΔK_tᵀ = ez_tᵀ (lhs symmetric); pinv-free: lstsq on singular steps
+    # ΔK_t = ez_t lhs_t⁻¹, solved as lhs_t ΔK_tᵀ = ez_tᵀ (lhs symmetric); a pseudo-inverse if a step is singular
     try:
         delta = np.swapaxes(np.linalg.solve(lhs, np.swapaxes(ez, 1, 2)), 1, 2)
     except np.linalg.LinAlgError:
