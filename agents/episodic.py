@@ -15,6 +15,7 @@ import dataclasses
 import math
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 
 from .base import Agent
@@ -89,7 +90,9 @@ class AbstractEpisodicSearch(Agent):
         self.horizon = resolve_horizon(cfg.horizon, self.env)
         self._feedback = FeedbackSettings.of(cfg)
         fitted = self._feedback.mode == "fitted"
-        angles = self._feedback.angle_mask(self.observation_space) if fitted else None
+        # a space that is no flat Box gets no angles: for_spaces refuses it with a clear TypeError
+        flat = isinstance(self.observation_space, gym.spaces.Box) and len(self.observation_space.shape) == 1
+        angles = self._feedback.angle_mask(self.observation_space) if fitted and flat else None
         self.policy = LinearGaussianPolicy.for_spaces(  # Algorithm 1, l.2
             self.observation_space, self.action_space, self.horizon, init_mean=cfg.init_mean,
             init_std=cfg.init_std, covariance=cfg.covariance, min_std=cfg.min_std, gains=cfg.gains, angles=angles,
