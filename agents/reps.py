@@ -63,9 +63,10 @@ class REPSConfig(EpisodicSearchConfig):
     """Fixed feedback gains ``K_t`` of the policy ``a = K_t s_t + k_t``: an array (or nested lists) of
     shape ``(act_dim, obs_dim)`` or ``(T, act_dim, obs_dim)``; ``None`` is zeros, the default (fixed
     gains around a mean path cancelled exploration in the feasibility studies). Stored as lists."""
-    feedback: str = 'open'
-    """``"open"`` (the default: the paper's baseline, ``K_t`` fixed by ``gains``) or ``"fitted"``
-    (`tl_gym.agents.feedback`; measured beside TLPS in docs/tlps.md)."""
+    feedback: str = "fitted"
+    """``"fitted"`` (the default, as TLPS's: time-varying gains refit each update, `tl_gym.agents.feedback`;
+    measured better in both settings, docs/tlps.md) or ``"open"`` (the paper's baseline, ``K_t`` fixed by
+    ``gains``)."""
     feedback_features: Any = "auto"
     """Components the fitted gains act on: ``"auto"`` (the signals' components and the angles),
     ``"all"`` or a list of indices (see `EpisodicSearchConfig`). Stored as a list."""

@@ -208,7 +208,7 @@ def test_evaluate_matches_a_rollout_of_the_mean_actions():
     assert result["robustness"].shape == (10,)
     assert result["success_rate"] == np.mean(result["robustness"] > 0)
     means = np.repeat(agent.policy.mean[None], 10, axis=0)
-    batch = rollout(agent.env, means, seed=7)
+    batch = rollout(agent.env, means, agent.policy.feedback, seed=7)  # the mean policy, its feedback included
     np.testing.assert_allclose(result["robustness"], batch.robustness)
     assert agent.evaluate(n_episodes=10, seed=7)["mean_robustness"] == result["mean_robustness"]
 
@@ -272,14 +272,14 @@ def test_saved_agent_acts_evaluates_and_continues_like_the_original(tmp_path):
 
 
 def test_save_writes_json_and_npz_only(tmp_path):
-    path = make_agent().learn(1).save(tmp_path / "agent.zip")
+    path = make_agent(feedback="open").learn(1).save(tmp_path / "agent.zip")
     with zipfile.ZipFile(path) as archive:
         assert sorted(archive.namelist()) == ["arrays.npz", "meta.json"]
         meta = json.loads(archive.read("meta.json"))
         with np.load(io.BytesIO(archive.read("arrays.npz")), allow_pickle=False) as npz:
-            assert sorted(npz.files) == ["policy_cov", "policy_gains", "policy_mean"]
+            assert sorted(npz.files) == ["policy_cov", "policy_gains", "policy_mean"]  # an open-loop policy's
     assert meta["class"] == "REPS" and meta["format_version"] == 1
-    assert meta["env"]["id"] == POINT_ID and tl_gym.parse(meta["formula"]) == make_agent().formula
+    assert meta["env"]["id"] == POINT_ID and tl_gym.parse(meta["formula"]) == make_agent(feedback="open").formula
     assert meta["config"]["n_episodes"] == 8 and meta["observation_space"]["type"] == "Box"
 
 
