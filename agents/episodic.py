@@ -21,7 +21,7 @@ import numpy as np
 from .base import Agent
 from .feedback import FITTED_EXPLORATION_FLOOR, FeedbackSettings, fit_feedback, signal_components
 from .policy import LinearGaussianPolicy
-from .sampling import Rollouts, resolve_horizon
+from .sampling import Rollouts, flat_observations, resolve_horizon
 
 
 class EpisodicSearchConfig:
@@ -90,7 +90,7 @@ class AbstractEpisodicSearch(Agent):
         self.horizon = resolve_horizon(cfg.horizon, self.env)
         self._feedback = FeedbackSettings.of(cfg)
         fitted = self._feedback.mode == "fitted"
-        # a space that is no flat Box gets no angles: for_spaces refuses it with a clear TypeError
+        # a space that is no flat Box gets no angles (for_spaces reads a Dict of Boxes, refuses the rest)
         flat = isinstance(self.observation_space, gym.spaces.Box) and len(self.observation_space.shape) == 1
         angles = self._feedback.angle_mask(self.observation_space) if fitted and flat else None
         self.policy = LinearGaussianPolicy.for_spaces(  # Algorithm 1, l.2
@@ -98,6 +98,8 @@ class AbstractEpisodicSearch(Agent):
             init_std=cfg.init_std, covariance=cfg.covariance, min_std=cfg.min_std, gains=cfg.gains, angles=angles,
         )
         obs_dim = self.policy.obs_dim
+        if fitted and angles is None:  # a Dict's concatenated entries: none is read as an angle
+            angles = np.zeros(obs_dim, dtype=bool)
         #: the components the fitted gains act on; all false until "auto" has seen a batch
         self.feedback_features = np.zeros(obs_dim, dtype=bool)
         if fitted:
@@ -147,6 +149,10 @@ class AbstractEpisodicSearch(Agent):
     def predict(
         self, obs: Any, state: Any = None, episode_start: Any = None, deterministic: bool = True
     ) -> tuple[np.ndarray, Any]:
+        if isinstance(self.observation_space, gym.spaces.Dict):  # the policy reads the entries concatenated
+            key, space = next(iter(self.observation_space.spaces.items()))
+            rows = flat_observations(self.observation_space, obs)
+            obs = rows[0] if np.ndim(obs[key]) == len(space.shape) else rows
         action, state = self.policy.predict(obs, state, episode_start, deterministic, self._predict_rng)
         return np.clip(action, self.action_space.low, self.action_space.high), state
 

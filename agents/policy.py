@@ -122,14 +122,21 @@ class LinearGaussianPolicy:
 
     @classmethod
     def for_spaces(cls, observation_space: Any, action_space: Any, horizon: int, **kwargs: Any) -> LinearGaussianPolicy:
-        """A policy sized for flat Box observation and action spaces (``kwargs`` as for the constructor).
+        """A policy sized for the spaces (``kwargs`` as for the constructor).
+
+        The action space must be a flat Box; the observation space a flat Box, or a Dict of Boxes
+        whose entries the policy reads concatenated (`tl_gym.agents.sampling.flat_observations`).
 
         Raises:
-            TypeError: a space is not a flat Box (the linear policy needs vectors).
+            TypeError: a space the linear policy cannot read as a vector.
         """
+        if isinstance(observation_space, gym.spaces.Dict) and all(
+                isinstance(sub, gym.spaces.Box) for sub in observation_space.spaces.values()):
+            observation_space = gym.spaces.flatten_space(observation_space)
         for name, space in (("observation", observation_space), ("action", action_space)):
             if not isinstance(space, gym.spaces.Box) or len(space.shape) != 1:
-                raise TypeError(f"a linear-Gaussian policy needs flat Box spaces; the {name} space is {space}")
+                raise TypeError(f"a linear-Gaussian policy needs flat Box spaces (or a Dict of Boxes for "
+                                f"observations); the {name} space is {space}")
         return cls(horizon, observation_space.shape[0], action_space.shape[0], **kwargs)
 
     @property

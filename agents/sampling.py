@@ -158,6 +158,26 @@ def rollout(
     )
 
 
+def flat_observations(space: gym.Space, obs: Any) -> np.ndarray:
+    """Observations as float rows ``(n, obs_dim)``: a Box's flattened, a Dict's entries concatenated in its key order.
+
+    ``obs`` is one observation of ``space`` or a batch of them (a vector env's); a Dict's order is
+    `gymnasium.spaces.flatten`'s, so that a linear policy sees the same vector in every caller.
+
+    Example:
+        >>> space = gym.spaces.Dict({"a": gym.spaces.Box(0, 1, (2,)), "b": gym.spaces.Box(0, 1, (1,))})
+        >>> flat_observations(space, {"a": np.array([0.1, 0.2]), "b": np.array([0.3])}).tolist()
+        [[0.1, 0.2, 0.3]]
+    """
+    if isinstance(space, gym.spaces.Dict):
+        parts = [np.asarray(obs[key], dtype=float) for key in space.spaces]
+        single = all(p.shape == sub.shape for p, sub in zip(parts, space.spaces.values()))
+        rows = 1 if single else parts[0].shape[0]
+        return np.concatenate([p.reshape(rows, -1) for p in parts], axis=1)
+    array = np.asarray(obs, dtype=float)
+    return array.reshape(-1, int(np.prod(space.shape))) if space.shape else array.reshape(-1, 1)
+
+
 def _rollout_chunk(venv: gym.vector.VectorEnv, feedforward: np.ndarray, gains: Feedback, seed: int | None) -> Rollouts:
     """Run at most ``num_envs`` episodes at once (the rows past ``n`` are padding)."""
     n, horizon, act_dim = feedforward.shape
@@ -167,8 +187,9 @@ def _rollout_chunk(venv: gym.vector.VectorEnv, feedforward: np.ndarray, gains: F
     ff = np.zeros((n_envs, horizon, act_dim))
     ff[:n] = feedforward
 
+    obs_space = venv.single_observation_space
     obs, _ = venv.reset(seed=seed)
-    obs = np.asarray(obs, dtype=float).reshape(n_envs, -1)
+    obs = flat_observations(obs_space, obs)
     observations = np.zeros((n_envs, horizon + 1, obs.shape[1]))
     observations[:, 0] = obs
     actions = np.zeros((n_envs, horizon, act_dim))
@@ -184,12 +205,12 @@ def _rollout_chunk(venv: gym.vector.VectorEnv, feedforward: np.ndarray, gains: F
         action = np.clip(action, low, high)
         actions[:, t] = action
         obs, _, terminated, truncated, info = venv.step(action.astype(space.dtype))
-        obs = np.asarray(obs, dtype=float).reshape(n_envs, -1)
+        obs = flat_observations(obs_space, obs)
         observations[:, t + 1] = obs
         ended = (np.asarray(terminated) | np.asarray(truncated)) & (lengths < 0)
         if ended.any() and "final_obs" in info:  # same-step autoreset: obs already holds the next episode's s_0
             for i in np.flatnonzero(ended):
-                observations[i, t + 1] = np.asarray(info["final_obs"][i], dtype=float).reshape(-1)
+                observations[i, t + 1] = flat_observations(obs_space, info["final_obs"][i])[0]
         if ended.any():
             info = terminal_info(info)
             if "robustness" not in info:

@@ -415,3 +415,35 @@ def test_rollout_handles_same_step_autoreset():
     agent = make_agent()
     np.testing.assert_array_equal(evaluate_policy(agent, env, n_episodes=2, seed=1)["robustness"],
                                   evaluate_policy(agent, next_step, n_episodes=2, seed=1)["robustness"])
+
+
+class DictPointEnv(PointEnv):
+    """`PointEnv` with a Dict observation: ``{"x": (1,), "y": (1,)}``."""
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        box = gym.spaces.Box(-10, 10, (1,), np.float64)
+        self.observation_space = gym.spaces.Dict({"x": box, "y": box})
+
+    def reset(self, *, seed=None, options=None):
+        obs, info = super().reset(seed=seed, options=options)
+        return {"x": obs[:1], "y": obs[1:]}, info
+
+    def step(self, action):
+        obs, *rest = super().step(action)
+        return {"x": obs[:1], "y": obs[1:]}, *rest
+
+
+@pytest.mark.parametrize("feedback", ["open", "fitted"])
+def test_episodic_agents_read_dict_observations_concatenated(feedback):
+    dict_agent = REPS(DictPointEnv(), seed=3, n_episodes=8, feedback=feedback).learn(2)
+    box_agent = REPS(PointEnv(), seed=3, n_episodes=8, feedback=feedback).learn(2)
+    # the same numbers in a Dict: the same learning, and the same actions
+    assert strip_time(dict_agent.history) == strip_time(box_agent.history)
+    obs = np.array([0.3, -0.2])
+    single, _ = dict_agent.predict({"x": obs[:1], "y": obs[1:]}, state=4)
+    rows = {"x": np.array([[0.3], [0.1]]), "y": np.array([[-0.2], [0.0]])}
+    batch, _ = dict_agent.predict(rows, state=np.array([4, 4]))
+    np.testing.assert_array_equal(single, box_agent.predict(obs, state=4)[0])
+    np.testing.assert_array_equal(batch[0], single)
+    assert single.shape == (2,) and batch.shape == (2, 2)
