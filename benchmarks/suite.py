@@ -170,6 +170,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             failed += len(report.failed)
             for run_id, text in report.failed.items():
                 print(f"--- {run_id} failed:\n{text}", file=sys.stderr)
+        if not (out_dir / "sweep.json").is_file():  # never run (--report-only on a task not run yet)
+            continue
         runs = load_runs(out_dir)
         if runs:
             results[path.stem] = (sweep.description or path.stem, runs)
