@@ -41,7 +41,13 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     the prefix s_0 … s_t, so that the rewards of an episode add up to its (clipped)
     terminal robustness; formulas in the incremental fragment of
     `tl_gym.tltl.online` (both car tasks among them) cost O(1) per step, the
-    others O(t) (the prefix is re-evaluated). ``env_reward_weight`` adds the env's own reward, weighted.
+    others O(t) (the prefix is re-evaluated). ``reward_mode="potential"`` adds to the dense
+    increments the hierarchical potential-based shaping of `tl_gym.shaping`.
+    ``env_reward_weight`` adds the env's own reward, weighted.
+
+    ``observe_monitor=True`` appends the online monitor's state to the observation (the
+    Markov view, `tl_gym.monitor_view`), so that the dense reward of a step is a function of
+    the observations around it; `dense_reward` recomputes it from them.
 
     On the terminal step ``info`` gets ``"robustness"`` (exact, unclipped),
     ``"satisfied"`` (ρ > 0), ``"trace"`` (signal name -> float64 array s_0 … s_T)
@@ -74,6 +80,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     Change logs:
         * v0.1.0 - Initially added.
+        * v0.1.0 - ``observe_monitor``, ``monitor_scale``, ``horizon``; ``reward_mode="potential"`` and ``gamma``.
     """
 
     def __init__(
