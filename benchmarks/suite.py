@@ -128,8 +128,13 @@ def headline(task: str, rows: Sequence[tuple[str, float, float | None, int, int]
             + (f"; also {others}" if others else "") + " |")
 
 
-def write_report(results: dict[str, tuple[str, list[RunResult]]], command: str, out: Path) -> Path:
-    """``suite.md`` in ``out``: the headline table, then each task's table and figure."""
+def write_report(results: dict[str, tuple[str, list[RunResult]]], command: str, out: Path,
+                 planned: dict[str, list[str]] | None = None) -> Path:
+    """``suite.md`` in ``out``: the headline table, then each task's table and figure.
+
+    ``planned`` maps a task to the labels of its config; those without a finished run are listed
+    under the task's table as not run, so that a partial report says what it leaves out.
+    """
     lines = ["# The TL task suite", "",
              f"Produced by `{command}` (seeds and budgets in `benchmarks/configs/suite/`); success is "
              "ρ > 0 on fresh episodes of the deterministic policy, evaluated along training. "
@@ -141,7 +146,12 @@ def write_report(results: dict[str, tuple[str, list[RunResult]]], command: str, 
         lines.append(headline(title, rows))
         figure = f"suite_{stem}.png"
         plot_task(title, runs, out / figure)
-        sections += ["", f"## {title}", "", table, "", f"![{title}]({figure})"]
+        sections += ["", f"## {title}", "", table]
+        done = {run.spec.label for run in runs}
+        missing = [label for label in (planned or {}).get(stem, []) if label not in done]
+        if missing:
+            sections += ["", f"Not run for this report: {', '.join(missing)}."]
+        sections += ["", f"![{title}]({figure})"]
     path = out / "suite.md"
     path.write_text("\n".join(lines + sections) + "\n")
     return path
@@ -161,6 +171,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     variant = "quick" if args.quick else args.variant
     results: dict[str, tuple[str, list[RunResult]]] = {}
+    planned: dict[str, list[str]] = {}
     failed = 0
     for path in config_paths(args.tasks):
         sweep = load_config(path, variant=variant)
@@ -175,11 +186,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         runs = load_runs(out_dir)
         if runs:
             results[path.stem] = (sweep.description or path.stem, runs)
+            planned[path.stem] = list(dict.fromkeys(run.label for run in sweep.runs))
     command = "python -m benchmarks.suite" + (f" --variant {variant}" if variant and not args.quick else "")
     target = Path(args.out) if args.quick else RESULTS
     target.mkdir(parents=True, exist_ok=True)
     if results:
-        print(f"wrote {write_report(results, command, target)}")
+        print(f"wrote {write_report(results, command, target, planned)}")
     return 1 if failed else 0
 
 

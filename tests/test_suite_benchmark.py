@@ -56,5 +56,8 @@ def test_runs_evaluate_along_training_and_the_report_reads_them(tmp_path):
     assert rows[1][0] == "slow" and rows[1][2] is None  # ρ = 0.1 m − 1 stays below 0: never solved
     assert suite.headline("tiny", rows) == "| tiny | fast | 300 env steps (median, 2/2 seeds) |"
     assert "none solved it" in suite.headline("tiny", rows[1:])
-    page = suite.write_report({"tiny": ("tiny", runs)}, "python -m benchmarks.suite", tmp_path)
-    assert (tmp_path / "suite_tiny.png").is_file() and "| tiny | fast |" in page.read_text()
+    page = suite.write_report({"tiny": ("tiny", runs)}, "python -m benchmarks.suite", tmp_path,
+                              planned={"tiny": ["fast", "slow", "SAC"]})
+    text = page.read_text()
+    assert (tmp_path / "suite_tiny.png").is_file() and "| tiny | fast |" in text
+    assert "Not run for this report: SAC." in text
