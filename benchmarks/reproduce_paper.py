@@ -185,8 +185,9 @@ def write_ablations(runs: Sequence[results.RunResult], docs: Path, context: Prov
         "",
         "Weights (`hybrid`, the default, against `importance` and the paper's literal `paper` form), the "
         "exploration schedule (a decaying floor on the policy's std, `exploration_floor`) against the default, "
-        "fixed feedback gains (the paper keeps K_t fixed and learns k_t, C_t; the default is K_t = 0, open "
-        "loop; the `heading feedback K` arm steers against the heading, steering action −1.0·θ) and task 2 "
+        "fixed feedback gains (the paper keeps K_t fixed and learns k_t, C_t; these arms run the paper's "
+        "K_t = 0, open loop, pinned with feedback=\"open\" in the config; the `heading feedback K` arm steers "
+        "against the heading, steering action −1.0·θ) and task 2 "
         "with `no_revisit=\"strict\"` (Eq. 19 literally). Every TLPS arm changes one thing from the default, "
         "so compare each with the `weights=hybrid` row.",
         "",
