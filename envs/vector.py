@@ -191,7 +191,7 @@ class CarNavVectorEnv(VectorEnv):
         t = self._t
         states = [{"x": x, "y": y} for x, y in self._state[:, :2].tolist()]
         features = [view.observe(state, t) for view, state in zip(self._views, states)]
-        if self._potentials:  # γ Φ(s') − Φ(s) of the step that led here, with Φ = 0 after the last state
+        if self._potentials:  # γ Φ(s') − Φ(s) of the step that led here, with Φ(s_T) = 0 at the last state
             if t == 0:
                 for potential in self._potentials:
                     potential.reset()

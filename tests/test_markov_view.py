@@ -155,3 +155,22 @@ def test_sb3_vec_env_and_vec_normalize_run_on_the_view():
     assert dones.all()
     assert np.allclose(total, [info["robustness"] for info in infos])
     assert tl_gym.TLTLRewardWrapper is TLTLRewardWrapper
+
+
+def test_trace_before_the_first_reset_is_empty():
+    env = TLTLRewardWrapper(Scripted(), "F(a > 0.5)", signals={"a": 0}, reward_mode="potential", observe_monitor=True)
+    assert {name: values.size for name, values in env.trace.items()} == {"a": 0}
+
+
+@pytest.mark.parametrize("mode", ["dense", "potential"])
+def test_a_deep_copy_of_the_view_runs_on_its_own(mode):
+    import copy
+
+    env = gym.make("TLPendulum-v0", observe_monitor=True, reward_mode=mode)
+    twin = copy.deepcopy(env)
+    first, _ = env.reset(seed=4)
+    second, _ = twin.reset(seed=4)
+    for _ in range(5):
+        action = np.array([0.5], dtype=np.float32)
+        (obs_a, r_a, *_), (obs_b, r_b, *_) = env.step(action), twin.step(action)
+        assert np.array_equal(obs_a, obs_b) and r_a == r_b

@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 import tl_gym  # noqa: F401 - registers TLCarNav-v0
 from tl_gym import TLTLRewardWrapper, parse
 from tl_gym.shaping import HierarchicalPotential
+from tl_gym.tltl.online import PrefixMonitor
 
 from .test_online import fragment
 from .test_wrapper import Scripted
@@ -27,7 +28,7 @@ def test_episode_sum_is_the_clipped_robustness_minus_the_start_potential(formula
                             observe_monitor=True, gamma=gamma, clip=50.0, rho_max=20.0)
     env.reset(seed=0)
     potential = HierarchicalPotential(formula, 20.0, 1.0)
-    phis = [potential.update({"a": r[0], "b": r[1]}) for r in rows] + [0.0]  # Φ = 0 after the last state
+    phis = [potential.update({"a": r[0], "b": r[1]}) for r in rows] + [0.0]  # Φ(s_T) = 0 at the last state
     total, discounted_shaping = 0.0, 0.0
     for t in range(1, len(rows)):
         _, reward, _, truncated, info = env.step(np.zeros(1, dtype=np.float32))
@@ -58,8 +59,34 @@ def test_a_chain_scores_its_stages_in_order():
 def test_until_scores_zero_once_its_left_side_failed_first():
     phi = HierarchicalPotential(parse("a > 0 U b > 0"), scale=1.0)
     assert phi.update({"a": 1.0, "b": -1.0}) == pytest.approx(math.exp(-1.0))
-    assert phi.update({"a": -1.0, "b": -0.5}) == pytest.approx(math.exp(-0.5))  # a held before this state
-    assert phi.update({"a": 1.0, "b": -0.5}) == 0.0  # a failed before b came
+    assert phi.update({"a": -1.0, "b": -0.5}) == 0.0  # a failed with b unmet: no later b can count
+    assert phi.update({"a": 1.0, "b": 0.5}) == 0.0
+    met = HierarchicalPotential(parse("a > 0 U b > 0"), scale=1.0)
+    met.update({"a": 1.0, "b": -1.0})
+    assert met.update({"a": -1.0, "b": 0.5}) == 1.0  # b met where a fails: a had held before it
+
+
+def test_until_potential_is_a_function_of_the_monitor_state():
+    """Two histories with one monitor state and one current state get one Φ (the review's counterexample)."""
+    spec = parse("a > 0 U b > 0")
+    values = []
+    for first in ({"a": 0.1, "b": -5.0}, {"a": -0.05, "b": -5.0}):
+        phi, monitor = HierarchicalPotential(spec, scale=1.0), PrefixMonitor(spec)
+        for state in (first, {"a": -1.0, "b": -0.05}):
+            value = phi.update(state)
+            monitor.update(state)
+        values.append((monitor.state(), value))
+    assert values[0][0] == values[1][0] and values[0][1] == values[1][1]
+
+
+def test_eventually_of_temporal_operands_is_a_target():
+    phi = HierarchicalPotential(parse("F(x > 1 & X(x > 2)) & F(y > 0) & G(y < 10)"), scale=1.0)
+    assert len(phi.targets) == 2 and phi.safety == ["G y < 10"]
+    # the unmet F(x ...) no longer blocks the shaping of F(y > 0)
+    values = [phi.update({"x": 0.0, "y": y}) for y in (-3.0, -1.0, -0.1)]
+    assert values[0] < values[1] < values[2]
+    chain = HierarchicalPotential(parse("F(a > 0 T b > 0)"), scale=1.0)
+    assert chain.update({"a": 1.0, "b": -2.0}) == pytest.approx((1 + math.exp(-2.0)) / 2)  # F of a chain: the chain
 
 
 def test_targets_count_only_while_safe():

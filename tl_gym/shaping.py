@@ -10,13 +10,14 @@ kind and orders them:
 * **safety** (``G``, "never again", Boolean and bounded-lookahead conjuncts): 1 while the
   conjunct's prefix robustness is > 0, else 0 (once broken, a ``G`` stays broken);
 * **targets**: ``F φ`` scores 1 once satisfied, else ``exp(φ(s_t) / scale)`` (closeness of the
-  current state, 1 at the boundary); a chain ``φ1 T … T φm`` scores ``(k + closeness of
-  φ_{k+1}(s_t)) / m`` after its first ``k`` operands were met in order; ``φ U ψ`` scores like
-  ``F ψ`` while φ has held, 0 once φ failed before ψ.
+  current state, 1 at the boundary); a chain ``φ1 T … T φm`` (or ``F`` of one) scores
+  ``(k + closeness of φ_{k+1}(s_t)) / m`` after its first ``k`` operands were met in order;
+  ``φ U ψ`` scores like ``F ψ`` while φ has held up to s_t, 0 once φ failed before ψ was met;
+  ``F`` of any other temporal operand scores 1 once met, else 0.
 
 ``Φ = scale · (Σ safety + Π safety · mean target)``: targets count only while every safety
 conjunct holds, as in HPRS. The wrapper pays ``γ Φ(s_{t+1}) − Φ(s_t)`` on top of the dense
-increments, with ``Φ = 0`` after the last state, so an episode's rewards add up to
+increments, with ``Φ(s_T) = 0`` at the last state, so an episode's rewards add up to
 ``clip(ρ) − Φ(s_0)`` for ``γ = 1``: the terminal robustness shifted by a constant of the start
 state, which changes no optimal policy (Ng, Harada and Russell, 1999). Φ is a function of the
 monitor's state and of the current signals, so it is Markov in the ``observe_monitor`` view
@@ -89,7 +90,7 @@ class _Chain:
 
 
 class _Until:
-    """``φ U ψ``: 1 once met, the closeness of ψ while φ has held so far, 0 once φ failed first."""
+    """``φ U ψ``: 1 once met, the closeness of ψ while φ has held so far, 0 once φ failed before ψ was met."""
 
     def __init__(self, formula: Until, rho_max: float, scale: float):
         self.monitor = PrefixMonitor(formula, rho_max)
@@ -100,20 +101,29 @@ class _Until:
 
     def reset(self) -> None:
         self.monitor.reset()
-        self.held = math.inf  # min of φ over the states before this one
+        self.held = math.inf  # min of φ over the states so far
 
     def update(self, s: State) -> float:
-        if self.monitor.update(s) > 0:
-            score = 1.0
-        else:
-            score = _closeness(self.right(s), self.scale) if self.held > 0 else 0.0
-        self.held = min(self.held, self.left(s))
-        return score
+        met = self.monitor.update(s) > 0
+        self.held = min(self.held, self.left(s))  # φ up to s_t: the monitor's own running min
+        if met:
+            return 1.0
+        # once φ failed with ψ still unmet, every later ψ comes after a failure of φ
+        return _closeness(self.right(s), self.scale) if self.held > 0 else 0.0
+
+
+class _Met(_Safety):
+    """A target with no measure of closeness (``F`` of a temporal operand): 1 once met, else 0."""
 
 
 def _chain_operands(formula: Formula) -> list[Formula] | None:
-    """``[φ1, …, φm]`` of ``φ1 T (… T φm)`` or ``[φ]`` of ``F φ`` with temporal-free operands, else None."""
+    """The operands of a chain target, or None.
+
+    ``[φ1, …, φm]`` of ``φ1 T (… T φm)`` and of ``F(φ1 T …)``, ``[φ]`` of ``F φ``; all temporal-free.
+    """
     if isinstance(formula, Eventually):
+        if isinstance(formula.child, Then):  # F(φ1 T …) is the chain itself
+            return _chain_operands(formula.child)
         return None if formula.child.is_temporal else [formula.child]
     operands: list[Formula] = []
     node = formula
@@ -153,6 +163,9 @@ class HierarchicalPotential:
                 self.targets.append(str(conjunct))
             elif isinstance(conjunct, Until) and not (conjunct.left.is_temporal or conjunct.right.is_temporal):
                 self._targets.append(_Until(conjunct, rho_max, self.scale))
+                self.targets.append(str(conjunct))
+            elif isinstance(conjunct, Eventually):  # F of a temporal operand: a target, met or not yet
+                self._targets.append(_Met(conjunct, rho_max))
                 self.targets.append(str(conjunct))
             else:  # G, "never again", state and bounded-lookahead conjuncts, anything else: hold it
                 self._safety.append(_Safety(conjunct, rho_max))

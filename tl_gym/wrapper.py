@@ -111,7 +111,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             reward_mode: ``"terminal"`` (one reward at the end), ``"dense"`` (increments of
                 the prefix robustness; exact robustness only) or ``"potential"`` (the dense
                 increments plus ``γ Φ(s') − Φ(s)`` of the hierarchical potential of
-                `tl_gym.shaping`, Φ = 0 after the last state; use it with ``observe_monitor``).
+                `tl_gym.shaping`, Φ(s_T) = 0 at the last state; use it with ``observe_monitor``).
             env_reward_weight: weight of the wrapped env's own reward, added every step.
             clip: the temporal-logic part of every reward lies in ``[-clip, clip]``. The
                 default 1e4 leaves every finite robustness of TLCarNav-v0 untouched (its
@@ -185,7 +185,8 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._potential = (
             HierarchicalPotential(formula, self.rho_max, monitor_scale) if reward_mode == "potential" else None
         )
-        self._phi = 0.0  # Φ of the last state        self._rows: list[list[float]] = []
+        self._phi = 0.0  # Φ of the state the last step reached
+        self._rows: list[list[float]] = []
         self._paid = 0.0
         self._done = True
 
@@ -227,7 +228,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 value = self._monitor.update(dict(zip(self._reader.names, row)))  # type: ignore[union-attr]
             reward = self._clipped(value) - self._paid
             self._paid += reward
-        if self._potential is not None:  # γ Φ(s') − Φ(s), with Φ = 0 after the last state
+        if self._potential is not None:  # γ Φ(s') − Φ(s), with Φ(s_T) = 0 at the last state
             phi = 0.0 if self._done else self._potential.update(dict(zip(self._reader.names, row)))
             reward += self.gamma * phi - self._phi
             self._phi = phi

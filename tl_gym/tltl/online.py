@@ -50,7 +50,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -293,25 +293,16 @@ def _window_closure(formula: Formula, rho_max: float) -> _WindowFn:
 VALUE, SIGNAL, COUNT = "value", "signal", "count"
 
 
-class Slot(tuple):
-    """One float of a monitor's state: ``(kind, bound)``.
+class Slot(NamedTuple):
+    """One float of a monitor's state.
 
     ``kind`` is ``"value"`` (a robustness value, possibly ±inf), ``"signal"`` (one signal of a
-    remembered state, finite) or ``"count"`` (an integer in ``[0, bound]``).
+    remembered state, finite) or ``"count"`` (an integer in ``[0, bound]``); ``bound`` is the
+    largest count (``"count"`` slots; 0 otherwise).
     """
 
-    def __new__(cls, kind: str, bound: int = 0) -> Slot:
-        return super().__new__(cls, (kind, bound))
-
-    @property
-    def kind(self) -> str:
-        """``"value"``, ``"signal"`` or ``"count"``."""
-        return self[0]
-
-    @property
-    def bound(self) -> int:
-        """The largest count (``"count"`` slots; 0 otherwise)."""
-        return self[1]
+    kind: str
+    bound: int = 0
 
 
 class _Node:
