@@ -279,7 +279,7 @@ class Agent(abc.ABC):
         env_kwargs = None
         if env is None:
             env, env_kwargs = _env_from_source(meta["env"], path)
-        agent = klass(env=env, seed=meta["seed"], env_kwargs=env_kwargs, **meta["config"])
+        agent = klass(env=env, seed=meta["seed"], env_kwargs=env_kwargs, **klass._saved_config(dict(meta["config"])))
         for key in ("observation_space", "action_space"):
             got = describe_space(getattr(agent, key))
             if to_json(got) != meta[key]:
@@ -295,6 +295,11 @@ class Agent(abc.ABC):
         agent.env_steps = int(meta["env_steps"])
         agent.rng.bit_generator.state = meta["rng_state"]
         return agent
+
+    @classmethod
+    def _saved_config(cls, config: dict[str, Any]) -> dict[str, Any]:
+        """A saved config as this version reads it: a field added since keeps the saver's behaviour."""
+        return config
 
     def close(self) -> None:
         """Close the agent's env."""

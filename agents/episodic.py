@@ -111,6 +111,11 @@ class AbstractEpisodicSearch(Agent):
                 self._feedback.check_fittable(cfg.n_episodes, int(self.feedback_features.sum()),
                                               f"feedback_features={cfg.feedback_features!r}")
 
+    @classmethod
+    def _saved_config(cls, config: dict[str, Any]) -> dict[str, Any]:
+        # files saved before fitted feedback (issue 16) hold open-loop policies
+        return {"feedback": "open", **config}
+
     @abc.abstractmethod
     def _update(self, iteration: int) -> dict[str, Any]:
         """One policy update (see `Agent._update`)."""

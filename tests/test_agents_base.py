@@ -447,3 +447,18 @@ def test_episodic_agents_read_dict_observations_concatenated(feedback):
     np.testing.assert_array_equal(single, box_agent.predict(obs, state=4)[0])
     np.testing.assert_array_equal(batch[0], single)
     assert single.shape == (2,) and batch.shape == (2, 2)
+
+
+def test_a_file_saved_before_fitted_feedback_loads_as_the_open_loop_it_holds(tmp_path):
+    agent = make_agent(feedback="open").learn(1)
+    path = agent.save(tmp_path / "old.zip")
+
+    def as_before_issue_16(meta):  # the config fields that fitted feedback added did not exist
+        meta["config"] = {k: v for k, v in meta["config"].items()
+                          if not k.startswith(("feedback", "exploration"))}
+
+    _rewrite(path, meta_change=as_before_issue_16)
+    loaded = Agent.load(path)
+    assert loaded.config.feedback == "open"
+    obs = np.random.default_rng(1).normal(size=(3, 2))
+    np.testing.assert_array_equal(loaded.predict(obs, state=np.arange(3))[0], agent.predict(obs, state=np.arange(3))[0])
