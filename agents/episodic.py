@@ -146,6 +146,7 @@ class AbstractEpisodicSearch(Agent):
             states, feedforward - policy.mean, executed, weights, policy.gains, self.feedback_features,
             policy.angles, ridge=self.config.feedback_ridge, window=self.config.feedback_window,
             valid=np.arange(horizon)[None, :] < batch.lengths[:, None],
+            previous_mean=policy.mean, previous_centre=policy.centre,
         )
         policy.update(feedforward, weights, min_std=min_std)
         policy.mean, policy.gains, policy.centre = fit.mean, fit.gains, fit.centre

@@ -247,6 +247,8 @@ def fit_feedback(
     ridge: float,
     window: int,
     valid: np.ndarray | None = None,
+    previous_mean: np.ndarray | None = None,
+    previous_centre: np.ndarray | None = None,
 ) -> FeedbackFit:
     """Refit ``K_t``, the centre ``s̄_t`` and ``k_t`` from a weighted batch (module docstring, steps 1–4).
 
@@ -261,26 +263,32 @@ def fit_feedback(
         ridge: ridge on ``ΔK_t`` in standardised units (>= 0).
         window: pooling half-width in steps (>= 0).
         valid: ``(N, T)`` true where the step happened (episodes that ended early); all by default.
+        previous_mean: the current ``k_t`` ``(T, act_dim)``, kept (with the gains) at the steps no
+            episode of the batch reached; zeros there when not given.
+        previous_centre: the current ``s̄_t`` ``(T, obs_dim)``, kept at those steps likewise.
     """
     states = np.asarray(states, dtype=float)
     n, horizon, obs_dim = states.shape
     feats = np.flatnonzero(features) if np.asarray(features).dtype == bool else np.asarray(features, dtype=int)
     valid = np.ones((n, horizon), dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
     w = np.asarray(weights, dtype=float)[:, None] * valid  # (N, T)
+    reached = w.sum(axis=0) > 0  # steps some weighted episode reached; the others keep the current fit
     w = w / np.maximum(w.sum(axis=0, keepdims=True), 1e-300)
+    steps = reached.astype(float)
 
     centre = weighted_centre(states, w, angles)
     dev = deviation(states, centre[None], angles)  # (N, T, D)
     d = dev[..., feats]
     d = d - np.einsum("nt,ntf->tf", w, d)[None]  # centred on the weighted mean at t
-    sigma = np.sqrt(np.einsum("nt,ntf->f", w, d**2) / horizon)
+    sigma = np.sqrt(np.einsum("nt,ntf->f", w, d**2) / max(steps.sum(), 1.0))
     sigma = np.where(sigma > 1e-12, sigma, 1.0)  # a constant component carries nothing; ΔK stays 0 there
     z = d / sigma
     e = np.asarray(noise, dtype=float)
     e = e - np.einsum("nt,nta->ta", w, e)[None]
 
-    zz = window_mean(np.einsum("nt,ntf,ntg->tfg", w, z, z), window)
-    ez = window_mean(np.einsum("nt,nta,ntf->taf", w, e, z), window)
+    share = np.maximum(window_mean(steps, window), 1e-300)[:, None, None]  # pooled over reached steps only
+    zz = window_mean(np.einsum("nt,ntf,ntg->tfg", w, z, z), window) / share
+    ez = window_mean(np.einsum("nt,nta,ntf->taf", w, e, z), window) / share
     lhs = zz + ridge * np.eye(len(feats))
     # ΔK_t = ez_t lhs_t⁻¹, solved as lhs_t ΔK_tᵀ = ez_tᵀ (lhs symmetric); a pseudo-inverse if a step is singular
     try:
@@ -288,9 +296,13 @@ def fit_feedback(
     except np.linalg.LinAlgError:
         delta = np.einsum("taf,tfg->tag", ez, np.linalg.pinv(lhs, hermitian=True))
     new_gains = np.array(gains, dtype=float)
-    new_gains[:, :, feats] += delta / sigma
+    new_gains[:, :, feats] += delta / sigma * steps[:, None, None]
 
     mean_action = np.einsum("nt,nta->ta", w, np.asarray(actions, dtype=float))
     mean_dev = np.einsum("nt,ntd->td", w, dev)
     mean = mean_action - np.einsum("tad,td->ta", new_gains, mean_dev)
+    if previous_mean is not None:
+        mean = np.where(reached[:, None], mean, previous_mean)
+    if previous_centre is not None:
+        centre = np.where(reached[:, None], centre, previous_centre)
     return FeedbackFit(gains=new_gains, centre=centre, mean=mean)

@@ -174,3 +174,23 @@ def test_exploration_floor_defaults_follow_the_feedback():
     assert REPSConfig(feedback="fitted").std_floor(10) == pytest.approx(0.05)
     assert REPSConfig(feedback="open").std_floor(10) == REPSConfig().min_std
     assert TLPSConfig(feedback="open", exploration_floor=0.2).std_floor(10) == pytest.approx(0.1)
+
+
+def test_steps_no_episode_reached_keep_the_current_fit():
+    rng = np.random.default_rng(3)
+    horizon = 5
+    true_gains = np.tile(np.array([[[0.8, -0.4]]]), (horizon, 1, 1))  # one gain for all steps
+    states, noise = synthetic(rng, 400, horizon, true_gains)
+    actions = noise + 0.7
+    valid = np.ones((400, horizon), bool)
+    valid[:, 3:] = False  # every episode ended after 3 steps
+    previous_mean, previous_centre = np.full((horizon, 1), 0.7), np.full((horizon, 2), 5.0)
+    prior = np.zeros((horizon, 1, 2))
+    fit = fit_feedback(states, noise, actions, np.ones(400), prior, np.array([0, 1]), np.zeros(2, bool),
+                       ridge=0.0, window=2, valid=valid, previous_mean=previous_mean, previous_centre=previous_centre)
+    np.testing.assert_array_equal(fit.mean[3:], previous_mean[3:])
+    np.testing.assert_array_equal(fit.centre[3:], previous_centre[3:])
+    np.testing.assert_array_equal(fit.gains[3:], prior[3:])
+    # the reached steps pool only reached neighbours: the gain is not shrunk by the empty steps
+    np.testing.assert_allclose(fit.gains[:3], true_gains[:3], atol=0.05)
+    np.testing.assert_allclose(fit.mean[:3], 0.7, atol=0.05)
