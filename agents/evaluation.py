@@ -15,7 +15,7 @@ from typing import Any, Protocol
 import gymnasium as gym
 import numpy as np
 
-from .sampling import terminal_info
+from .sampling import episode_traces, terminal_info
 
 
 class PolicyPredictor(Protocol):
@@ -125,11 +125,10 @@ def collect_episodes(
             if ended.any():
                 info = terminal_info(info)
                 robustness[ended] = np.asarray(_terminal_robustness(info), dtype=float)[ended]
-                for name, values in info.get("trace", {}).items():
-                    if not name.startswith("_"):
-                        rows = batch_traces.setdefault(name, [None] * n_envs)
-                        for i in np.flatnonzero(ended):  # once per finished episode
-                            rows[i] = np.asarray(values[i], dtype=float)
+                for name, per_env in episode_traces(info, n_envs).items():
+                    rows = batch_traces.setdefault(name, [None] * n_envs)
+                    for i in np.flatnonzero(ended):  # once per finished episode
+                        rows[i] = per_env[i]
                 done |= ended
             episode_start = np.asarray(terminated) | np.asarray(truncated)
         results.append(robustness[:wanted])

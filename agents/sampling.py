@@ -219,10 +219,11 @@ def _rollout_chunk(venv: gym.vector.VectorEnv, feedforward: np.ndarray, gains: F
                 )
             lengths[ended] = t + 1
             robustness[ended] = np.asarray(info["robustness"], dtype=float)[ended]
-            for name, values in _trace_of(info).items():
-                values = np.asarray(values, dtype=float)  # (n_envs, t + 2): s_0 ... s_{t+1}
+            for name, per_env in episode_traces(info, n_envs).items():
                 rows = traces.setdefault(name, np.zeros((n_envs, horizon + 1)))
-                rows[ended, : values.shape[1]] = values[ended, : horizon + 1]
+                for i in np.flatnonzero(ended):  # s_0 ... s_{t+1}
+                    values = per_env[i][: horizon + 1]
+                    rows[i, : len(values)] = values
         if np.all(lengths[:n] >= 0):
             break
     if np.any(lengths[:n] < 0):
@@ -260,10 +261,29 @@ def terminal_info(info: Mapping[str, Any]) -> Mapping[str, Any]:
     return final if isinstance(final, Mapping) else info
 
 
-def _trace_of(info: Mapping[str, Any]) -> Mapping[str, Any]:
-    """The batched ``trace`` dict of a vector env's info, without Gymnasium's ``_name`` masks."""
-    trace = info.get("trace", {})
-    return {k: v for k, v in trace.items() if not k.startswith("_")}
+def episode_traces(info: Mapping[str, Any], n_envs: int) -> dict[str, list[np.ndarray | None]]:
+    """Each env's recorded trace in a vector env's terminal ``info``: name -> one array per env (None if none ended).
+
+    Reads both layouts: the wrapper's per-episode mapping, which Gymnasium batches as an object
+    array (episodes of different lengths can end on one step), and a dict of batched ``(n_envs, T+1)``
+    arrays with ``_name`` masks (`CarNavVectorEnv`, whose episodes all have one length).
+    """
+    trace = info.get("trace")
+    out: dict[str, list[np.ndarray | None]] = {}
+    if trace is None:
+        return out
+    if isinstance(trace, np.ndarray):  # one mapping (or None) per env
+        for i, episode in enumerate(trace):
+            for name, values in (episode or {}).items():
+                out.setdefault(name, [None] * n_envs)[i] = np.asarray(values, dtype=float)
+        return out
+    for name, values in trace.items():
+        if name.startswith("_"):
+            continue
+        mask = np.asarray(trace.get(f"_{name}", np.ones(n_envs, dtype=bool)))
+        rows = np.asarray(values, dtype=float)
+        out[name] = [rows[i] if mask[i] else None for i in range(n_envs)]
+    return out
 
 
 def infer_horizon(venv: gym.vector.VectorEnv) -> int | None:

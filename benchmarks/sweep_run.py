@@ -276,7 +276,7 @@ def sample_traces(
     Returns:
         ``({signal: (n_episodes, T+1) array}, (n_episodes,) exact robustness)``.
     """
-    from tl_gym.agents.sampling import make_vector_env
+    from tl_gym.agents.sampling import episode_traces, make_vector_env
 
     venv = make_vector_env(env, n_episodes, dict(env_kwargs))
     try:
@@ -292,13 +292,12 @@ def sample_traces(
             new = start & ~ended
             if new.any():
                 robustness[new] = np.asarray(info["robustness"], dtype=float)[new]
-                for name, values in info["trace"].items():
-                    if name.startswith("_"):
-                        continue
-                    values = np.asarray(values, dtype=float)
-                    rows = traces.setdefault(name, np.full((n_episodes, values.shape[1]), np.nan))
-                    width = min(rows.shape[1], values.shape[1])
-                    rows[new, :width] = values[new, :width]
+                for name, per_env in episode_traces(info, n_episodes).items():
+                    width = max(len(v) for v in per_env if v is not None)
+                    rows = traces.setdefault(name, np.full((n_episodes, width), np.nan))
+                    for i in np.flatnonzero(new):
+                        values = per_env[i][: rows.shape[1]]
+                        rows[i, : len(values)] = values
                 ended |= new
     finally:
         venv.close()

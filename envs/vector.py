@@ -24,7 +24,7 @@ from tl_gym.envs.tasks import Layout, make_layout, task_formula
 from tl_gym.monitor_view import MonitorView, augment_space
 from tl_gym.shaping import HierarchicalPotential
 from tl_gym.tltl.online import PrefixMonitor
-from tl_gym.wrapper import DEFAULT_CLIP, MONITOR_KEY, REWARD_MODES, REWARDS, check_positive
+from tl_gym.wrapper import DEFAULT_CLIP, MONITOR_KEY, REWARD_MODES, REWARDS, Trace, check_positive
 
 
 class CarNavVectorEnv(VectorEnv):
@@ -36,8 +36,9 @@ class CarNavVectorEnv(VectorEnv):
     rewards for the same actions. Autoreset is Gymnasium's default (``NEXT_STEP``:
     the step after an episode ends resets that car, ignores its action and pays 0),
     and ``info`` uses the vector layout, arrays with ``_key`` masks: on the step that
-    ends episodes, ``"robustness"``, ``"satisfied"``, ``"trace"`` (``{"x": (num_envs,
-    T+1), "_x": mask, "y": ..., "_y": ...}``) and, with ``reward="smooth"``,
+    ends episodes, ``"robustness"``, ``"satisfied"``, ``"trace"`` (an object array of
+    one `tl_gym.wrapper.Trace` per car, ``info["trace"][i]["x"]`` of shape ``(T+1,)``, as
+    ``SyncVectorEnv`` batches the wrapper's) and, with ``reward="smooth"``,
     ``"smooth_robustness"``. ``reward_mode="dense"`` and ``observe_monitor=True`` run one
     online monitor per car (as the single env's wrapper does, with the same features and
     rewards); they cost that monitor's Python update per car and step.
@@ -51,7 +52,7 @@ class CarNavVectorEnv(VectorEnv):
         (40, 6)
         >>> for _ in range(200):
         ...     obs, reward, terminated, truncated, info = envs.step(np.zeros((40, 2), dtype=np.float32))
-        >>> bool(truncated.all()), info["trace"]["x"].shape, bool(np.all(reward == info["robustness"]))
+        >>> bool(truncated.all()), info["trace"][0]["x"].shape, bool(np.all(reward == info["robustness"]))
         (True, (40, 201), True)
 
     Change logs:
@@ -249,7 +250,9 @@ class CarNavVectorEnv(VectorEnv):
         everyone = np.ones(self.num_envs, dtype=bool)
         infos["robustness"], infos["_robustness"] = rho, everyone.copy()
         infos["satisfied"], infos["_satisfied"] = rho > 0, everyone.copy()
-        infos["trace"] = {"x": trace["x"], "_x": everyone.copy(), "y": trace["y"], "_y": everyone.copy()}
+        infos["trace"] = np.empty(self.num_envs, dtype=object)  # one Trace per car, as SyncVectorEnv batches them
+        for i in range(self.num_envs):
+            infos["trace"][i] = Trace({"x": trace["x"][i], "y": trace["y"][i]})
         infos["_trace"] = everyone.copy()
         value = rho
         if self.reward == "smooth":

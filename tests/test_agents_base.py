@@ -462,3 +462,35 @@ def test_a_file_saved_before_fitted_feedback_loads_as_the_open_loop_it_holds(tmp
     assert loaded.config.feedback == "open"
     obs = np.random.default_rng(1).normal(size=(3, 2))
     np.testing.assert_array_equal(loaded.predict(obs, state=np.arange(3))[0], agent.predict(obs, state=np.arange(3))[0])
+
+
+class EndsEarly(gym.Env):
+    """Counts up by one per step and terminates after ``3 + seed % 4`` steps: episodes of different lengths."""
+
+    observation_space = gym.spaces.Box(-100, 100, (1,), np.float64)
+    action_space = gym.spaces.Box(-1, 1, (1,), np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.t, self.length = 0, 3 + int(self.np_random.integers(4))
+        return np.array([0.0]), {}
+
+    def step(self, action):
+        self.t += 1
+        return np.array([float(self.t)]), 0.0, self.t >= self.length, False, {}
+
+
+def test_episodes_of_different_lengths_ending_on_one_step_keep_their_traces():
+    from tl_gym.agents.evaluation import collect_episodes
+
+    envs = gym.vector.SyncVectorEnv(
+        [lambda: tl_gym.TLTLRewardWrapper(EndsEarly(), "F(c > 4)", signals={"c": 0}) for _ in range(3)])
+    agent = REPS(envs, seed=0, n_episodes=3, horizon=6, feedback="open")
+    robustness, traces = collect_episodes(agent, envs, 9, seed=0)
+    lengths = [len(values) for values in traces["c"]]
+    assert len(set(lengths)) > 1  # the episodes did differ in length, and ended out of step
+    for rho, values in zip(robustness, traces["c"]):
+        np.testing.assert_array_equal(values, np.arange(len(values)))
+        assert rho == max(values) - 4
+    batch = agent.learn(1)  # and the batched sampler reads them too
+    assert batch.history[-1]["env_steps"] < 3 * 6

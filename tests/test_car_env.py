@@ -290,8 +290,10 @@ def test_vector_env_matches_sync_vector_env(task, reward):
         assert info_b.keys() == info_s.keys()
         if out_b[3].any():
             ends += 1
-            assert info_b["trace"].keys() == info_s["trace"].keys() == {"x", "_x", "y", "_y"}
-            np.testing.assert_array_equal(info_b["trace"]["x"], info_s["trace"]["x"])
+            assert [dict(t).keys() for t in info_b["trace"]] == [dict(t).keys() for t in info_s["trace"]]
+            for trace_b, trace_s in zip(info_b["trace"], info_s["trace"]):
+                np.testing.assert_array_equal(trace_b["x"], trace_s["x"])
+                np.testing.assert_array_equal(trace_b["y"], trace_s["y"])
             np.testing.assert_array_equal(info_b["_trace"], info_s["_trace"])
             np.testing.assert_allclose(info_b["robustness"], info_s["robustness"], rtol=1e-12)
             np.testing.assert_array_equal(info_b["satisfied"], info_s["satisfied"])

@@ -50,7 +50,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     the observations around it; `dense_reward` recomputes it from them.
 
     On the terminal step ``info`` gets ``"robustness"`` (exact, unclipped),
-    ``"satisfied"`` (ρ > 0), ``"trace"`` (signal name -> float64 array s_0 … s_T)
+    ``"satisfied"`` (ρ > 0), ``"trace"`` (a read-only mapping signal name -> float64 array s_0 … s_T)
     and, with ``reward="smooth"``, ``"smooth_robustness"``. Rewards are Python
     floats clipped to ``[-clip, clip]``, so an infinite robustness (``true`` with
     ``rho_max=inf``, ``X φ`` at the last state) never reaches an agent. Each
@@ -256,7 +256,9 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         rho = float(self.formula.robustness(scored, self.rho_max))
         info["robustness"] = rho
         info["satisfied"] = rho > 0
-        info["trace"] = trace
+        # a read-only mapping, not a dict: vector envs keep one per env (episodes of different
+        # lengths may end on one step; a dict would be batched into one array of one length)
+        info["trace"] = Trace(trace)
         value = rho
         if self.reward == "smooth":
             value = float(self.formula.smooth_robustness(scored, self.beta, self.rho_max))
@@ -284,6 +286,35 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if view is None:
             raise ValueError("the wrapper was made without observe_monitor=True: its observations hold no monitor")
         return view.dense_reward(split(obs_before, view, MONITOR_KEY), split(obs_after, view, MONITOR_KEY))
+
+
+class Trace(Mapping):
+    """A recorded trace: a read-only mapping signal name -> float64 array s_0 … s_T.
+
+    Not a dict on purpose: a Gymnasium vector env batches a dict in ``info`` into one array per
+    key, which fails when episodes of different lengths end on one step; a mapping is kept whole,
+    one per env (``info["trace"][i]``, with the mask ``info["_trace"]``).
+
+    Example:
+        >>> trace = Trace({"x": np.array([0.0, 1.0])})
+        >>> list(trace), trace["x"].tolist(), trace
+        (['x'], [0.0, 1.0], Trace({'x': array([0., 1.])}))
+    """
+
+    def __init__(self, arrays: Mapping[str, np.ndarray]):
+        self._arrays = dict(arrays)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self._arrays[name]
+
+    def __iter__(self) -> Any:
+        return iter(self._arrays)
+
+    def __len__(self) -> int:
+        return len(self._arrays)
+
+    def __repr__(self) -> str:
+        return f"Trace({self._arrays!r})"
 
 
 # --------------------------------------------------------------------------- argument checks
