@@ -53,7 +53,7 @@ class CarNavVectorEnv(VectorEnv):
         >>> for _ in range(200):
         ...     obs, reward, terminated, truncated, info = envs.step(np.zeros((40, 2), dtype=np.float32))
         >>> bool(truncated.all()), info["trace"][0]["x"].shape, bool(np.all(reward == info["robustness"]))
-        (True, (40, 201), True)
+        (True, (201,), True)
 
     Change logs:
         * v0.1.0 - Initially added.
