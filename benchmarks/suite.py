@@ -142,6 +142,10 @@ def write_report(results: dict[str, tuple[str, list[RunResult]]], command: str, 
              "| task | solved by (median final success ≥ 90 %) | at |", "|---|---|---|"]
     sections = []
     for stem, (title, runs) in results.items():
+        if not runs:
+            lines.append(f"| {title} | not run for this report | |")
+            sections += ["", f"## {title}", "", "No finished run for this report."]
+            continue
         table, rows = task_table(runs)
         lines.append(headline(title, rows))
         figure = f"suite_{stem}.png"
@@ -150,7 +154,7 @@ def write_report(results: dict[str, tuple[str, list[RunResult]]], command: str, 
         done = {run.spec.label for run in runs}
         missing = [label for label in (planned or {}).get(stem, []) if label not in done]
         if missing:
-            sections += ["", f"Not run for this report: {', '.join(missing)}."]
+            sections += ["", f"Not run for this report: {'; '.join(missing)}."]
         sections += ["", f"![{title}]({figure})"]
     path = out / "suite.md"
     path.write_text("\n".join(lines + sections) + "\n")
@@ -181,12 +185,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             failed += len(report.failed)
             for run_id, text in report.failed.items():
                 print(f"--- {run_id} failed:\n{text}", file=sys.stderr)
-        if not (out_dir / "sweep.json").is_file():  # never run (--report-only on a task not run yet)
-            continue
-        runs = load_runs(out_dir)
-        if runs:
-            results[path.stem] = (sweep.description or path.stem, runs)
-            planned[path.stem] = list(dict.fromkeys(run.label for run in sweep.runs))
+        runs = load_runs(out_dir) if (out_dir / "sweep.json").is_file() else []
+        results[path.stem] = (sweep.description or path.stem, runs)  # a task without runs says so
+        planned[path.stem] = list(dict.fromkeys(run.label for run in sweep.runs))
     command = "python -m benchmarks.suite" + (f" --variant {variant}" if variant and not args.quick else "")
     target = Path(args.out) if args.quick else RESULTS
     target.mkdir(parents=True, exist_ok=True)
