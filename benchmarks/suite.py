@@ -123,7 +123,7 @@ def headline(task: str, rows: Sequence[tuple[str, float, float | None, int, int]
         tail = f"best: {best[0]} at {best[1]:.0%}" if best else "no runs"
         return f"| {task} | none solved it (≥ 90 % on fresh episodes) | {tail} |"
     first = min(solved, key=lambda r: r[2])  # type: ignore[arg-type, return-value]
-    others = ", ".join(r[0] for r in solved if r is not first)
+    others = "; ".join(r[0] for r in solved if r is not first)  # labels may hold commas
     return (f"| {task} | {first[0]} | {first[2]:,.0f} env steps (median, {first[3]}/{first[4]} seeds)"
             + (f"; also {others}" if others else "") + " |")
 
