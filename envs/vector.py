@@ -191,7 +191,11 @@ class CarNavVectorEnv(VectorEnv):
             return self._state.copy()
         t = self._t
         states = [{"x": x, "y": y} for x, y in self._state[:, :2].tolist()]
-        features = [view.observe(state, t) for view, state in zip(self._views, states)]
+        if self.observe_monitor:
+            features = [view.observe(state, t) for view, state in zip(self._views, states)]
+        else:  # dense rewards only: the monitors' values, no features
+            for view, state in zip(self._views, states):
+                view.update(state, t)
         if self._potentials:  # γ Φ(s') − Φ(s) of the step that led here, with Φ(s_T) = 0 at the last state
             if t == 0:
                 for potential in self._potentials:

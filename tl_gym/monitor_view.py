@@ -110,11 +110,16 @@ class MonitorView:
         self.value = math.nan  # the monitor's value after the last `observe`
 
     # encoding ----------------------------------------------------------------------------
-    def observe(self, state: Mapping[str, float], t: int) -> np.ndarray:
-        """Update the monitor with one state (``t = 0`` right after a reset) and return the features."""
+    def update(self, state: Mapping[str, float], t: int) -> float:
+        """Update the monitor with one state (``t = 0`` right after a reset); return its value (also ``value``)."""
         if t == 0:
             self.monitor.reset()
         self.value = self.monitor.update(state)
+        return self.value
+
+    def observe(self, state: Mapping[str, float], t: int) -> np.ndarray:
+        """`update`, then return the features of the monitor's new state."""
+        self.update(state, t)
         return self.encode(self.monitor.state(), t)
 
     def encode(self, state: list[float], t: int) -> np.ndarray:
