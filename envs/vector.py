@@ -24,7 +24,15 @@ from tl_gym.envs.tasks import Layout, make_layout, task_formula
 from tl_gym.monitor_view import MonitorView, augment_space
 from tl_gym.shaping import HierarchicalPotential
 from tl_gym.tltl.online import PrefixMonitor
-from tl_gym.wrapper import DEFAULT_CLIP, MONITOR_KEY, REWARD_MODES, REWARDS, Trace, check_positive
+from tl_gym.wrapper import (
+    DEFAULT_CLIP,
+    MONITOR_KEY,
+    REWARD_MODES,
+    REWARDS,
+    Trace,
+    check_discount,
+    check_positive,
+)
 
 
 class CarNavVectorEnv(VectorEnv):
@@ -96,8 +104,7 @@ class CarNavVectorEnv(VectorEnv):
             raise ValueError(f"reward_mode must be one of {REWARD_MODES}, got {reward_mode!r}")
         if reward_mode != "terminal" and reward == "smooth":
             raise ValueError(f"reward_mode={reward_mode!r} pays exact robustness increments; use reward='exact'")
-        if isinstance(gamma, bool) or not (isinstance(gamma, (int, float)) and 0 < gamma <= 1):
-            raise ValueError(f"gamma must lie in (0, 1], got {gamma!r}")
+        check_discount(gamma)
         if not isinstance(observe_monitor, bool):
             raise TypeError(f"observe_monitor must be True or False, got {observe_monitor!r}")
         check_positive("beta", beta, allow_inf=False)

@@ -140,8 +140,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             raise ValueError(f"reward_mode must be one of {REWARD_MODES}, got {reward_mode!r}")
         if reward_mode != "terminal" and reward == "smooth":
             raise ValueError(f"reward_mode={reward_mode!r} pays exact robustness increments; use reward='exact'")
-        if isinstance(gamma, bool) or not (isinstance(gamma, numbers.Real) and 0 < gamma <= 1):
-            raise ValueError(f"gamma must lie in (0, 1], got {gamma!r}")
+        check_discount(gamma)
         check_positive("beta", beta, allow_inf=False)
         check_positive("rho_max", rho_max, allow_inf=True)
         check_positive("clip", clip, allow_inf=False)
@@ -336,6 +335,12 @@ def check_positive(name: str, value: Any, allow_inf: bool) -> None:
     if not ok:
         bound = "> 0 (inf allowed)" if allow_inf else "finite and > 0"
         raise ValueError(f"{name} must be {bound}, got {value!r}")
+
+
+def check_discount(gamma: Any) -> None:
+    """Raise a ValueError unless ``gamma`` is a real number in (0, 1] (the potential shaping's discount)."""
+    if isinstance(gamma, bool) or not (isinstance(gamma, numbers.Real) and 0 < gamma <= 1):
+        raise ValueError(f"gamma must lie in (0, 1], got {gamma!r}")
 
 
 def _is_index(value: Any) -> bool:
