@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-import importlib
 import json
 import time
 from collections.abc import Mapping
@@ -48,9 +47,6 @@ AgentT = TypeVar("AgentT", bound="Agent")
 
 #: Keys every history row holds, in this order, before the agent's own keys.
 HISTORY_KEYS = ("iteration", "env_steps", "mean_robustness", "success_rate", "wall_time")
-
-#: Where `Agent.load` looks for an agent class named in a file.
-_AGENT_MODULES = ("tl_gym.agents.reps", "tl_gym.agents.tlps", "tl_gym.agents.sb3")
 
 # keys make_vec adds to a vector env's spec kwargs; they are not env constructor arguments
 _VECTOR_KEYS = ("num_envs", "vectorization_mode", "vector_kwargs", "wrappers")
@@ -310,14 +306,12 @@ class Agent(abc.ABC):
 
 
 def _agent_class(name: str) -> type[Agent]:
-    for module in _AGENT_MODULES:
-        try:
-            found = getattr(importlib.import_module(module), name, None)
-        except ImportError:
-            continue
-        if isinstance(found, type) and issubclass(found, Agent):
-            return found
-    raise IncompatibleSaveError(f"unknown agent class {name!r} (is the module that defines it installed?)")
+    from .registry import saved_class
+
+    try:
+        return saved_class(name)
+    except LookupError as exc:
+        raise IncompatibleSaveError(str(exc)) from None
 
 
 def _describe_env_source(env: Any, env_kwargs: dict[str, Any]) -> dict[str, Any]:

@@ -1,6 +1,6 @@
 """stable-baselines3 algorithms behind the tl_gym agent interface, set up as rl-baselines3-zoo does.
 
-`SB3Agent("PPO", "TLCarNav-v0")` trains any stable-baselines3 (or sb3-contrib)
+`SB3Agent("TLCarNav-v0", "PPO")` trains any stable-baselines3 (or sb3-contrib)
 algorithm on a TLTL-rewarded env and reports on the same axes as TLPS and REPS:
 one iteration is ``steps_per_iteration`` env steps (40 episodes × 200 steps by
 default, a TLPS iteration's budget), and each history row holds the mean exact
@@ -428,14 +428,27 @@ def merge_hyperparameters(entry: Mapping[str, Any], explicit: Mapping[str, Any],
 
 
 # The agent ------------------------------------------------------------------------------------------
+def _check_argument_order(env: Any, algo: Any) -> None:
+    """Name the culprit when a caller passes the algorithm first (the order before 0.2)."""
+    from stable_baselines3.common.base_class import BaseAlgorithm
+
+    algorithm_first = isinstance(env, type) and issubclass(env, BaseAlgorithm)
+    if isinstance(env, str) and env not in gym.registry:
+        with contextlib.suppress(ValueError):
+            algorithm_first = resolve_algorithm(env) is not None
+    if algorithm_first:
+        raise TypeError(f"SB3Agent takes the env first, then the algorithm, as every agent does: "
+                        f"SB3Agent({algo!r}, {env!r}), not SB3Agent({env!r}, {algo!r})")
+
+
 class SB3Agent(Agent):
     """A stable-baselines3 algorithm trained on a TLTL-rewarded env, reported like TLPS.
 
     Args:
-        algo: an SB3 / sb3-contrib algorithm class or its name (``"PPO"``, ``"sac"``, ...).
         env: env id, `Env` or `VectorEnv` (see `Agent`); SB3 trains on a ``DummyVecEnv`` of
             ``n_envs`` single envs rebuilt from it (wrapped in ``VecNormalize``), evaluation runs
-            on a vector env of the same single envs.
+            on a vector env of the same single envs. The env comes first, as for every agent.
+        algo: an SB3 / sb3-contrib algorithm class or its name (``"PPO"``, ``"sac"``, ...).
         seed: seeds SB3 (torch, numpy, the envs).
         env_kwargs: env constructor keywords for an env id; they win over the ones ``tl_reward`` adds.
         steps_per_iteration, n_envs, policy, normalize, n_timesteps, noise_type, noise_std: see
@@ -455,19 +468,20 @@ class SB3Agent(Agent):
         TypeError: an env id that does not take the keywords ``tl_reward`` adds.
 
     Example:
-        >>> resolve_algorithm("ppo").__name__  # what SB3Agent("ppo", "TLCarNav-v0") trains
+        >>> resolve_algorithm("ppo").__name__  # what SB3Agent("TLCarNav-v0", "ppo") trains
         'PPO'
     """
 
     config: SB3Config
 
-    def __init__(self, algo: Any, env: Any, *, seed: int | None = None, env_kwargs: Mapping[str, Any] | None = None,
+    def __init__(self, env: Any, algo: Any, *, seed: int | None = None, env_kwargs: Mapping[str, Any] | None = None,
                  steps_per_iteration: int | None = None, n_envs: int | None = None, policy: str | None = None,
                  tl_reward: str | None = None, normalize: Any = None, hyperparams: bool | str = True,
                  n_timesteps: int | None = None, noise_type: str | None = None, noise_std: float | None = None,
                  **algo_kwargs: Any):
         from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
 
+        _check_argument_order(env, algo)
         self.algo_class = resolve_algorithm(algo)
         on_policy = issubclass(self.algo_class, OnPolicyAlgorithm)
         if tl_reward is not None:

@@ -28,12 +28,12 @@ TINY = {"steps_per_iteration": 64, "n_envs": 2, "batch_size": 32, "n_epochs": 1}
 
 
 def test_default_iteration_is_a_tlps_iteration():
-    agent = SB3Agent("PPO", "TLCarNav-v0", seed=0)
+    agent = SB3Agent("TLCarNav-v0", "PPO", seed=0)
     assert agent.model.n_steps * agent.model.n_envs == 40 * 200
 
 
 def test_ppo_learns_reports_saves_and_loads(tmp_path):
-    agent = SB3Agent("ppo", "TLCarNav-v0", seed=0, env_kwargs={"task": 1}, steps_per_iteration=400, n_envs=2,
+    agent = SB3Agent("TLCarNav-v0", "ppo", seed=0, env_kwargs={"task": 1}, steps_per_iteration=400, n_envs=2,
                      batch_size=100, n_epochs=1)
     agent.learn(2)
     assert [row["env_steps"] for row in agent.history] == [400, 800]
@@ -55,16 +55,16 @@ def test_learning_leaves_no_sb3_log_folders(tmp_path, monkeypatch):
     """SB3's default logger makes an empty SB3-<time> folder in the temp directory per learn() call."""
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     monkeypatch.delenv("SB3_LOGDIR", raising=False)
-    agent = SB3Agent("ppo", "TLCarNav-v0", seed=0, **TINY)
+    agent = SB3Agent("TLCarNav-v0", "ppo", seed=0, **TINY)
     agent.learn(2)
     Agent.load(agent.save(tmp_path / "a.zip")).learn(1)
     assert not list(tmp_path.glob("SB3-*"))
-    logged = SB3Agent("ppo", "TLCarNav-v0", seed=0, tensorboard_log=str(tmp_path / "tb"), **TINY)
+    logged = SB3Agent("TLCarNav-v0", "ppo", seed=0, tensorboard_log=str(tmp_path / "tb"), **TINY)
     assert logged.model.tensorboard_log == str(tmp_path / "tb") and not logged.model._custom_logger
 
 
 def test_off_policy_algorithm_by_class():
-    agent = SB3Agent(SAC, "TLCarNav-v0", seed=0, steps_per_iteration=200, n_envs=1, learning_starts=150,
+    agent = SB3Agent("TLCarNav-v0", SAC, seed=0, steps_per_iteration=200, n_envs=1, learning_starts=150,
                      batch_size=32, policy_kwargs={"net_arch": [32, 32]})
     agent.learn(1)
     assert agent.history[0]["env_steps"] == 200 and agent.history[0]["episodes"] == 1
@@ -73,18 +73,24 @@ def test_off_policy_algorithm_by_class():
 def test_algorithm_names_and_budget_checks():
     assert resolve_algorithm("sac") is SAC and resolve_algorithm(PPO) is PPO
     with pytest.raises(ValueError, match="unknown algorithm 'nope'.*PPO"):
-        SB3Agent("nope", "TLCarNav-v0")
+        SB3Agent("TLCarNav-v0", "nope")
     with pytest.raises(ValueError, match="5%"):
-        SB3Agent("PPO", "TLCarNav-v0", n_envs=8, n_steps=3000)
+        SB3Agent("TLCarNav-v0", "PPO", n_envs=8, n_steps=3000)
     with pytest.raises(ValueError, match="n_envs"):
-        SB3Agent("PPO", "TLCarNav-v0", n_envs=0)
+        SB3Agent("TLCarNav-v0", "PPO", n_envs=0)
+
+
+@pytest.mark.parametrize("algo", ["PPO", PPO])
+def test_the_algorithm_first_is_named_as_the_old_argument_order(algo):
+    with pytest.raises(TypeError, match="env first"):
+        SB3Agent(algo, "TLCarNav-v0")
 
 
 # Fair baselines: VecNormalize, the Markov view, per-task hyperparameters -------------------------------------
 
 
 def test_markov_view_is_the_default_and_terminal_the_ablation():
-    markov = SB3Agent("ppo", "TLCarNav-v0", seed=0, **TINY)
+    markov = SB3Agent("TLCarNav-v0", "ppo", seed=0, **TINY)
     assert markov.config.tl_reward == "markov"
     assert markov.env_kwargs == TL_REWARD_ENV_KWARGS["markov"] == {"observe_monitor": True, "reward_mode": "dense"}
     assert markov.observation_space.shape[0] > 6  # the car's 6 numbers, then the monitor's state
@@ -92,26 +98,26 @@ def test_markov_view_is_the_default_and_terminal_the_ablation():
     assert markov.env.single_observation_space == markov.model.observation_space == markov.sb3_env.observation_space
     assert markov.env.get_attr("reward_mode") == ("dense", "dense")
 
-    ablation = SB3Agent("ppo", "TLCarNav-v0", seed=0, tl_reward="terminal", **TINY)
+    ablation = SB3Agent("TLCarNav-v0", "ppo", seed=0, tl_reward="terminal", **TINY)
     assert ablation.env_kwargs == {"observe_monitor": False, "reward_mode": "terminal"}
     assert ablation.observation_space.shape == (6,) and ablation.model.observation_space.shape == (6,)
 
-    mixed = SB3Agent("ppo", "TLCarNav-v0", seed=0, env_kwargs={"reward_mode": "terminal", "task": 2}, **TINY)
+    mixed = SB3Agent("TLCarNav-v0", "ppo", seed=0, env_kwargs={"reward_mode": "terminal", "task": 2}, **TINY)
     assert mixed.env_kwargs == {"observe_monitor": True, "reward_mode": "terminal", "task": 2}  # the user's win
 
 
 def test_unknown_tl_reward_is_refused_at_construction():
     with pytest.raises(ValueError, match=r"tl_reward must be one of \['markov', 'terminal'\], got 'dense'"):
-        SB3Agent("ppo", "TLCarNav-v0", tl_reward="dense")
+        SB3Agent("TLCarNav-v0", "ppo", tl_reward="dense")
 
 
 def test_an_env_object_is_taken_as_it_is():
     plain = gym.make("TLCarNav-v0")
     with pytest.raises(ValueError, match=r"tl_reward='markov' needs the env keywords observe_monitor=True"):
-        SB3Agent("ppo", plain, tl_reward="markov", **TINY)
-    assert SB3Agent("ppo", plain, **TINY).config.tl_reward == "terminal"
+        SB3Agent(plain, "ppo", tl_reward="markov", **TINY)
+    assert SB3Agent(plain, "ppo", **TINY).config.tl_reward == "terminal"
     viewed = gym.make("TLCarNav-v0", observe_monitor=True, reward_mode="dense")
-    agent = SB3Agent("ppo", viewed, **TINY)
+    agent = SB3Agent(viewed, "ppo", **TINY)
     assert agent.config.tl_reward == "markov"
     assert agent.env.single_observation_space == agent.model.observation_space == viewed.observation_space
 
@@ -123,7 +129,7 @@ def _stats(agent):
 
 
 def test_vecnormalize_is_applied_saved_and_loaded(tmp_path):
-    agent = SB3Agent("ppo", "TLCarNav-v0", seed=0, **TINY)
+    agent = SB3Agent("TLCarNav-v0", "ppo", seed=0, **TINY)
     assert agent.config.normalize is True and agent.vec_normalize.norm_reward  # the car's entry: normalize: true
     assert agent.vec_normalize.gamma == agent.model.gamma == 0.999  # returns discounted as the algorithm does
     assert agent.model.get_env() is agent.vec_normalize and agent.vec_normalize.venv is agent.sb3_env
@@ -163,19 +169,19 @@ def test_vecnormalize_is_applied_saved_and_loaded(tmp_path):
 
 
 def test_normalize_off_and_on_observations_only(tmp_path):
-    off = SB3Agent("ppo", "TLCarNav-v0", seed=0, normalize=False, **TINY)
+    off = SB3Agent("TLCarNav-v0", "ppo", seed=0, normalize=False, **TINY)
     assert off.vec_normalize is None and off.model.get_env() is off.sb3_env
     with zipfile.ZipFile(off.save(tmp_path / "off.zip")) as archive:
         assert VECNORMALIZE_MEMBER not in archive.namelist()
     assert Agent.load(tmp_path / "off.zip").vec_normalize is None
-    obs_only = SB3Agent("ppo", "TLCarNav-v0", seed=0, normalize="{'norm_obs': True, 'norm_reward': False}", **TINY)
+    obs_only = SB3Agent("TLCarNav-v0", "ppo", seed=0, normalize="{'norm_obs': True, 'norm_reward': False}", **TINY)
     assert obs_only.vec_normalize.norm_obs and not obs_only.vec_normalize.norm_reward
     with pytest.raises(ValueError, match="norm_everything"):
-        SB3Agent("ppo", "TLCarNav-v0", normalize={"norm_everything": True}, **TINY)
+        SB3Agent("TLCarNav-v0", "ppo", normalize={"norm_everything": True}, **TINY)
 
 
 def test_off_policy_entry_with_action_noise_saves_and_loads(tmp_path):
-    agent = SB3Agent("td3", "TLCarNav-v0", seed=0, steps_per_iteration=64, n_envs=2, learning_starts=32,
+    agent = SB3Agent("TLCarNav-v0", "td3", seed=0, steps_per_iteration=64, n_envs=2, learning_starts=32,
                      batch_size=16, buffer_size=1000)
     assert isinstance(agent.model.action_noise, NormalActionNoise)  # the entry's noise_type: normal
     assert agent.config.noise_type == "normal" and agent.model.policy.net_arch == [400, 300]
@@ -186,24 +192,24 @@ def test_off_policy_entry_with_action_noise_saves_and_loads(tmp_path):
 
 
 def test_the_task_entry_is_read_and_explicit_kwargs_win(tmp_path):
-    task2 = SB3Agent("ppo", "TLCarNav-v0", env_kwargs={"task": 2}, **TINY)
+    task2 = SB3Agent("TLCarNav-v0", "ppo", env_kwargs={"task": 2}, **TINY)
     assert task2.model.gamma == 0.999 and task2.n_timesteps == 1_500_000  # TLCarNav-v0:task=2
     assert task2.model.n_steps == 32  # the user's iteration size, not the entry's n_steps=1000
-    assert SB3Agent("ppo", "TLCarNav-v0", **TINY).n_timesteps == 300_000  # TLCarNav-v0
-    assert SB3Agent("ppo", "TLCarNav-v0", gamma=0.9, **TINY).model.gamma == 0.9
-    none = SB3Agent("ppo", "TLCarNav-v0", hyperparams=False, **TINY)
+    assert SB3Agent("TLCarNav-v0", "ppo", **TINY).n_timesteps == 300_000  # TLCarNav-v0
+    assert SB3Agent("TLCarNav-v0", "ppo", gamma=0.9, **TINY).model.gamma == 0.9
+    none = SB3Agent("TLCarNav-v0", "ppo", hyperparams=False, **TINY)
     assert none.model.gamma == 0.99 and none.n_timesteps is None  # SB3's own default
     assert parse_normalize(none.config.normalize) == {"norm_obs": True, "norm_reward": False}
 
     own = tmp_path / "mine.yml"
     own.write_text("TLCarNav-v0:\n  ppo:\n    gamma: 0.5\n    normalize: false\n"
                    "    policy_kwargs: \"dict(net_arch=[8], activation_fn=nn.Tanh)\"\n")
-    agent = SB3Agent("ppo", "TLCarNav-v0", hyperparams=str(own), **TINY)
+    agent = SB3Agent("TLCarNav-v0", "ppo", hyperparams=str(own), **TINY)
     assert agent.model.gamma == 0.5 and agent.vec_normalize is None
     assert agent.model.policy.activation_fn is torch.nn.Tanh and agent.model.policy.net_arch == [8]
     loaded = Agent.load(agent.save(tmp_path / "mine.zip"))
     assert loaded.config == agent.config and loaded.config.algo_kwargs["policy_kwargs"]["activation_fn"] == "Tanh"
-    relu = SB3Agent("ppo", "TLCarNav-v0", hyperparams=str(own), policy_kwargs={"activation_fn": torch.nn.ReLU}, **TINY)
+    relu = SB3Agent("TLCarNav-v0", "ppo", hyperparams=str(own), policy_kwargs={"activation_fn": torch.nn.ReLU}, **TINY)
     assert relu.model.policy.activation_fn is torch.nn.ReLU and relu.model.policy.net_arch != [8]  # whole-name win
 
 
@@ -240,12 +246,12 @@ def test_a_bad_hyperparameter_file_is_refused_naming_the_culprit(tmp_path, text,
     with pytest.raises(ValueError, match=message):
         load_hyperparams(path)
     with pytest.raises(ValueError, match=message):
-        SB3Agent("ppo", "TLCarNav-v0", hyperparams=str(path), **TINY)
+        SB3Agent("TLCarNav-v0", "ppo", hyperparams=str(path), **TINY)
 
 
 @pytest.mark.parametrize("end_is_terminal", [True, False])
 def test_the_end_of_the_trace_is_a_termination_for_sb3(end_is_terminal):
-    agent = SB3Agent("PPO", "TLCarNav-v0", seed=0, env_kwargs={"horizon": 3}, steps_per_iteration=6, n_envs=2,
+    agent = SB3Agent("TLCarNav-v0", "PPO", seed=0, env_kwargs={"horizon": 3}, steps_per_iteration=6, n_envs=2,
                      n_steps=3, batch_size=6, end_is_terminal=end_is_terminal)
     venv = agent.sb3_env
     venv.reset()
@@ -255,14 +261,14 @@ def test_the_end_of_the_trace_is_a_termination_for_sb3(end_is_terminal):
     # SB3 bootstraps a value past an episode end only when it was a truncation
     assert [info["TimeLimit.truncated"] for info in infos] == [not end_is_terminal] * 2
     with pytest.raises(ValueError, match="end_is_terminal must be true or false"):
-        SB3Agent("PPO", "TLCarNav-v0", end_is_terminal="yes")
+        SB3Agent("TLCarNav-v0", "PPO", end_is_terminal="yes")
 
 
 def test_potential_shaping_gets_the_agents_discount():
-    agent = SB3Agent("PPO", "TLCarNav-v0", seed=0, env_kwargs={"reward_mode": "potential", "horizon": 4},
+    agent = SB3Agent("TLCarNav-v0", "PPO", seed=0, env_kwargs={"reward_mode": "potential", "horizon": 4},
                      steps_per_iteration=8, n_envs=2, n_steps=4, batch_size=8, gamma=0.97)
     assert agent.env_kwargs["gamma"] == 0.97 == agent.model.gamma
     assert agent.sb3_env.get_attr("gamma") == [0.97, 0.97]
-    mine = SB3Agent("PPO", "TLCarNav-v0", seed=0, env_kwargs={"reward_mode": "potential", "gamma": 1.0, "horizon": 4},
+    mine = SB3Agent("TLCarNav-v0", "PPO", seed=0, env_kwargs={"reward_mode": "potential", "gamma": 1.0, "horizon": 4},
                     steps_per_iteration=8, n_envs=2, n_steps=4, batch_size=8, gamma=0.97)
     assert mine.env_kwargs["gamma"] == 1.0  # the user's own wins

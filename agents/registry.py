@@ -1,0 +1,98 @@
+"""The one table of agents by name, read by the command line, `Agent.load` and the benchmarks.
+
+A name is ``"tlps"``, ``"reps"``, a stable-baselines3 / sb3-contrib algorithm (``"ppo"``,
+``"sac"``, ``"td3"``, ..., case-insensitive; trained through `SB3Agent`) or
+``"package.module:Name"`` for an agent of your own (a class or factory with the agents'
+signature ``f(env, *, seed, env_kwargs, **hyperparameters)``). Every agent takes the env
+first: ``make_agent("ppo", env, seed=0)`` is ``SB3Agent(env, "ppo", seed=0)``.
+
+Example:
+    >>> from tl_gym.agents.registry import agent_class, is_episodic
+    >>> agent_class("tlps").__name__, is_episodic("tlps"), is_episodic("ppo")
+    ('TLPS', True, False)
+    >>> agent_class("PPO").__name__
+    'SB3Agent'
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Mapping
+from typing import Any
+
+#: The episodic agents by name -> "module:class"; any other plain name is an SB3 algorithm.
+EPISODIC_AGENTS = {"tlps": "tl_gym.agents.tlps:TLPS", "reps": "tl_gym.agents.reps:REPS"}
+#: The adapter every SB3 algorithm name is trained through.
+SB3_AGENT = "tl_gym.agents.sb3:SB3Agent"
+#: The names an SB3 algorithm takes here (sb3-contrib's, e.g. "tqc", work too when it is installed).
+SB3_ALGORITHMS = ("a2c", "ddpg", "dqn", "ppo", "sac", "td3")
+
+
+def check_agent_name(name: Any) -> str:
+    """Check a name's form without importing anything; return it.
+
+    Raises:
+        ValueError: not a non-empty string, or ``"sb3"`` alone (which algorithm?).
+    """
+    if not isinstance(name, str) or not name.strip(": "):
+        raise ValueError(f"an agent name must be a non-empty string, got {name!r}")
+    if name.lower() == "sb3" or name.lower().startswith("sb3:"):
+        raise ValueError(f"agent {name!r}: name the stable-baselines3 algorithm itself, e.g. 'ppo' or 'sac'")
+    return name
+
+
+def is_episodic(name: str) -> bool:
+    """Whether ``name`` is one of the episodic agents (TLPS, REPS) rather than an SB3 algorithm."""
+    return name.lower() in EPISODIC_AGENTS
+
+
+def _import(target: str) -> Any:
+    module_name, _, attribute = target.partition(":")
+    module = importlib.import_module(module_name)
+    try:
+        return getattr(module, attribute)
+    except AttributeError as exc:
+        raise ImportError(f"agent {target!r}: module {module_name!r} has no {attribute!r}") from exc
+
+
+def agent_class(name: str) -> Any:
+    """The class (or factory) a name stands for: TLPS, REPS, `SB3Agent` or your ``module:Name``.
+
+    Raises:
+        ValueError: a malformed name.
+        ImportError: its module is missing (e.g. stable-baselines3 for an SB3 name).
+    """
+    check_agent_name(name)
+    if ":" in name:
+        return _import(name)
+    return _import(EPISODIC_AGENTS.get(name.lower(), SB3_AGENT))
+
+
+def make_agent(name: str, env: Any, *, seed: int | None = None, env_kwargs: Mapping[str, Any] | None = None,
+               **hyperparameters: Any) -> Any:
+    """Build the agent ``name`` on ``env``: the one constructor the CLI and the benchmarks call.
+
+    Raises:
+        ValueError: an unknown SB3 algorithm or a bad hyperparameter (the agent's own message).
+    """
+    klass = agent_class(name)
+    if ":" not in name and not is_episodic(name):
+        return klass(env, name, seed=seed, env_kwargs=env_kwargs, **hyperparameters)
+    return klass(env, seed=seed, env_kwargs=env_kwargs, **hyperparameters)
+
+
+def saved_class(class_name: str) -> type:
+    """The agent class a saved file names (`Agent.load`): one of the library's own.
+
+    Raises:
+        LookupError: no agent class of the library has that name.
+    """
+    targets = (*EPISODIC_AGENTS.values(), SB3_AGENT)
+    for target in targets:
+        if target.endswith(f":{class_name}"):
+            try:
+                return _import(target)
+            except ImportError as exc:
+                raise LookupError(f"agent class {class_name!r} needs a missing package: {exc}") from exc
+    raise LookupError(f"unknown agent class {class_name!r}; the library's are "
+                      f"{[t.partition(':')[2] for t in targets]}")
