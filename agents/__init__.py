@@ -17,6 +17,7 @@ from .callbacks import (
     AbstractCallback,
     CallbackList,
     CheckpointCallback,
+    HistoryCSV,
     StopOnRobustness,
     StopOnSuccessRate,
 )
@@ -34,6 +35,6 @@ def __getattr__(name: str) -> Any:
 
 
 __all__ = [
-    "AbstractCallback", "Agent", "CallbackList", "CheckpointCallback", "LinearGaussianPolicy", "REPS",
+    "AbstractCallback", "Agent", "CallbackList", "CheckpointCallback", "HistoryCSV", "LinearGaussianPolicy", "REPS",
     "REPSConfig", "SB3Agent", "StopOnRobustness", "StopOnSuccessRate", "TLPS", "TLPSConfig", "evaluate_policy",
 ]

@@ -14,7 +14,11 @@ Example:
 from __future__ import annotations
 
 import abc
-from collections.abc import Callable, Sequence
+import csv
+import io
+import os
+import tempfile
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any, Union
 
@@ -87,6 +91,50 @@ class CheckpointCallback(AbstractCallback):
             self.directory.mkdir(parents=True, exist_ok=True)
             agent.save(self.directory / f"{self.prefix}_{row['iteration']}.zip")
         return True
+
+
+class HistoryCSV(AbstractCallback):
+    """Writes the history rows seen so far to a CSV file after every iteration (live progress).
+
+    The file is rewritten whole and atomically each time, so it is never half-written and its
+    columns are every key seen so far, in order of first appearance.
+    """
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self.rows: list[Row] = []
+
+    def on_iteration(self, agent: Any, row: Row) -> bool:
+        self.rows.append(dict(row))
+        write_history(self.rows, self.path)
+        return True
+
+
+def write_history(rows: Iterable[Row], path: str | Path) -> None:
+    """Write history rows as CSV (columns in order of first appearance), atomically.
+
+    Example:
+        >>> import pathlib, tempfile
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "history.csv"
+        >>> write_history([{"iteration": 1, "success_rate": 0.5}, {"iteration": 2, "extra": 3}], path)
+        >>> print(path.read_text().strip())
+        iteration,success_rate,extra
+        1,0.5,
+        2,,3
+    """
+    rows = list(rows)
+    columns: dict[str, None] = {}
+    for row in rows:
+        columns.update(dict.fromkeys(row))
+    text = io.StringIO()
+    writer = csv.DictWriter(text, fieldnames=list(columns), lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.NamedTemporaryFile("w", dir=path.parent, prefix=f".{path.name}.", delete=False) as handle:
+        handle.write(text.getvalue())
+    os.replace(handle.name, path)
 
 
 CallbackLike = Union[AbstractCallback, Callable[[Any, Row], Any], Sequence[Any], None]

@@ -136,6 +136,23 @@ def test_history_rows():
     assert agent.history[0]["wall_time"] < agent.history[-1]["wall_time"]
 
 
+def test_history_csv_holds_every_row_as_training_goes(tmp_path):
+    import csv
+
+    from tl_gym.agents import HistoryCSV
+
+    path = tmp_path / "live" / "history.csv"
+    seen = []
+
+    def read_back(agent, row):
+        seen.append([r["iteration"] for r in csv.DictReader(path.open())])
+
+    agent = make_agent().learn(3, callback=[HistoryCSV(path), read_back])
+    assert seen == [["1"], ["1", "2"], ["1", "2", "3"]]
+    rows = list(csv.DictReader(path.open()))
+    assert [float(r["mean_robustness"]) for r in rows] == [row["mean_robustness"] for row in agent.history]
+
+
 def test_learn_continues_and_chains():
     agent = make_agent()
     assert agent.learn(2) is agent
