@@ -144,12 +144,16 @@ def test_history_csv_holds_every_row_as_training_goes(tmp_path):
     path = tmp_path / "live" / "history.csv"
     seen = []
 
+    def rows_on_disk():
+        with path.open() as handle:
+            return list(csv.DictReader(handle))
+
     def read_back(agent, row):
-        seen.append([r["iteration"] for r in csv.DictReader(path.open())])
+        seen.append([r["iteration"] for r in rows_on_disk()])
 
     agent = make_agent().learn(3, callback=[HistoryCSV(path), read_back])
     assert seen == [["1"], ["1", "2"], ["1", "2", "3"]]
-    rows = list(csv.DictReader(path.open()))
+    rows = rows_on_disk()
     assert [float(r["mean_robustness"]) for r in rows] == [row["mean_robustness"] for row in agent.history]
 
 
