@@ -21,7 +21,7 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(VENV)/bin/ruff check .
-	$(PY) -m pytest -n 2 -q tl_gym envs agents tests README.md docs
+	$(PY) -m pytest -n 2 -q tl_gym envs agents cli tests README.md docs
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

@@ -21,9 +21,10 @@ def test_wheel_adds_only_the_tl_gym_package(tmp_path: Path) -> None:
     top_level = {name.split("/")[0] for name in names}
     dist_info = {t for t in top_level if t.endswith(".dist-info")}
     assert top_level - dist_info == {"tl_gym"}
-    for module in ("tl_gym/tltl/parser.py", "tl_gym/envs/__init__.py", "tl_gym/agents/__init__.py"):
+    for module in ("tl_gym/tltl/parser.py", "tl_gym/envs/__init__.py", "tl_gym/agents/__init__.py",
+                   "tl_gym/cli/__init__.py", "tl_gym/cli/__main__.py"):
         assert module in names
-    assert not any(name.startswith(("tests/", "benchmarks/", "envs/", "agents/")) for name in names)
+    assert not any(name.startswith(("tests/", "benchmarks/", "envs/", "agents/", "cli/")) for name in names)
 
 
 def _imports(path: Path) -> set[str]:
@@ -38,11 +39,14 @@ def _imports(path: Path) -> set[str]:
 
 
 # Dependencies point one way: engine <- wrapper <- envs <- agents <- command line and benchmarks.
+# (tl_gym/ reaches the envs only through Gymnasium's string entry points, which are not imports.)
+ABOVE_THE_LIBRARY = ("tl_gym.envs", "tl_gym.agents", "tl_gym.cli", "benchmarks")
 LAYERS = {
-    "tl_gym/tltl": ("gymnasium", "stable_baselines3", "tl_gym.wrapper", "tl_gym.envs", "tl_gym.agents", "tl_gym.cli"),
-    "tl_gym/wrapper.py": ("tl_gym.envs", "tl_gym.agents", "tl_gym.cli"),
-    "envs": ("tl_gym.agents", "tl_gym.cli"),
-    "agents": ("tl_gym.cli",),
+    "tl_gym/tltl": ("gymnasium", "stable_baselines3", "tl_gym.wrapper", *ABOVE_THE_LIBRARY),
+    "tl_gym": ABOVE_THE_LIBRARY,
+    "envs": ("tl_gym.agents", "tl_gym.cli", "benchmarks"),
+    "agents": ("tl_gym.cli", "benchmarks"),
+    "cli": ("benchmarks",),
 }
 
 
@@ -54,4 +58,4 @@ def test_dependencies_point_one_way() -> None:
             checked += 1
             bad = {m for m in _imports(path) if any(m == f or m.startswith(f + ".") for f in forbidden)}
             assert not bad, f"{path.relative_to(ROOT)} imports {sorted(bad)}, against the layering"
-    assert checked >= 8
+    assert checked >= 40

@@ -1,0 +1,129 @@
+"""The ``tl-gym`` command line's arguments: the parser, and reading ``--name value`` options."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from tl_gym.agents.registry import EPISODIC_AGENTS, agent_class
+
+
+def parse_value(text: str) -> Any:
+    """Read a command-line value: int, float, bool, None or JSON when it parses, else the text.
+
+    Example:
+        >>> [parse_value(v) for v in ["40", "0.5", "true", "none", "[64, 64]", "MlpPolicy"]]
+        [40, 0.5, True, None, [64, 64], 'MlpPolicy']
+    """
+    lowered = text.strip().lower()
+    if lowered in ("true", "false"):
+        return lowered == "true"
+    if lowered in ("none", "null"):
+        return None
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    try:
+        return json.loads(text)
+    except ValueError:
+        return text
+
+
+def parse_signals(text: str) -> dict[str, Any]:
+    """Parse ``name=source,...``: an integer source is an observation index, any other a Dict key.
+
+    Example:
+        >>> parse_signals("cos_th=0,th_dot=2")
+        {'cos_th': 0, 'th_dot': 2}
+    """
+    signals: dict[str, Any] = {}
+    for item in filter(None, (part.strip() for part in text.split(","))):
+        name, sep, source = item.partition("=")
+        if not sep or not name.strip() or not source.strip():
+            raise ValueError(f"--signals expects name=index pairs separated by commas, got {item!r}")
+        source = source.strip()
+        signals[name.strip()] = int(source) if source.lstrip("-").isdigit() else source
+    return signals
+
+
+def parse_hyperparameters(extra: Sequence[str]) -> dict[str, Any]:
+    """Turn ``--name value`` pairs into a dict (dashes in names become underscores).
+
+    Example:
+        >>> parse_hyperparameters(["--n-episodes", "20", "--epsilon", "1.5"])
+        {'n_episodes': 20, 'epsilon': 1.5}
+    """
+    hyperparameters: dict[str, Any] = {}
+    items = list(extra)
+    while items:
+        flag = items.pop(0)
+        if not flag.startswith("--") or len(flag) < 3:
+            raise ValueError(f"expected a hyperparameter --name value, got {flag!r}")
+        name, sep, inline = flag[2:].partition("=")
+        if sep:
+            value = inline
+        elif items and not items[0].startswith("--"):
+            value = items.pop(0)
+        else:
+            raise ValueError(f"hyperparameter --{name} has no value")
+        hyperparameters[name.replace("-", "_")] = parse_value(value)
+    return hyperparameters
+
+
+def hyperparameter_help() -> str:
+    """The episodic agents' hyperparameters and defaults, read from their config dataclasses."""
+    lines = ["hyperparameters (--name value):"]
+    for name in EPISODIC_AGENTS:
+        config = agent_class(name)._make_config({})
+        fields = ", ".join(f"{f.name}={getattr(config, f.name)!r}" for f in dataclasses.fields(config))
+        lines.append(f"  {name}: {fields}")
+    lines.append("  stable-baselines3 agents: tl_reward='markov' (or 'terminal', the ablation), normalize, "
+                 "hyperparams=true (agents/hyperparams/sb3.yml, or false, or a path), steps_per_iteration=8000, "
+                 "n_envs, policy, n_timesteps, noise_type, noise_std, and the algorithm's own keywords "
+                 "(learning_rate, batch_size, ...); unset ones come from the task's entry in the file")
+    return "\n".join(lines)
+
+
+def build_parser(with_hyperparameters: bool = False) -> argparse.ArgumentParser:
+    """The ``tl-gym`` argument parser (``train`` and ``eval`` sub-commands).
+
+    Args:
+        with_hyperparameters: list every agent's hyperparameters in ``train --help`` (imports the agents).
+    """
+    parser = argparse.ArgumentParser(prog="tl-gym", description="Reinforcement learning with TLTL rewards.")
+    commands = parser.add_subparsers(dest="command", required=True)
+
+    train = commands.add_parser(
+        "train", help="train an agent and write a run folder",
+        description="Train an agent; unknown --name value options are the agent's hyperparameters.",
+        epilog=hyperparameter_help() if with_hyperparameters else None,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    train.add_argument("--env", default="TLCarNav-v0", help="registered env id (default: TLCarNav-v0)")
+    train.add_argument("--task", type=int, default=None, help="the car's task, 1 or 2 (env keyword `task`)")
+    train.add_argument("--env-kwargs", type=json.loads, default={}, help="env keywords as JSON")
+    train.add_argument("--spec", default=None, help="a TLTL formula to pay as reward instead of the env's own")
+    train.add_argument("--signals", type=parse_signals, default=None,
+                       help="with --spec: signal sources, e.g. cos_th=0,th_dot=2 (observation indices or Dict keys)")
+    train.add_argument("--agent", default="tlps", help="tlps, reps or a stable-baselines3 algorithm (ppo, sac, ...)")
+    train.add_argument("--iterations", type=int, default=None,
+                       help="policy updates (default: 50; SB3 agents: the task's n_timesteps budget, else 50)")
+    train.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    train.add_argument("--out", type=Path, required=True, help="run folder to write")
+    train.add_argument("--snapshots", default=None,
+                       help="iterations whose sampled trajectories are plotted, e.g. 1,10,30 (default: spread)")
+    train.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    evaluate = commands.add_parser("eval", help="evaluate a trained run")
+    evaluate.add_argument("run", type=Path, help="run folder written by `tl-gym train`")
+    evaluate.add_argument("--episodes", type=int, default=100, help="fresh episodes (default: 100)")
+    evaluate.add_argument("--seed", type=int, default=12345, help="seed of the first episode (default: 12345)")
+    evaluate.add_argument("--stochastic", action="store_true", help="sample actions instead of the mean")
+    evaluate.add_argument("--gif", type=Path, default=None, help="also save a GIF of one episode here")
+    return parser
