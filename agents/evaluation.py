@@ -15,7 +15,7 @@ from typing import Any, Protocol
 import gymnasium as gym
 import numpy as np
 
-from .sampling import episode_traces, terminal_info
+from .sampling import Controller, run_episodes
 
 
 class PolicyPredictor(Protocol):
@@ -25,6 +25,14 @@ class PolicyPredictor(Protocol):
         self, observation: Any, state: Any = None, episode_start: Any = None, deterministic: bool = False
     ) -> tuple[Any, Any]:
         """Actions for a batch of observations and the next recurrent state."""
+
+
+def as_vector_env(env: gym.Env) -> gym.vector.VectorEnv:
+    """A one-env vector view of ``env`` itself (not a copy), so that single envs run the same episode loop.
+
+    Closing the view would close ``env``: callers leave that to the env's owner.
+    """
+    return gym.vector.SyncVectorEnv([lambda: env], autoreset_mode=gym.vector.AutoresetMode.NEXT_STEP)
 
 
 def evaluate_policy(
@@ -57,15 +65,11 @@ def evaluate_policy(
     """
     if n_episodes < 1:
         raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
-    if isinstance(env, gym.vector.VectorEnv):
-        robustness, _ = collect_episodes(predictor, env, n_episodes, seed, deterministic)
-    elif isinstance(env, gym.Env):
-        robustness = np.array([
-            _evaluate_single(predictor, env, None if seed is None else seed + i, deterministic)
-            for i in range(n_episodes)
-        ])
-    else:
+    if isinstance(env, gym.Env):
+        env = as_vector_env(env)
+    elif not isinstance(env, gym.vector.VectorEnv):
         raise TypeError(f"env must be a gymnasium Env or VectorEnv, got {type(env).__name__}")
+    robustness, _ = collect_episodes(predictor, env, n_episodes, seed, deterministic)
     return {
         "mean_robustness": float(np.mean(robustness)),
         "success_rate": float(np.mean(robustness > 0)),
@@ -73,22 +77,16 @@ def evaluate_policy(
     }
 
 
-def _terminal_robustness(info: dict[str, Any]) -> Any:
-    if "robustness" not in info:
-        raise RuntimeError("the env's terminal info holds no 'robustness': wrap it in tl_gym.TLTLRewardWrapper")
-    return info["robustness"]
+def predictor_controller(predictor: PolicyPredictor, deterministic: bool) -> Controller:
+    """``act(t, obs, episode_start)`` for `run_episodes` from an SB3-style predictor, carrying its state."""
+    state = None
 
+    def act(t: int, obs: Any, episode_start: np.ndarray) -> Any:
+        nonlocal state
+        action, state = predictor.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
+        return action
 
-def _evaluate_single(predictor: PolicyPredictor, env: gym.Env, seed: int | None, deterministic: bool) -> float:
-    obs, _ = env.reset(seed=seed)
-    state, start = None, np.ones(1, dtype=bool)
-    while True:
-        action, state = predictor.predict(np.asarray(obs)[None], state=state, episode_start=start,
-                                          deterministic=deterministic)
-        obs, _, terminated, truncated, info = env.step(np.asarray(action)[0])
-        start = np.zeros(1, dtype=bool)
-        if terminated or truncated:
-            return float(_terminal_robustness(info))
+    return act
 
 
 def collect_episodes(
@@ -112,26 +110,9 @@ def collect_episodes(
     traces: dict[str, list[np.ndarray]] = {}
     for start in range(0, n_episodes, n_envs):
         wanted = min(n_envs, n_episodes - start)
-        obs, _ = venv.reset(seed=None if seed is None else seed + start)
-        state, episode_start = None, np.ones(n_envs, dtype=bool)
-        robustness = np.full(n_envs, np.nan)
-        batch_traces: dict[str, list[Any]] = {}
-        done = np.zeros(n_envs, dtype=bool)
-        while not done.all():
-            action, state = predictor.predict(obs, state=state, episode_start=episode_start,
-                                              deterministic=deterministic)
-            obs, _, terminated, truncated, info = venv.step(action)
-            ended = (np.asarray(terminated) | np.asarray(truncated)) & ~done
-            if ended.any():
-                info = terminal_info(info)
-                robustness[ended] = np.asarray(_terminal_robustness(info), dtype=float)[ended]
-                for name, per_env in episode_traces(info, n_envs).items():
-                    rows = batch_traces.setdefault(name, [None] * n_envs)
-                    for i in np.flatnonzero(ended):  # once per finished episode
-                        rows[i] = per_env[i]
-                done |= ended
-            episode_start = np.asarray(terminated) | np.asarray(truncated)
-        results.append(robustness[:wanted])
-        for name, rows in batch_traces.items():
+        batch = run_episodes(venv, predictor_controller(predictor, deterministic),
+                             seed=None if seed is None else seed + start, wanted=wanted)
+        results.append(batch.robustness[:wanted])
+        for name, rows in batch.traces.items():
             traces.setdefault(name, []).extend(rows[:wanted])
     return np.concatenate(results), traces

@@ -178,6 +178,95 @@ def flat_observations(space: gym.Space, obs: Any) -> np.ndarray:
     return array.reshape(-1, int(np.prod(space.shape))) if space.shape else array.reshape(-1, 1)
 
 
+Controller = Callable[[int, Any, np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class EpisodeBatch:
+    """The first episode of every env of a vector env, each run to its end (`run_episodes`).
+
+    Attributes:
+        lengths: actions each episode took, shape ``(n_envs,)``.
+        robustness: exact robustness from each episode's terminal ``info``, shape ``(n_envs,)``.
+        traces: the formula's signals the wrapper recorded, name -> one array ``s_0 … s_T`` per env.
+        observations: flat observations ``(n_envs, steps + 1, obs_dim)`` when recorded (a row past
+            its episode's end holds the next episode's, to be padded by the caller), else ``None``.
+        actions: the actions sent, ``(n_envs, steps, act_dim)`` when recorded, else ``None``.
+    """
+
+    lengths: np.ndarray
+    robustness: np.ndarray
+    traces: dict[str, list[np.ndarray | None]]
+    observations: np.ndarray | None = None
+    actions: np.ndarray | None = None
+
+
+def run_episodes(venv: gym.vector.VectorEnv, act: Controller, seed: int | None = None, max_steps: int | None = None,
+                 record: bool = False, wanted: int | None = None) -> EpisodeBatch:
+    """Run one episode in every env of ``venv`` to its end: the one episode loop of the library.
+
+    Every caller (training batches, evaluation, trace plots, the command line's GIF) runs its
+    episodes here, so the terminal-info contract is read in one place: the robustness and the
+    trace come from the wrapper's terminal ``info`` (under same-step autoreset, from
+    ``info["final_info"]``), and each env's first episode is the one reported.
+
+    Args:
+        venv: a vector env wrapped so that the terminal ``info`` holds ``robustness`` (and ``trace``).
+        act: ``act(t, obs, episode_start) -> actions`` for the whole batch; ``episode_start`` marks the
+            envs whose observation starts an episode (all at ``t = 0``), as stable-baselines3's ``predict`` wants.
+        seed: reset seed (env ``j`` gets ``seed + j``).
+        max_steps: raise if some episode is still running after this many steps.
+        record: keep the flat observations and the actions sent.
+        wanted: stop once the first ``wanted`` envs' episodes ended (the others are padding; their
+            lengths may stay ``-1``); default all.
+
+    Raises:
+        RuntimeError: the env reports no robustness, or an episode outlived ``max_steps``.
+    """
+    n_envs = venv.num_envs
+    obs_space = venv.single_observation_space
+    action_dtype = venv.single_action_space.dtype  # actions are recorded as computed, sent in the space's dtype
+    obs, _ = venv.reset(seed=seed)
+    start = np.ones(n_envs, dtype=bool)
+    lengths = np.full(n_envs, -1)
+    robustness = np.full(n_envs, np.nan)
+    traces: dict[str, list[np.ndarray | None]] = {}
+    observations = [flat_observations(obs_space, obs)] if record else []
+    actions = []
+    t = 0
+    while np.any(lengths[:wanted] < 0):
+        if max_steps is not None and t >= max_steps:
+            raise RuntimeError(
+                f"{int(np.sum(lengths[:wanted] < 0))} episode(s) did not end within the horizon T={max_steps}; "
+                "set the agent's horizon to the env's episode length"
+            )
+        action = act(t, obs, start)
+        obs, _, terminated, truncated, info = venv.step(np.asarray(action).astype(action_dtype, copy=False))
+        start = np.asarray(terminated) | np.asarray(truncated)
+        ended = start & (lengths < 0)
+        if record:
+            actions.append(np.asarray(action, dtype=float).reshape(n_envs, -1))
+            observations.append(flat_observations(obs_space, obs))
+            if ended.any() and "final_obs" in info:  # same-step autoreset: obs holds the next episode's s_0
+                for i in np.flatnonzero(ended):
+                    observations[-1][i] = flat_observations(obs_space, info["final_obs"][i])[0]
+        t += 1
+        if not ended.any():
+            continue
+        info = terminal_info(info)
+        if "robustness" not in info:
+            raise RuntimeError("the env's terminal info holds no 'robustness': wrap it in tl_gym.TLTLRewardWrapper")
+        lengths[ended] = t
+        robustness[ended] = np.asarray(info["robustness"], dtype=float)[ended]
+        for name, per_env in episode_traces(info, n_envs).items():
+            rows = traces.setdefault(name, [None] * n_envs)
+            for i in np.flatnonzero(ended):
+                rows[i] = per_env[i]
+    return EpisodeBatch(lengths, robustness, traces,
+                        np.stack(observations, axis=1) if record else None,
+                        np.stack(actions, axis=1) if record else None)
+
+
 def _rollout_chunk(venv: gym.vector.VectorEnv, feedforward: np.ndarray, gains: Feedback, seed: int | None) -> Rollouts:
     """Run at most ``num_envs`` episodes at once (the rows past ``n`` are padding)."""
     n, horizon, act_dim = feedforward.shape
@@ -186,61 +275,38 @@ def _rollout_chunk(venv: gym.vector.VectorEnv, feedforward: np.ndarray, gains: F
     low, high = np.asarray(space.low, dtype=float), np.asarray(space.high, dtype=float)
     ff = np.zeros((n_envs, horizon, act_dim))
     ff[:n] = feedforward
-
     obs_space = venv.single_observation_space
-    obs, _ = venv.reset(seed=seed)
-    obs = flat_observations(obs_space, obs)
-    observations = np.zeros((n_envs, horizon + 1, obs.shape[1]))
-    observations[:, 0] = obs
-    actions = np.zeros((n_envs, horizon, act_dim))
-    lengths = np.full(n_envs, -1)
-    robustness = np.full(n_envs, np.nan)
-    traces: dict[str, np.ndarray] = {}
-    for t in range(horizon):
+
+    def act(t: int, obs: Any, episode_start: np.ndarray) -> np.ndarray:
         action = ff[:, t]
         if callable(gains):
-            action = action + gains(t, obs)
+            action = action + gains(t, flat_observations(obs_space, obs))
         elif gains is not None:
-            action = action + np.einsum("nij,nj->ni", np.broadcast_to(gains[t], (n_envs, *gains.shape[1:])), obs)
-        action = np.clip(action, low, high)
-        actions[:, t] = action
-        obs, _, terminated, truncated, info = venv.step(action.astype(space.dtype))
-        obs = flat_observations(obs_space, obs)
-        observations[:, t + 1] = obs
-        ended = (np.asarray(terminated) | np.asarray(truncated)) & (lengths < 0)
-        if ended.any() and "final_obs" in info:  # same-step autoreset: obs already holds the next episode's s_0
-            for i in np.flatnonzero(ended):
-                observations[i, t + 1] = flat_observations(obs_space, info["final_obs"][i])[0]
-        if ended.any():
-            info = terminal_info(info)
-            if "robustness" not in info:
-                raise RuntimeError(
-                    "the env's terminal info holds no 'robustness': wrap it in tl_gym.TLTLRewardWrapper"
-                )
-            lengths[ended] = t + 1
-            robustness[ended] = np.asarray(info["robustness"], dtype=float)[ended]
-            for name, per_env in episode_traces(info, n_envs).items():
-                rows = traces.setdefault(name, np.zeros((n_envs, horizon + 1)))
-                for i in np.flatnonzero(ended):  # s_0 ... s_{t+1}
-                    values = per_env[i][: horizon + 1]
-                    rows[i, : len(values)] = values
-        if np.all(lengths[:n] >= 0):
-            break
-    if np.any(lengths[:n] < 0):
-        raise RuntimeError(
-            f"{int(np.sum(lengths[:n] < 0))} episode(s) did not end within the horizon T={horizon}; "
-            "set the agent's horizon to the env's episode length"
-        )
-    lengths = lengths[:n]
+            flat = flat_observations(obs_space, obs)
+            action = action + np.einsum("nij,nj->ni", np.broadcast_to(gains[t], (n_envs, *gains.shape[1:])), flat)
+        return np.clip(action, low, high)
+
+    batch = run_episodes(venv, act, seed, max_steps=horizon, record=True, wanted=n)
+    lengths = batch.lengths[:n]
     # pad episodes that ended early with their last observation / signal value
     idx = np.minimum(np.arange(horizon + 1), lengths[:, None])
     rows = np.arange(n)[:, None]
-    observations = observations[:n][rows, idx]
-    traces = {name: values[:n][rows, idx] for name, values in traces.items()}
-    robustness = robustness[:n]
+    steps = batch.observations.shape[1]
+    observations = np.zeros((n, horizon + 1, batch.observations.shape[2]))
+    observations[:, :steps] = batch.observations[:n]
+    actions = np.zeros((n, horizon, act_dim))
+    actions[:, : steps - 1] = batch.actions[:n]
+    traces = {}
+    for name, per_env in batch.traces.items():
+        values = np.zeros((n, horizon + 1))
+        for i, episode in enumerate(per_env[:n]):
+            episode = episode[: horizon + 1]
+            values[i, : len(episode)] = episode
+        traces[name] = values[rows, idx]
+    robustness = batch.robustness[:n]
     return Rollouts(
-        actions=actions[:n] if lengths.min() == horizon else _zero_after(actions[:n], lengths),
-        observations=observations,
+        actions=actions if lengths.min() == horizon else _zero_after(actions, lengths),
+        observations=observations[rows, idx],
         traces=traces,
         lengths=lengths,
         robustness=robustness,

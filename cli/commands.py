@@ -39,10 +39,10 @@ import gymnasium as gym
 import numpy as np
 from tl_gym.agents import Agent
 from tl_gym.agents.callbacks import as_callback, write_history
-from tl_gym.agents.evaluation import collect_episodes
+from tl_gym.agents.evaluation import as_vector_env, collect_episodes, predictor_controller
 from tl_gym.agents.registry import is_episodic
 from tl_gym.agents.registry import make_agent as build_agent
-from tl_gym.agents.sampling import env_attribute
+from tl_gym.agents.sampling import env_attribute, run_episodes
 
 import tl_gym
 from tl_gym.errors import TLGymError
@@ -194,17 +194,15 @@ def evaluate(args: argparse.Namespace) -> int:
 
 def record_episode(agent: Any, env: Any, seed: int, deterministic: bool = True) -> list[Any]:
     """Frames of one episode of ``agent`` on a single env made with ``render_mode="rgb_array"``."""
-    obs, _ = env.reset(seed=seed)
-    frames = [env.render()]
-    state, start = None, np.ones(1, dtype=bool)
-    done = False
-    while not done:
-        action, state = agent.predict(np.asarray(obs)[None], state=state, episode_start=start,
-                                      deterministic=deterministic)
-        obs, _, terminated, truncated, _ = env.step(np.asarray(action)[0])
-        start = np.zeros(1, dtype=bool)
+    frames: list[Any] = []
+    policy = predictor_controller(agent, deterministic)
+
+    def act(t: int, obs: Any, episode_start: np.ndarray) -> Any:
         frames.append(env.render())
-        done = terminated or truncated
+        return policy(t, obs, episode_start)
+
+    run_episodes(as_vector_env(env), act, seed=seed)
+    frames.append(env.render())  # the last state: the next-step autoreset has not reset it
     env.close()
     return frames
 
