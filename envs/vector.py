@@ -29,9 +29,9 @@ from tl_gym.wrapper import (
     MONITOR_KEY,
     REWARD_MODES,
     REWARDS,
-    Trace,
     check_discount,
     check_positive,
+    terminal_info,
 )
 
 
@@ -257,19 +257,10 @@ class CarNavVectorEnv(VectorEnv):
         """Rewards of the episodes that just ended (all of them), filling ``infos`` in the vector layout."""
         path = self._path[: self._t + 1]
         trace = {"x": np.ascontiguousarray(path[:, :, 0].T), "y": np.ascontiguousarray(path[:, :, 1].T)}
-        rho = np.asarray(self.formula.robustness(trace, self.rho_max), dtype=np.float64)
-        everyone = np.ones(self.num_envs, dtype=bool)
-        infos["robustness"], infos["_robustness"] = rho, everyone.copy()
-        infos["satisfied"], infos["_satisfied"] = rho > 0, everyone.copy()
-        infos["trace"] = np.empty(self.num_envs, dtype=object)  # one Trace per car, as SyncVectorEnv batches them
-        for i in range(self.num_envs):
-            infos["trace"][i] = Trace({"x": trace["x"][i], "y": trace["y"][i]})
-        infos["_trace"] = everyone.copy()
-        value = rho
-        if self.reward == "smooth":
-            value = np.asarray(self.formula.smooth_robustness(trace, self.beta, self.rho_max), dtype=np.float64)
-            infos["smooth_robustness"], infos["_smooth_robustness"] = value, everyone.copy()
-        return np.clip(value, -self.clip, self.clip)
+        ended = terminal_info(self.formula, trace, self.rho_max, self.beta if self.reward == "smooth" else None)
+        for key, values in ended.items():  # every car ended: the vector layout's masks are all true
+            infos[key], infos[f"_{key}"] = values, np.ones(self.num_envs, dtype=bool)
+        return np.clip(ended.get("smooth_robustness", ended["robustness"]), -self.clip, self.clip)
 
     def render(self) -> np.ndarray | None:
         """One frame with every car and its path so far (``render_mode="rgb_array"``)."""

@@ -250,19 +250,12 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def _terminal_reward(self, info: dict[str, Any]) -> float:
         trace = self._trace_arrays()
-        # a formula that reads no signal still needs the trace's length
-        scored = trace if trace else {"_": np.zeros(len(self._rows))}
-        rho = float(self.formula.robustness(scored, self.rho_max))
-        info["robustness"] = rho
-        info["satisfied"] = rho > 0
-        # a read-only mapping, not a dict: vector envs keep one per env (episodes of different
-        # lengths may end on one step; a dict would be batched into one array of one length)
-        info["trace"] = Trace(trace)
-        value = rho
-        if self.reward == "smooth":
-            value = float(self.formula.smooth_robustness(scored, self.beta, self.rho_max))
-            info["smooth_robustness"] = value
-        return self._clipped(value) - self._paid
+        if not trace:  # a formula that reads no signal still needs the trace's length
+            trace = {"_": np.zeros(len(self._rows))}
+        info.update(terminal_info(self.formula, trace, self.rho_max, self.beta if self.reward == "smooth" else None))
+        if not self._reader.names:
+            info["trace"] = Trace({})
+        return self._clipped(float(info.get("smooth_robustness", info["robustness"]))) - self._paid
 
     def _clipped(self, value: float) -> float:
         return min(max(value, -self.clip), self.clip)
@@ -285,6 +278,38 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if view is None:
             raise ValueError("the wrapper was made without observe_monitor=True: its observations hold no monitor")
         return view.dense_reward(split(obs_before, view, MONITOR_KEY), split(obs_after, view, MONITOR_KEY))
+
+
+def terminal_info(formula: Formula, trace: Mapping[str, np.ndarray], rho_max: float,
+                  smooth_beta: float | None = None) -> dict[str, Any]:
+    """The terminal ``info`` of finished episodes: the one place its contract is written.
+
+    Keys: ``"robustness"`` (exact ρ), ``"satisfied"`` (ρ > 0), ``"trace"`` (a `Trace`) and, when
+    ``smooth_beta`` is given, ``"smooth_robustness"``. A trace of 1-D arrays is one episode (floats
+    and one `Trace`); a trace of ``(N, T+1)`` arrays is N episodes of one length (arrays, and an
+    object array of one `Trace` per episode, the layout Gymnasium's vector envs give).
+
+    Example:
+        >>> from tl_gym import parse
+        >>> info = terminal_info(parse("F(x > 1)"), {"x": np.array([0.0, 3.0])}, rho_max=1e4)
+        >>> info["robustness"], info["satisfied"], info["trace"]["x"].tolist()
+        (2.0, True, [0.0, 3.0])
+    """
+    rho = formula.robustness(trace, rho_max)
+    batched = np.ndim(rho) > 0
+    info: dict[str, Any] = {"robustness": rho if batched else float(rho), "satisfied": rho > 0}
+    # read-only mappings, not dicts: vector envs keep one per env (episodes of different lengths
+    # may end on one step; a dict would be batched into one array of one length)
+    if batched:
+        info["trace"] = np.empty(len(rho), dtype=object)
+        for i in range(len(rho)):
+            info["trace"][i] = Trace({name: values[i] for name, values in trace.items()})
+    else:
+        info["trace"] = Trace(trace)
+    if smooth_beta is not None:
+        value = formula.smooth_robustness(trace, smooth_beta, rho_max)
+        info["smooth_robustness"] = np.asarray(value, dtype=np.float64) if batched else float(value)
+    return info
 
 
 class Trace(Mapping):
