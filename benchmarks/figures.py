@@ -1,4 +1,4 @@
-"""Figures of a sweep: Figure-3-style learning curves with 95% bands, Figure-2-style trajectories.
+"""Figures of a sweep: learning curves with 95% bands (Figure 3), trajectories (Figure 2), per-seed panels.
 
 Learning curves aggregate seeds (`benchmarks.results.mean_band`), one column per task,
 mean exact robustness on top and success rate below. Trajectory plots reuse the agents'
@@ -130,8 +130,58 @@ def env_layout(env: str, env_kwargs: dict[str, Any]) -> Any:
         instance.close()
 
 
-def _saved(fig: Figure, path: str | Path | None) -> Figure:
+def _saved(fig: Figure, path: str | Path | None, dpi: int = 110) -> Figure:
     if path is not None:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, dpi=110)
+        fig.savefig(path, dpi=dpi)
     return fig
+
+
+def plot_seed_panels(runs: Sequence[RunResult], task: Any, out: str | Path) -> list[Path]:
+    """Per-seed curves of ``task`` (the research report); return the paths written.
+
+    ``task<k>_success.png`` and ``task<k>_robustness.png`` have one panel per label (thin: seeds,
+    thick: median); ``task<k>_medians.png`` has every label's median on one pair of axes.
+    """
+    groups = {label: members for (t, label), members in group_runs(runs).items() if t == task}
+    medians: dict[str, dict[str, np.ndarray]] = {}
+    paths = []
+    for key, name in (("success_rate", "success"), ("mean_robustness", "robustness")):
+        cols = min(5, len(groups))
+        rows = -(-len(groups) // cols)
+        fig = Figure(figsize=(3.2 * cols, 2.6 * rows), layout="tight")
+        axes = np.asarray(fig.subplots(rows, cols, sharex=True, sharey=True, squeeze=False))
+        for ax, (label, members) in zip(axes.flat, groups.items()):
+            iterations, values = stack(members, key)
+            for run in members:
+                ax.plot(run.history["iteration"], run.history[key], lw=0.8, alpha=0.6)
+            medians.setdefault(label, {})[key] = np.median(values, axis=0)
+            ax.plot(iterations, medians[label][key], color="k", lw=2)
+            ax.axhline(0.8 if key == "success_rate" else 0.0, color="gray", ls="--", lw=0.8)
+            ax.set_title(f"{label} ({len(members)} seeds)", fontsize=9)
+            if key == "mean_robustness":
+                ax.set_yscale("symlog", linthresh=5.0)
+        for ax in axes.flat[len(groups):]:
+            ax.set_visible(False)
+        fig.supxlabel("iteration")
+        fig.supylabel("success rate" if key == "success_rate" else "mean exact robustness")
+        fig.suptitle(f"task {task}: thin = seeds, thick = median")
+        paths.append(Path(out) / f"task{task}_{name}.png")
+        _saved(fig, paths[-1], dpi=80)
+    fig = Figure(figsize=(12, 4.5), layout="tight")
+    axes = fig.subplots(1, 2)
+    for i, (label, median) in enumerate(medians.items()):
+        for ax, key in zip(axes, ("success_rate", "mean_robustness")):
+            # the first four labels (the baselines, by the config's order) drawn thick
+            ax.plot(np.arange(1, len(median[key]) + 1), median[key], label=label, lw=2.5 if i < 4 else 1.0,
+                    color=colormaps["tab10"](i % 10) if i < 4 else None)
+    axes[0].set_ylabel("median success rate")
+    axes[1].set_ylabel("median mean exact robustness")
+    axes[1].set_yscale("symlog", linthresh=5.0)
+    axes[1].legend(fontsize=7, ncol=2)
+    for ax in axes:
+        ax.set_xlabel("iteration")
+    fig.suptitle(f"task {task}: medians over seeds")
+    paths.append(Path(out) / f"task{task}_medians.png")
+    _saved(fig, paths[-1], dpi=80)
+    return paths

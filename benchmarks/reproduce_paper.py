@@ -1,6 +1,6 @@
 """Reproduce the paper's Figures 2 and 3 and the ablations, and write them under ``docs/results/``.
 
-Runs two sweeps (`benchmarks.sweep`; finished runs are skipped, so an interrupted
+Runs two sweeps (`benchmarks.runner`; finished runs are skipped, so an interrupted
 reproduction resumes), then writes from their results on disk:
 
 - ``paper_task1.md``, ``paper_task2.md``: one table per task (every agent) and the paper's
@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks import figures, results
-from benchmarks.sweep import Sweep, default_out_dir, load_config, run_sweep
+from benchmarks.runner import Sweep, default_out_dir, load_config, run_sweep
 
 CONFIGS = Path(__file__).parent / "configs"
 PAPER, ABLATIONS = CONFIGS / "paper.toml", CONFIGS / "ablations.toml"

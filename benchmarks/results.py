@@ -6,7 +6,8 @@ in the same directory are ignored. Seeds of one (task, label) are one curve.
 
 Usage::
 
-    python -m benchmarks.results runs/sweeps/paper            # print the tables
+    python -m benchmarks.results runs/sweeps/paper                # print the tables
+    python -m benchmarks.results DIR --per-seed DIR               # write tables.md, summary.csv and curves
 
 Example:
     >>> import numpy as np
@@ -30,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.sweep_run import DONE, HISTORY, TRAJECTORIES, RunSpec
+from benchmarks.runner import DONE, HISTORY, TRAJECTORIES, RunSpec
 
 #: Success threshold of the tables' "first iteration with success ≥ 80%" column.
 SUCCESS_TARGET = 0.8
@@ -68,7 +69,7 @@ def load_runs(out_dir: str | Path) -> list[RunResult]:
     out_dir = Path(out_dir)
     manifest_path = out_dir / "sweep.json"
     if not manifest_path.is_file():
-        raise FileNotFoundError(f"{out_dir} holds no sweep.json: run `python -m benchmarks.sweep CONFIG` first")
+        raise FileNotFoundError(f"{out_dir} holds no sweep.json: run `python -m benchmarks.runner CONFIG` first")
     manifest = json.loads(manifest_path.read_text())
     results = []
     for run_id, spec in manifest["runs"].items():
@@ -231,15 +232,84 @@ def describe_runs(runs: Sequence[RunResult]) -> Mapping[str, Any]:
     return {"runs": len(runs), "labels": labels}
 
 
+def per_seed_table(runs: Sequence[RunResult], task: Any) -> str:
+    """Per-label markdown table of ``task``: each seed's first iteration at the target, their median, final evaluation.
+
+    The target is mean ρ > 0 on task 1 and success ≥ 80 % otherwise; the median counts a seed that
+    never got there as infinite (shown "–"). Evaluation columns are the stochastic policy's (``eval_stochastic``).
+    """
+    key, what = (0, "mean ρ > 0 at") if task == 1 else (1, "80 % at")
+    lines = [f"| variant | seeds | {what} (per seed) | median | eval success | median eval success | eval mean ρ |",
+             "|---|---|---|---|---|---|---|"]
+    for (group_task, label), members in group_runs(runs).items():
+        if group_task != task:
+            continue
+        members = sorted(members, key=lambda run: run.spec.seed)
+        firsts = [_firsts(run)[key] for run in members]
+        median = float(np.median([math.inf if f is None else f for f in firsts]))
+        evals = [run.summary["eval_stochastic"] for run in members]
+        success = [e["success_rate"] for e in evals]
+        lines.append(f"| {label} | {len(members)} | {', '.join('–' if f is None else str(f) for f in firsts)} | "
+                     f"{'–' if math.isinf(median) else f'{median:g}'} | {min(success):.1%}–{max(success):.1%} | "
+                     f"{np.median(success):.1%} | {np.mean([e['mean_robustness'] for e in evals]):.2f} |")
+    return "\n".join(lines)
+
+
+def _firsts(run: RunResult) -> tuple[int | None, int | None]:
+    iterations = run.history["iteration"]
+    return (first_iteration(iterations, run.history["mean_robustness"], 0.0),
+            first_iteration(iterations, run.history["success_rate"], SUCCESS_TARGET, strict=False))
+
+
+def per_seed_rows(runs: Sequence[RunResult]) -> list[dict[str, Any]]:
+    """One ``summary.csv`` row per run: first iterations at the targets, best and final batch, final evaluation."""
+    rows = []
+    for run in runs:
+        success, rho = run.history["success_rate"], run.history["mean_robustness"]
+        positive, success_80 = _firsts(run)
+        stochastic, deterministic = run.summary["eval_stochastic"], run.summary["eval_deterministic"]
+        rows.append({
+            "task": run.task, "variant": run.spec.label, "seed": run.spec.seed, "iterations": len(success),
+            "first_rho_positive": positive, "first_success_80": success_80, "best_success": float(success.max()),
+            "final_success": float(success[-1]), "final_rho": float(rho[-1]),
+            "eval_success_stochastic": stochastic["success_rate"],
+            "eval_success_deterministic": deterministic["success_rate"],
+            "eval_rho_stochastic": stochastic["mean_robustness"],
+            "seconds_per_iteration": float(run.history["wall_time"][-1]) / len(success),
+        })
+    return rows
+
+
+def write_per_seed_report(runs: Sequence[RunResult], out: str | Path) -> list[Path]:
+    """Write ``tables.md`` (`per_seed_table` per task), ``summary.csv`` and the curves of `figures.plot_seed_panels`."""
+    from tl_gym.agents.callbacks import write_history
+
+    from benchmarks import figures
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = per_seed_rows(sorted(runs, key=lambda run: (run.task, run.spec.label, run.spec.seed)))
+    write_history(rows, out / "summary.csv")
+    tasks = list(dict.fromkeys(run.task for run in runs))
+    (out / "tables.md").write_text("\n".join(f"### Task {task}\n\n{per_seed_table(runs, task)}\n" for task in tasks))
+    return [out / "tables.md", out / "summary.csv", *(path for task in tasks
+                                                      for path in figures.plot_seed_panels(runs, task, out))]
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Print the tables of a sweep's results directory."""
+    """Print the tables of a results folder; with ``--per-seed OUT`` write the per-seed report there."""
     parser = argparse.ArgumentParser(prog="python -m benchmarks.results", description="Tables of a sweep's results.")
-    parser.add_argument("out_dir", help="a sweep's results directory (e.g. runs/sweeps/paper)")
+    parser.add_argument("out_dir", help="a sweep's results folder (e.g. runs/sweeps/paper)")
+    parser.add_argument("--per-seed", type=Path, metavar="OUT",
+                        help="write tables.md, summary.csv and per-label curves to OUT (the research report)")
     args = parser.parse_args(argv)
     runs = load_runs(args.out_dir)
     if not runs:
         print(f"no finished runs in {args.out_dir}")
         return 1
+    if args.per_seed:
+        print("wrote " + ", ".join(map(str, write_per_seed_report(runs, args.per_seed))))
+        return 0
     for task, rows in summaries_by_task(runs).items():
         print(f"\n## task {task}\n\n{markdown_table(rows)}")
     return 0

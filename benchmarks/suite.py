@@ -1,7 +1,7 @@
 """The TL task suite benchmark: every suite task × {TLPS, REPS, PPO, SAC}, SB3 also on the plain terminal reward.
 
 One sweep config per task in ``benchmarks/configs/suite/`` (env, budget, agents), run by the
-sweep runner (`benchmarks.sweep`); every run evaluates its policy on fresh episodes along the
+runner (`benchmarks.runner`); every run evaluates its policy on fresh episodes along the
 way (``evaluate_every``), so the curves are success on fresh episodes against env steps.
 Then this script writes ``docs/results/suite.md`` (one table per task, and the headline:
 which agent solves it, at how many env steps) and ``docs/results/suite_<task>.png``.
@@ -27,7 +27,7 @@ from matplotlib import colormaps
 from matplotlib.figure import Figure
 
 from benchmarks.results import RunResult, group_runs, load_runs, mean_band
-from benchmarks.sweep import load_config, run_sweep
+from benchmarks.runner import load_config, run_sweep
 
 HERE = Path(__file__).resolve().parent
 CONFIGS = HERE / "configs" / "suite"

@@ -1,4 +1,4 @@
-"""The sweep runner: config expansion, parallel runs, resume, crash safety, Ray, aggregation.
+"""The experiment runner: config expansion, parallel runs, resume, crash safety, Ray, aggregation.
 
 The runs use `StandInAgent`, a deterministic agent with the agents' interface whose
 robustness follows a known curve, so that the runner and the aggregation can be checked
@@ -20,11 +20,21 @@ import pytest
 import tomllib
 
 from benchmarks import results
-from benchmarks.sweep import ConfigError, expand_config, load_config, run_sweep
-from benchmarks.sweep_run import DONE, HISTORY, RunSpec, execute_run, install_files, run_files
+from benchmarks.runner import (
+    DONE,
+    HISTORY,
+    ConfigError,
+    RunSpec,
+    execute_run,
+    expand_config,
+    install_files,
+    load_config,
+    run_files,
+    run_sweep,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
-STAND_IN = "tests.test_sweep:StandInAgent"
+STAND_IN = "tests.test_runner:StandInAgent"
 
 
 class StandInAgent:
@@ -58,8 +68,8 @@ class StandInAgent:
         rho = self.history[-1]["mean_robustness"]
         return {"mean_robustness": rho, "success_rate": float(rho > 0), "robustness": np.full(n_episodes, rho)}
 
-    def save(self, path):
-        Path(path).write_text(json.dumps(self.history))
+    def close(self):
+        pass
 
 
 def config(**overrides):
@@ -93,6 +103,11 @@ def test_expansion_grid_labels_and_quick_overrides():
     assert {r.seed for r in expand_config(config(variants=two), variant="quick").runs} == {0}
     capped = expand_config(config(variants=two), variant="quick", overrides={"seeds": [5], "iterations": 1})
     assert {(r.seed, r.iterations) for r in capped.runs} == {(5, 1)}
+    # a budget by task; an agent's own budget can only lower the config's
+    by_task = expand_config(config(iterations={"1": 3, "2": 4}))
+    assert {(r.env_kwargs["task"], r.iterations) for r in by_task.runs} == {(1, 3), (2, 4)}
+    agents = [{"label": "a", "agent": STAND_IN, "iterations": {"1": 2, "2": 9}}]
+    assert {r.iterations for r in expand_config(config(agents=agents)).runs} == {2, 4}
 
 
 @pytest.mark.parametrize("change, culprit", [
@@ -102,6 +117,8 @@ def test_expansion_grid_labels_and_quick_overrides():
     ({"agents": []}, "agents"),
     ({"agents": [{"agent": "dqn-please"}]}, "dqn-please"),
     ({"agents": [{"agent": "sb3:"}]}, "sb3:"),
+    ({"agents": [{"agent": "sb3:PPO"}]}, "sb3:PPO"),  # the old form: the message says to write "ppo"
+    ({"iterations": {"1": 3}}, "for task 2"),
     ({"agents": [{"agent": "tlps", "lable": "x"}]}, "lable"),
     ({"agents": [{"agent": "tlps", "label": "β={beta}"}]}, "beta"),
     ({"agents": [{"agent": "tlps", "grid": {"beta": 9}}]}, "grid.beta"),
@@ -122,12 +139,12 @@ def test_shipped_configs_expand():
 
 def test_tiny_sweep_runs_in_parallel_resumes_and_aggregates(tmp_path):
     sweep = expand_config(config())
-    report = run_sweep(sweep, tmp_path, workers=2, progress=False)
+    report = run_sweep(sweep, tmp_path, workers=2)
     assert not report.failed and len(report.finished) == 8 and not report.skipped
     run_dir = tmp_path / "runs" / sweep.runs[0].run_id
     stamp = (run_dir / DONE).stat().st_mtime_ns
     # rerun: every run is finished already, nothing is redone
-    again = run_sweep(sweep, tmp_path, workers=2, progress=False)
+    again = run_sweep(sweep, tmp_path, workers=2)
     assert len(again.skipped) == 8 and not again.finished
     assert (run_dir / DONE).stat().st_mtime_ns == stamp
 
@@ -145,13 +162,35 @@ def test_tiny_sweep_runs_in_parallel_resumes_and_aggregates(tmp_path):
     assert slow.first_positive == [None, 4]
     table = results.markdown_table(tables[1])
     assert "| stand-in r=0.25 | 2 | 4 |" in table and "never (0/2)" in table
+    # the run folder: the spec first, the history row by row, the summary last
+    assert json.loads((run_dir / "spec.json").read_text()) == sweep.runs[0].to_json()
+    assert json.loads((tmp_path / "sweep.json").read_text())["runs"][sweep.runs[0].run_id] == sweep.runs[0].to_json()
+    assert json.loads((run_dir / DONE).read_text())["eval_stochastic"]["episodes"] == 3
+
+
+def test_per_seed_report_tables_summary_and_curves(tmp_path):
+    sweep = expand_config(config(tasks=[1, 2], seeds=[0, 1, 2]))
+    run_sweep(sweep, tmp_path / "out", workers=0)
+    runs = results.load_runs(tmp_path / "out")
+    written = results.write_per_seed_report(runs, tmp_path / "report")
+    assert {p.name for p in written} == {"tables.md", "summary.csv", *(f"task{t}_{k}.png" for t in (1, 2)
+                                                                     for k in ("success", "robustness", "medians"))}
+    text = (tmp_path / "report" / "tables.md").read_text()
+    # task 1: first iteration with mean ρ > 0 per seed (ρ = rate · m − 1 + seed / 100); r=0.25 never for seed 0
+    assert "| stand-in r=0.5 | 3 | 3, 2, 2 | 2 | 100.0%–100.0% | 100.0% | 1.01 |" in text
+    assert "| stand-in r=0.25 | 3 | –, 4, 4 | 4 |" in text
+    # task 2: first iteration with success ≥ 80 %
+    assert "### Task 2" in text and "| stand-in r=0.5 | 3 | 4, 4, 4 | 4 |" in text
+    summary = results.read_history(tmp_path / "report" / "summary.csv")
+    assert summary["seed"].tolist() == [0, 1, 2] * 4 and set(summary["iterations"]) == {4.0}
+    assert (tmp_path / "report" / "summary.csv").read_text().splitlines()[1].startswith("1,stand-in r=0.25,0,4,,,")
 
 
 def test_failed_run_is_reported_and_leaves_no_result(tmp_path):
     agents = [{"label": "bad", "agent": STAND_IN, "hyperparameters": {"fail": True}},
               {"label": "good", "agent": STAND_IN}]
     sweep = expand_config(config(agents=agents, tasks=[1], seeds=[0]))
-    report = run_sweep(sweep, tmp_path, workers=0, progress=False)
+    report = run_sweep(sweep, tmp_path, workers=0)
     assert len(report.finished) == 1 and len(report.failed) == 1
     (failed_id, text), = report.failed.items()
     assert "stand-in told to fail" in text
@@ -171,7 +210,7 @@ def test_killed_sweep_leaves_no_half_result_and_rerun_completes(tmp_path):
     )
     out = tmp_path / "out"
     process = subprocess.Popen(
-        [sys.executable, "-m", "benchmarks.sweep", str(path), "--out", str(out), "--workers", "1"],
+        [sys.executable, "-m", "benchmarks.runner", str(path), "--out", str(out), "--workers", "1"],
         cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
     )
     try:
@@ -189,7 +228,7 @@ def test_killed_sweep_leaves_no_half_result_and_rerun_completes(tmp_path):
     assert results.load_runs(out) == []
 
     (markers / "hang").unlink()
-    report = run_sweep(load_config(path), out, workers=0, progress=False)
+    report = run_sweep(load_config(path), out, workers=0)
     assert report.finished == [run.run_id]
     history = results.read_history(run_dir / HISTORY)
     assert history["iteration"].tolist() == [1, 2, 3]  # restarted from scratch, no duplicated rows
@@ -197,9 +236,9 @@ def test_killed_sweep_leaves_no_half_result_and_rerun_completes(tmp_path):
 
 def test_run_files_round_trip_installs_done_last(tmp_path):
     spec = RunSpec(env="TLCarNav-v0", env_kwargs={"task": 1}, agent=STAND_IN, label="s", hyperparameters={},
-                   seed=0, iterations=2, save_agent=True)
+                   seed=0, iterations=2)
     files = run_files(spec.to_json())
-    assert {DONE, HISTORY, "spec.json", "agent.zip"} <= set(files)
+    assert set(files) == {DONE, HISTORY, "spec.json"}
     install_files(files, tmp_path / "run")
     assert json.loads((tmp_path / "run" / DONE).read_text())["iterations"] == 2
     with pytest.raises(ValueError, match="no done.json"):
@@ -217,7 +256,7 @@ def test_sweep_on_a_local_ray(tmp_path):
              runtime_env={"env_vars": {"PYTHONPATH": str(ROOT)}})
     try:
         sweep = expand_config(config(tasks=[1], seeds=[0, 1]))
-        report = run_sweep(sweep, tmp_path, ray_address="auto", progress=False)
+        report = run_sweep(sweep, tmp_path, ray_address="auto")
     finally:
         ray.shutdown()
     assert not report.failed and len(report.finished) == 4
@@ -226,22 +265,8 @@ def test_sweep_on_a_local_ray(tmp_path):
     assert all(len(r.history["iteration"]) == 4 for r in runs)
 
 
-def test_run_all_runs_what_exists_and_reports_the_rest(tmp_path):
-    from benchmarks.run_all import run_all
-
-    package = tmp_path / "fakebench"
-    package.mkdir()
-    (package / "__init__.py").write_text("")
-    (package / "good.py").write_text('import sys\nassert sys.argv[1:] == ["--quick"]  # "--quick" passed\n')
-    (package / "bad.py").write_text('import sys\nsys.exit(3)  # accepts "--quick"\n')
-    (package / "slow.py").write_text("raise SystemExit(0)\n")
-    scripts = [("good", False), ("bad", False), ("slow", True), ("absent", False)]
-    outcomes = run_all(True, scripts, package)
-    assert [o.status for o in outcomes] == ["ok", "failed (exit 3)", "skipped: no --quick mode", "missing"]
-
-
 def test_ray_missing_names_the_extra(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # import ray -> ImportError
     sweep = expand_config(config(tasks=[1], seeds=[0]))
     with pytest.raises(ImportError, match=r"tl_gym\[ray\]"):
-        run_sweep(sweep, tmp_path, ray_address="auto", progress=False)
+        run_sweep(sweep, tmp_path, ray_address="auto")

@@ -9,9 +9,9 @@ import pytest
 import tomllib
 
 from benchmarks import results, suite
-from benchmarks.sweep import expand_config, load_config, run_sweep
+from benchmarks.runner import expand_config, load_config, run_sweep
 
-from .test_sweep import STAND_IN
+from .test_runner import STAND_IN
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -29,7 +29,7 @@ def test_every_suite_config_expands_in_every_variant_with_one_budget_per_task():
         labels = {run.label for run in full.runs}
         assert labels == {"TLPS", "REPS", "PPO", "SAC", "PPO, terminal reward", "SAC, terminal reward"}, path
         assert {run.iterations for run in full.runs} == {data["iterations"]}  # the same budget for every agent
-        sb3 = [run for run in full.runs if run.agent.startswith("sb3:")]
+        sb3 = [run for run in full.runs if run.agent in ("ppo", "sac")]
         assert {run.hyperparameters["steps_per_iteration"] for run in sb3} == {
             40 * (250 if path.stem == "mountaincar" else 100 if path.stem == "parking" else 200)}
     with pytest.raises(ValueError, match="no suite config"):
@@ -42,7 +42,7 @@ def test_runs_evaluate_along_training_and_the_report_reads_them(tmp_path):
         "evaluate_every": 2, "agents": [{"label": "fast", "agent": STAND_IN, "hyperparameters": {"rate": 0.5}},
                                         {"label": "slow", "agent": STAND_IN, "hyperparameters": {"rate": 0.1}}],
     })
-    report = run_sweep(sweep, tmp_path, workers=0, progress=False)
+    report = run_sweep(sweep, tmp_path, workers=0)
     assert not report.failed
     runs = results.load_runs(tmp_path)
     history = runs[0].history

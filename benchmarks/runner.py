@@ -1,0 +1,563 @@
+"""The experiment runner: a TOML config expands into runs (task × agent × hyperparameters × seed).
+
+Usage::
+
+    python -m benchmarks.runner benchmarks/configs/paper.toml                   # all CPUs of this machine
+    python -m benchmarks.runner benchmarks/configs/paper.toml --quick --workers 1
+    python -m benchmarks.runner benchmarks/configs/research.toml --only "spread_*" --out DIR
+    python -m benchmarks.runner benchmarks/configs/paper.toml --ray auto        # on a Ray cluster
+
+Every run gets a folder ``OUT/runs/<run_id>`` (`RunSpec.run_id`)::
+
+    spec.json          the spec, written first
+    history.csv        one row per iteration, rewritten atomically after each (live progress)
+    trajectories.npz   sampled signal traces at ``trajectory_iterations`` (Figure-2 plots), optional
+    done.json          summary (final batch, evaluation, wall time); written last, atomically
+
+``done.json`` is the only mark of a finished run: a rerun skips finished runs and restarts the
+others from scratch, so killing a sweep loses at most the runs in flight. ``OUT/sweep.json``
+lists the runs of the config, which is what `benchmarks.results` reports. Locally the runs go
+to a process pool (one torch thread each); with ``--ray`` each run is a Ray task that returns
+its files to the driver, so workers need tl_gym installed but no shared filesystem.
+
+Example:
+    >>> spec = RunSpec(env="TLCarNav-v0", env_kwargs={"task": 1}, agent="tlps", label="TLPS",
+    ...                hyperparameters={"beta": 9.0}, seed=0, iterations=50)
+    >>> spec.run_id  # doctest: +ELLIPSIS
+    'task1__tlps__seed0__...'
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures as futures
+import dataclasses
+import fnmatch
+import hashlib
+import io
+import itertools
+import json
+import multiprocessing
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+import traceback
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+try:
+    import tomllib
+except ImportError:  # Python 3.10
+    import tomli as tomllib  # type: ignore[no-redef]
+
+DONE, SPEC, HISTORY, TRAJECTORIES = "done.json", "spec.json", "history.csv", "trajectories.npz"
+#: Keys an agent entry inherits from the top level (a variant may override them at either level).
+INHERITED = {"tasks": None, "seeds": None, "iterations": None, "evaluate_episodes": 0, "evaluate_every": 0,
+             "trajectory_iterations": [], "trajectory_episodes": 40}
+TOP_KEYS = {"name", "description", "env", "env_kwargs", "agents", "variants", *INHERITED}
+AGENT_KEYS = {"label", "agent", "hyperparameters", "grid", "env_kwargs", "note", "variants", "skip", *INHERITED}
+VARIANT_KEYS = TOP_KEYS - {"name", "variants", "agents"}
+
+
+class ConfigError(ValueError):
+    """A config that cannot be run; the message names the file and the culprit."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RunSpec:
+    """Everything that defines one training run; plain JSON values only.
+
+    Attributes:
+        env: Gymnasium env id.
+        env_kwargs: env constructor arguments (the car's ``task``, ``start_std``...).
+        agent: a name of `tl_gym.agents.registry` (``"tlps"``, ``"ppo"``, ``"package.module:Name"``).
+        label: the curve this run belongs to (seeds of one label are aggregated).
+        hyperparameters: the agent's keyword arguments.
+        seed: the agent's seed.
+        iterations: number of policy updates.
+        evaluate_episodes: fresh episodes of the final evaluation (0: none).
+        evaluate_every: also evaluate ``evaluate_episodes`` fresh episodes (deterministic policy) every
+            this many iterations and after the last, into the history columns ``eval_success_rate``
+            and ``eval_mean_robustness`` (0: never).
+        trajectory_iterations: iterations after which sampled traces are recorded (0 = before training).
+        trajectory_episodes: episodes per recorded iteration.
+        note: free text carried to the tables (e.g. a reduced budget).
+    """
+
+    env: str
+    env_kwargs: Mapping[str, Any]
+    agent: str
+    label: str
+    hyperparameters: Mapping[str, Any]
+    seed: int
+    iterations: int
+    evaluate_episodes: int = 0
+    evaluate_every: int = 0
+    trajectory_iterations: Sequence[int] = ()
+    trajectory_episodes: int = 40
+    note: str = ""
+
+    def to_json(self) -> dict[str, Any]:
+        """The spec as a JSON-able dict (`from_json` inverts it)."""
+        return {**dataclasses.asdict(self), "env_kwargs": dict(self.env_kwargs),
+                "hyperparameters": dict(self.hyperparameters),
+                "trajectory_iterations": list(self.trajectory_iterations)}
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> RunSpec:
+        """Rebuild a spec from `to_json`'s output."""
+        return cls(**{**data, "trajectory_iterations": tuple(data.get("trajectory_iterations", ()))})
+
+    @property
+    def run_id(self) -> str:
+        """Folder name: task, label and seed, plus a hash of the whole spec (a changed spec gets a new folder)."""
+        digest = hashlib.sha256(json.dumps(self.to_json(), sort_keys=True).encode()).hexdigest()[:10]
+        task = self.env_kwargs.get("task")
+        slug = re.sub(r"[^A-Za-z0-9=.+-]+", "-", self.label.replace("β", "beta").replace("ε", "eps"))
+        return f"{'' if task is None else f'task{task}__'}{slug.strip('-').lower() or 'run'}__seed{self.seed}__{digest}"
+
+
+@dataclasses.dataclass(frozen=True)
+class Sweep:
+    """An expanded config: its name (``<name>[-<variant>]``) and its runs, in config order."""
+
+    name: str
+    description: str
+    runs: tuple[RunSpec, ...]
+
+
+def load_config(path: str | Path, variant: str | None = None, overrides: Mapping[str, Any] | None = None) -> Sweep:
+    """Read a TOML config and expand it into runs (see `expand_config`).
+
+    Raises:
+        ConfigError: the file cannot be read, or `expand_config` rejects it.
+    """
+    try:
+        data = tomllib.loads(Path(path).read_text())
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise ConfigError(f"cannot read config {path}: {exc}") from exc
+    return expand_config(data, variant=variant, source=str(path), overrides=overrides)
+
+
+def expand_config(data: Mapping[str, Any], variant: str | None = None, source: str = "<config>",
+                  overrides: Mapping[str, Any] | None = None) -> Sweep:
+    """Expand a parsed config into its runs, checking every field first.
+
+    Args:
+        data: the config (``docs/benchmarks.md`` describes the keys).
+        variant: apply ``[variants.<variant>]`` (top level) and each agent's ``variants.<variant>``
+            (its hyperparameters merged, ``skip = true`` drops the agent); the name gets ``-<variant>``.
+        source: the file name the errors give.
+        overrides: top-level keys set after the variant (e.g. ``{"seeds": 3}``).
+
+    Raises:
+        ConfigError: unknown keys, bad types or values, an unknown agent name, a label the
+            hyperparameters cannot fill, or two runs with one spec; the message names the culprit.
+    """
+    def fail(message: str) -> ConfigError:
+        return ConfigError(f"{source}: {message}")
+
+    _check_keys(data, TOP_KEYS, "top level", fail)
+    variants = _table(data.get("variants", {}), "variants", fail)
+    for name, table in variants.items():  # all checked, not only the one asked for
+        _check_keys(_table(table, f"variants.{name}", fail), VARIANT_KEYS, f"variants.{name}", fail)
+    if variant is not None and variant not in variants:
+        raise fail(f"no variant {variant!r}; the config has {sorted(variants)}")
+    _check_keys(overrides or {}, VARIANT_KEYS, "overrides", fail)
+    top = {**INHERITED, "env_kwargs": {}, **data, **variants.get(variant, {}), **(overrides or {})}
+    for key in ("name", "env"):
+        if not isinstance(top.get(key), str) or not top[key]:
+            raise fail(f"'{key}' must be a non-empty string, got {top.get(key)!r}")
+    if not isinstance(top.get("agents"), list) or not top["agents"]:
+        raise fail("no [[agents]] entries")
+    runs: list[RunSpec] = []
+    for index, entry in enumerate(top["agents"]):
+        where = f"agents[{index}]"
+        entry = _check_keys(_table(entry, where, fail), AGENT_KEYS, where, fail)
+        changes = _table(_table(entry.get("variants", {}), f"{where}.variants", fail).get(variant, {}),
+                         f"{where}.variants.{variant}", fail)
+        _check_keys(changes, AGENT_KEYS, f"{where}.variants.{variant}", fail)
+        hyper = {**_table(entry.get("hyperparameters", {}), f"{where}.hyperparameters", fail),
+                 **_table(changes.get("hyperparameters", {}), f"{where}.variants.{variant}.hyperparameters", fail)}
+        entry = {**entry, **changes, "hyperparameters": hyper}
+        if not entry.get("skip", False):
+            runs.extend(_expand_agent(entry, top, where, fail))
+    ids = [run.run_id for run in runs]
+    duplicates = sorted({i for i in ids if ids.count(i) > 1})
+    if duplicates:
+        raise fail(f"the same run appears twice: {duplicates} (two agents with one label and hyperparameters?)")
+    if not runs:
+        raise fail(f"variant {variant!r} skips every agent")
+    return Sweep(top["name"] + (f"-{variant}" if variant else ""), str(top.get("description", "")), tuple(runs))
+
+
+def _check_keys(table: Mapping[str, Any], valid: set[str], where: str, fail: Any) -> dict[str, Any]:
+    unknown = sorted(set(table) - valid)
+    if unknown:
+        raise fail(f"{where}: unknown key(s) {unknown}; valid: {sorted(valid)}")
+    return dict(table)
+
+
+def _table(value: Any, where: str, fail: Any) -> dict[str, Any]:
+    if not isinstance(value, Mapping):
+        raise fail(f"{where} must be a table, got {value!r}")
+    return dict(value)
+
+
+def _ints(value: Any, where: str, fail: Any, minimum: int) -> list[int]:
+    if not isinstance(value, list) or not value or not all(
+            isinstance(v, int) and not isinstance(v, bool) and v >= minimum for v in value):
+        raise fail(f"{where} must be a non-empty list of ints >= {minimum}, got {value!r}")
+    return value
+
+
+def _budget(value: Any, task: int | None, where: str, fail: Any) -> int:
+    """An ``iterations`` value: an int, or a table by task (``{ 1 = 30, 2 = 50 }``)."""
+    if isinstance(value, Mapping):
+        value = value.get(str(task))
+    if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+        raise fail(f"{where}: iterations must be an int >= 1 (or a table of them by task), got {value!r}"
+                   + (f" for task {task}" if task is not None else ""))
+    return value
+
+
+def _check_agent(name: Any, where: str, fail: Any) -> str:
+    from tl_gym.agents.registry import SB3_ALGORITHMS, check_agent_name, is_episodic
+
+    try:
+        check_agent_name(name)
+    except ValueError as exc:
+        raise fail(f"{where}: {exc}") from None
+    if ":" not in name and not is_episodic(name) and name.lower() not in SB3_ALGORITHMS:
+        raise fail(f"{where}: unknown agent {name!r}: use tlps, reps, an SB3 algorithm "
+                   f"({', '.join(SB3_ALGORITHMS)}) or package.module:Name")
+    return name
+
+
+def _expand_agent(entry: dict[str, Any], top: Mapping[str, Any], where: str, fail: Any) -> list[RunSpec]:
+    settings = {key: entry.get(key, top.get(key)) for key in INHERITED}
+    agent = _check_agent(entry.get("agent"), f"{where}.agent", fail)
+    label = entry.get("label", agent)
+    grid = _table(entry.get("grid", {}), f"{where}.grid", fail)
+    for key, values in grid.items():
+        if not isinstance(values, list) or not values:
+            raise fail(f"{where}.grid.{key} must be a non-empty list, got {values!r}")
+    env_kwargs = {**_table(top["env_kwargs"], "env_kwargs", fail),
+                  **_table(entry.get("env_kwargs", {}), f"{where}.env_kwargs", fail)}
+    tasks = [None] if settings["tasks"] is None else _ints(settings["tasks"], f"{where}.tasks", fail, 1)
+    seeds = settings["seeds"]
+    if isinstance(seeds, int) and not isinstance(seeds, bool) and seeds >= 1:
+        seeds = list(range(seeds))  # seeds = 5 means seeds 0..4
+    seeds = _ints(seeds, f"{where}.seeds", fail, 0)
+    trajectory_iterations = settings["trajectory_iterations"] or []
+    if trajectory_iterations:
+        _ints(trajectory_iterations, f"{where}.trajectory_iterations", fail, 0)
+    runs = []
+    for combo in itertools.product(*grid.values()):
+        values = {**entry["hyperparameters"], **dict(zip(grid, combo))}
+        try:
+            run_label = label.format(**values)
+        except (KeyError, IndexError, ValueError) as exc:
+            raise fail(f"{where}.label {label!r} cannot be filled from {values}: {exc}") from None
+        for task in tasks:
+            # an agent's own budget can only lower the config's (e.g. SAC), so a variant's cap holds for all
+            iterations = min(_budget(settings["iterations"], task, where, fail),
+                             _budget(top["iterations"], task, "top level", fail))
+            for seed in seeds:
+                runs.append(RunSpec(
+                    env=top["env"], env_kwargs=env_kwargs if task is None else {**env_kwargs, "task": task},
+                    agent=agent, label=run_label, hyperparameters=values, seed=seed, iterations=iterations,
+                    evaluate_episodes=int(settings["evaluate_episodes"]),
+                    evaluate_every=int(settings["evaluate_every"]),
+                    trajectory_iterations=tuple(t for t in trajectory_iterations if t <= iterations),
+                    trajectory_episodes=int(settings["trajectory_episodes"]), note=str(entry.get("note", "")),
+                ))
+    return runs
+
+
+# One run ----------------------------------------------------------------------------------------------------------
+def is_done(run_dir: str | Path) -> bool:
+    """Whether ``run_dir`` holds a finished run."""
+    return (Path(run_dir) / DONE).is_file()
+
+
+def execute_run(spec: RunSpec | Mapping[str, Any], run_dir: str | Path) -> dict[str, Any]:
+    """Run ``spec`` into ``run_dir`` unless it is finished there; return ``done.json``'s content.
+
+    An unfinished folder (no ``done.json``) is wiped and the run starts from scratch.
+    """
+    spec = spec if isinstance(spec, RunSpec) else RunSpec.from_json(spec)
+    run_dir = Path(run_dir)
+    if is_done(run_dir):
+        return json.loads((run_dir / DONE).read_text())
+    shutil.rmtree(run_dir, ignore_errors=True)
+    run_dir.mkdir(parents=True)
+    write_atomic(run_dir / SPEC, json.dumps(spec.to_json(), indent=1).encode())
+    for name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"):  # runs are parallel processes: one thread each
+        os.environ.setdefault(name, "1")
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(1)
+    from tl_gym.agents.callbacks import write_history
+    from tl_gym.agents.registry import make_agent
+
+    start = time.perf_counter()
+    agent = make_agent(spec.agent, spec.env, seed=spec.seed, env_kwargs=dict(spec.env_kwargs),
+                       **dict(spec.hyperparameters))
+    rows: list[dict[str, Any]] = []
+    traces: dict[str, np.ndarray] = {}
+
+    def record(agent: Any, row: Mapping[str, Any]) -> bool:
+        row = {**row, "eval_success_rate": np.nan, "eval_mean_robustness": np.nan}
+        every, iteration = spec.evaluate_every, row["iteration"]
+        if every and spec.evaluate_episodes and (iteration % every == 0 or iteration == spec.iterations):
+            result = agent.evaluate(n_episodes=spec.evaluate_episodes, seed=20_000_033 + spec.seed)
+            row.update(eval_success_rate=float(result["success_rate"]),
+                       eval_mean_robustness=float(result["mean_robustness"]))
+        rows.append(row)
+        write_history(rows, run_dir / HISTORY)
+        if iteration in spec.trajectory_iterations:
+            traces.update(sample_traces(agent, spec, int(iteration)))
+        return True
+
+    try:
+        if 0 in spec.trajectory_iterations:
+            traces.update(sample_traces(agent, spec, 0))
+        agent.learn(spec.iterations, callback=record)
+        summary = _summarise(spec, agent, time.perf_counter() - start)
+    finally:
+        agent.close()
+    if traces:
+        buffer = io.BytesIO()
+        np.savez_compressed(buffer, **traces)
+        write_atomic(run_dir / TRAJECTORIES, buffer.getvalue())
+    write_atomic(run_dir / DONE, json.dumps(summary, indent=1).encode())
+    return summary
+
+
+def sample_traces(agent: Any, spec: RunSpec, iteration: int) -> dict[str, np.ndarray]:
+    """``trajectory_episodes`` episodes of the stochastic policy on a fresh vector env, one at a time each.
+
+    Returns:
+        ``it<iteration>_<signal>`` -> ``(episodes, T+1)`` float32 (NaN-padded) and
+        ``it<iteration>_robustness`` -> ``(episodes,)``; the traces are the formula's signals as
+        the reward wrapper recorded them, so they are what the robustness was computed on.
+    """
+    from tl_gym.agents.evaluation import collect_episodes
+    from tl_gym.agents.sampling import make_vector_env
+
+    n = spec.trajectory_episodes
+    venv = make_vector_env(spec.env, n, getattr(agent, "env_kwargs", spec.env_kwargs))  # the agent's view
+    try:
+        robustness, traces = collect_episodes(agent, venv, n, seed=1_000_003 * (iteration + 1) + spec.seed)
+    finally:
+        venv.close()
+    out = {f"it{iteration}_robustness": robustness}
+    for name, episodes in traces.items():
+        padded = np.full((n, max(len(e) for e in episodes)), np.nan)
+        for i, values in enumerate(episodes):
+            padded[i, : len(values)] = values
+        out[f"it{iteration}_{name}"] = padded.astype(np.float32)
+    return out
+
+
+def _summarise(spec: RunSpec, agent: Any, elapsed: float) -> dict[str, Any]:
+    last = agent.history[-1] if agent.history else {}
+    summary: dict[str, Any] = {
+        "run_id": spec.run_id, "label": spec.label, "iterations": len(agent.history),
+        "env_steps": int(last.get("env_steps", 0)), "train_wall_time": float(last.get("wall_time", 0.0)),
+        "total_wall_time": elapsed, "final_mean_robustness": float(last.get("mean_robustness", np.nan)),
+        "final_success_rate": float(last.get("success_rate", np.nan)), "note": spec.note, "code": code_version(),
+    }
+    for deterministic in (True, False) if spec.evaluate_episodes > 0 else ():
+        result = agent.evaluate(n_episodes=spec.evaluate_episodes, seed=10_000_019 + spec.seed,
+                                deterministic=deterministic)
+        summary["eval_deterministic" if deterministic else "eval_stochastic"] = {
+            "mean_robustness": float(result["mean_robustness"]), "success_rate": float(result["success_rate"]),
+            "episodes": spec.evaluate_episodes}
+    return summary
+
+
+def code_version() -> str:
+    """The tl_gym version and, in a git checkout, the commit (``+dirty`` if library code is modified)."""
+    import tl_gym
+
+    root = Path(tl_gym.__file__).resolve().parents[1]
+    try:
+        commit, dirty = (subprocess.run(["git", *args], cwd=root, capture_output=True, text=True, check=True)
+                         .stdout.strip() for args in (["rev-parse", "--short", "HEAD"],
+                                                      ["status", "--porcelain", "--", "tl_gym", "agents", "envs"]))
+    except (OSError, subprocess.CalledProcessError):
+        return tl_gym.__version__
+    return f"{tl_gym.__version__} ({commit}{'+dirty' if dirty else ''})"
+
+
+def write_atomic(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary file and `os.replace` (all or nothing)."""
+    path = Path(path)
+    handle = tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}.", delete=False)
+    try:
+        with handle:
+            handle.write(data)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(handle.name, path)
+    except BaseException:
+        Path(handle.name).unlink(missing_ok=True)
+        raise
+
+
+def run_files(spec: Mapping[str, Any]) -> dict[str, bytes]:
+    """Run ``spec`` in a scratch folder and return its files (the Ray path: no shared filesystem)."""
+    with tempfile.TemporaryDirectory(prefix="tl_gym_run_") as scratch:
+        execute_run(spec, Path(scratch) / "run")
+        return {p.name: p.read_bytes() for p in (Path(scratch) / "run").iterdir() if p.is_file()}
+
+
+def install_files(files: Mapping[str, bytes], run_dir: str | Path) -> None:
+    """Write a finished run's files (from `run_files`) into ``run_dir``, ``done.json`` last.
+
+    Raises:
+        ValueError: ``files`` has no ``done.json`` (not a finished run).
+    """
+    if DONE not in files:
+        raise ValueError(f"not a finished run: no {DONE} among {sorted(files)}")
+    run_dir = Path(run_dir)
+    if not is_done(run_dir):
+        shutil.rmtree(run_dir, ignore_errors=True)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    for name in sorted(files, key=lambda n: n == DONE):
+        write_atomic(run_dir / name, files[name])
+
+
+# A sweep ----------------------------------------------------------------------------------------------------------
+@dataclasses.dataclass
+class SweepReport:
+    """What a sweep did: run ids finished now, skipped as done already, and failed (run id -> traceback)."""
+
+    finished: list[str] = dataclasses.field(default_factory=list)
+    skipped: list[str] = dataclasses.field(default_factory=list)
+    failed: dict[str, str] = dataclasses.field(default_factory=dict)
+    wall_time: float = 0.0
+
+    def settle(self, run: RunSpec, error: BaseException | None) -> None:
+        """Count one run as finished, or as failed with its traceback."""
+        if error is None:
+            self.finished.append(run.run_id)
+        else:
+            self.failed[run.run_id] = "".join(traceback.format_exception(type(error), error, error.__traceback__))
+            print(f"run {run.run_id} failed: {type(error).__name__}: {error}", file=sys.stderr)
+
+
+def run_sweep(sweep: Sweep, out_dir: str | Path, workers: int | None = None, ray_address: str | None = None,
+              only: Sequence[str] = ()) -> SweepReport:
+    """Run every unfinished run of ``sweep`` into ``out_dir/runs/<run_id>``.
+
+    Args:
+        sweep: from `load_config`.
+        out_dir: results folder (created); ``out_dir/sweep.json`` lists the sweep's runs.
+        workers: local processes (default: the CPU count); 0 runs them here, one after the other.
+        ray_address: run on Ray instead (``"auto"``, ``"ray://host:10001"``, ``"local"`` to start one
+            here); a Ray already initialised in this process is used as is.
+        only: run only the runs whose label matches one of these shell patterns (``"TLPS*"``).
+
+    Returns:
+        A `SweepReport`; a failed run leaves no ``done.json`` and is retried by the next sweep.
+    """
+    out_dir = Path(out_dir)
+    (out_dir / "runs").mkdir(parents=True, exist_ok=True)
+    manifest = {"name": sweep.name, "description": sweep.description,
+                "runs": {run.run_id: run.to_json() for run in sweep.runs}}
+    write_atomic(out_dir / "sweep.json", json.dumps(manifest, indent=1).encode())
+    report, pending = SweepReport(), []
+    for run in sweep.runs:
+        if not only or any(fnmatch.fnmatchcase(run.label, pattern) for pattern in only):
+            (report.skipped.append(run.run_id) if is_done(out_dir / "runs" / run.run_id) else pending.append(run))
+    start = time.perf_counter()
+    if pending and ray_address is not None:
+        _run_on_ray(pending, out_dir, ray_address, report)
+    elif pending and workers == 0:
+        for run in pending:
+            try:
+                execute_run(run, out_dir / "runs" / run.run_id)
+            except Exception as error:  # noqa: BLE001 - one failed run must not stop the sweep
+                report.settle(run, error)
+            else:
+                report.settle(run, None)
+    elif pending:
+        # spawn: a fresh interpreter per worker, no torch/thread state inherited through fork
+        with futures.ProcessPoolExecutor(min(workers or os.cpu_count() or 1, len(pending)),
+                                         mp_context=multiprocessing.get_context("spawn")) as pool:
+            jobs = {pool.submit(execute_run, run.to_json(), str(out_dir / "runs" / run.run_id)): run
+                    for run in pending}
+            for done, job in enumerate(futures.as_completed(jobs), 1):
+                report.settle(jobs[job], job.exception())
+                print(f"{sweep.name}: {done}/{len(pending)} runs", file=sys.stderr, flush=True)
+    report.wall_time = time.perf_counter() - start
+    return report
+
+
+def _run_on_ray(pending: Sequence[RunSpec], out_dir: Path, address: str, report: SweepReport) -> None:
+    try:
+        import ray
+    except ImportError as exc:
+        raise ImportError('--ray needs Ray, which is not installed: pip install "tl_gym[ray]"') from exc
+    if not ray.is_initialized():
+        # the driver's import path, so local workers find `benchmarks` (cluster workers need it installed)
+        ray.init(address=None if address == "local" else address,
+                 runtime_env={"env_vars": {"PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}})
+    remote = ray.remote(num_cpus=1, max_retries=0)(run_files)
+    refs = {remote.remote(run.to_json()): run for run in pending}
+    while refs:
+        (ref,), _ = ray.wait(list(refs), num_returns=1)
+        run = refs.pop(ref)
+        try:
+            install_files(ray.get(ref), out_dir / "runs" / run.run_id)
+        except Exception as error:  # noqa: BLE001 - one failed run must not stop the sweep
+            report.settle(run, error)
+        else:
+            report.settle(run, None)
+
+
+def default_out_dir(sweep: Sweep) -> Path:
+    """Where a sweep writes by default: ``runs/sweeps/<name>`` (git-ignored)."""
+    return Path("runs") / "sweeps" / sweep.name
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command line (see the module docstring)."""
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.runner", description=__doc__.split("\n")[0])
+    parser.add_argument("config", help="a TOML config, e.g. benchmarks/configs/paper.toml")
+    parser.add_argument("--out", type=Path, help="results folder (default runs/sweeps/<name>[-<variant>])")
+    parser.add_argument("--workers", type=int, help="local processes (default: CPU count; 0: here, serially)")
+    parser.add_argument("--ray", metavar="ADDRESS", help='run on Ray: "auto", "ray://host:10001" or "local"')
+    parser.add_argument("--quick", action="store_true", help="same as --variant quick (CI-sized)")
+    parser.add_argument("--variant", help="apply the config's [variants.VARIANT] overrides")
+    parser.add_argument("--only", action="append", default=[], metavar="PATTERN",
+                        help='run only labels matching this shell pattern, e.g. "TLPS*" (repeatable)')
+    args = parser.parse_args(argv)
+    if args.quick and args.variant not in (None, "quick"):
+        parser.error("--quick is --variant quick; give one of them")
+    if args.workers is not None and args.workers < 0:
+        parser.error(f"--workers must be >= 0, got {args.workers}")
+    try:
+        sweep = load_config(args.config, variant="quick" if args.quick else args.variant)
+    except ConfigError as exc:
+        parser.error(str(exc))
+    out_dir = args.out or default_out_dir(sweep)
+    report = run_sweep(sweep, out_dir, workers=args.workers, ray_address=args.ray, only=args.only)
+    print(f"{sweep.name}: {len(report.finished)} run(s) finished, {len(report.skipped)} already done, "
+          f"{len(report.failed)} failed, {report.wall_time:.1f} s; results in {out_dir}")
+    for run_id, text in report.failed.items():
+        print(f"--- {run_id} failed:\n{text}", file=sys.stderr)
+    return 1 if report.failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
