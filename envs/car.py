@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping
 from typing import Any
 
 import gymnasium as gym
@@ -29,6 +30,27 @@ def observation_space(params: CarParams, layout: Layout) -> spaces.Box:
 
 
 ACTION_SPACE = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+
+#: Keywords that replace a part of the task's layout (`tl_gym.envs.tasks.make_layout`).
+LAYOUT_KEYS = ("start", "goals", "obstacle", "arena")
+
+
+def car_setup(task: int, car_kwargs: Mapping[str, Any]) -> tuple[Layout, CarParams, dict[str, Any]]:
+    """A car's layout, physical parameters and layout overrides, from its keywords.
+
+    The one place that reads the car's keywords: its defaults live in `CarParams` and the task's
+    layout in `make_layout`; `CarNavEnv`, `CarNavVectorEnv` and `make_car_env` all come here.
+
+    Raises:
+        TypeError: a keyword that is neither a `CarParams` field nor a layout override (the message lists both).
+    """
+    fields = [f.name for f in dataclasses.fields(CarParams)]
+    unknown = sorted(set(car_kwargs) - set(fields) - set(LAYOUT_KEYS))
+    if unknown:
+        raise TypeError(f"the car has no keyword(s) {unknown}; it takes {fields + list(LAYOUT_KEYS)}")
+    overrides = {key: car_kwargs[key] for key in LAYOUT_KEYS if car_kwargs.get(key) is not None}
+    params = CarParams(**{key: value for key, value in car_kwargs.items() if key in fields})
+    return make_layout(task, **overrides), params, overrides
 
 
 class CarNavEnv(gym.Env):
@@ -120,30 +142,11 @@ class CarNavEnv(gym.Env):
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 10}
 
-    def __init__(
-        self,
-        task: int = 1,
-        horizon: int = 200,
-        dt: float = 0.5,
-        wheelbase: float = 15.0,
-        max_speed: float = 60.0,
-        max_steer: float = 0.6,
-        noise_std: Sequence[float] = (0.15, 0.15, 0.002),
-        start_std: Sequence[float] = (1.5, 1.5, 0.01),
-        start: Sequence[float] | None = None,
-        goals: Sequence[Sequence[float]] | None = None,
-        obstacle: Sequence[float] | None = None,
-        arena: Sequence[float] | None = None,
-        render_mode: str | None = None,
-    ):
+    def __init__(self, task: int = 1, render_mode: str | None = None, **car_kwargs: Any):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
         self.task = task
-        self.layout: Layout = make_layout(task, start=start, goals=goals, obstacle=obstacle, arena=arena)
-        self.params = CarParams(
-            dt=dt, wheelbase=wheelbase, max_speed=max_speed, max_steer=max_steer,
-            noise_std=tuple(noise_std), start_std=tuple(start_std), horizon=horizon,  # type: ignore[arg-type]
-        )
+        self.layout, self.params, self.layout_overrides = car_setup(task, car_kwargs)
         self.observation_space = observation_space(self.params, self.layout)
         self.action_space = ACTION_SPACE
         self.render_mode = render_mode
@@ -232,20 +235,13 @@ def make_car_env(
         monitor_scale: divisor of the monitor's robustness values and positions; 100 units,
             a third of the arena, keeps them of order one (and the unit of the potential).
         gamma: the discount of ``reward_mode="potential"`` (`TLTLRewardWrapper`).
-        **car_kwargs: `CarNavEnv` arguments (``horizon``, ``dt``, layout overrides, ``render_mode`` …).
+        **car_kwargs: `CarNavEnv` arguments (`CarParams` fields such as ``horizon`` and ``start_std``,
+            layout overrides, ``render_mode``).
     """
     car = CarNavEnv(task=task, **car_kwargs)
-    layout = car.layout
-    formula = task_formula(
-        task, no_revisit, start=layout.start, goals=[_goal_tuple(g) for g in layout.goals],
-        obstacle=(layout.obstacle.x, layout.obstacle.y, layout.obstacle.radius), arena=layout.arena,
-    )
+    formula = task_formula(task, no_revisit, **car.layout_overrides)
     return TLTLRewardWrapper(
         car, formula, signals={"x": 0, "y": 1}, reward=reward, beta=beta, reward_mode=reward_mode,
         rho_max=rho_max, clip=clip, observe_monitor=observe_monitor, monitor_scale=monitor_scale,
         gamma=gamma,
     )
-
-
-def _goal_tuple(goal: Any) -> tuple[float, float, float, float]:
-    return (goal.x_low, goal.x_high, goal.y_low, goal.y_high)

@@ -17,9 +17,9 @@ import numpy as np
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
-from tl_gym.envs.car import ACTION_SPACE, CAR_MONITOR_SCALE, RENDER_SIZE, observation_space
-from tl_gym.envs.dynamics import CarParams, car_step, sample_episode_noise
-from tl_gym.envs.tasks import Layout, make_layout, task_formula
+from tl_gym.envs.car import ACTION_SPACE, CAR_MONITOR_SCALE, RENDER_SIZE, car_setup, observation_space
+from tl_gym.envs.dynamics import car_step, sample_episode_noise
+from tl_gym.envs.tasks import task_formula
 
 from tl_gym.monitor_view import MonitorView, augment_space
 from tl_gym.shaping import HierarchicalPotential
@@ -82,18 +82,8 @@ class CarNavVectorEnv(VectorEnv):
         observe_monitor: bool = False,
         monitor_scale: float = CAR_MONITOR_SCALE,
         gamma: float = 1.0,
-        horizon: int = 200,
-        dt: float = 0.5,
-        wheelbase: float = 15.0,
-        max_speed: float = 60.0,
-        max_steer: float = 0.6,
-        noise_std: Sequence[float] = (0.15, 0.15, 0.002),
-        start_std: Sequence[float] = (1.5, 1.5, 0.01),
-        start: Sequence[float] | None = None,
-        goals: Sequence[Sequence[float]] | None = None,
-        obstacle: Sequence[float] | None = None,
-        arena: Sequence[float] | None = None,
         render_mode: str | None = None,
+        **car_kwargs: Any,
     ):
         """Check the arguments (as `make_car_env` does) and allocate the batch; see `CarNavEnv` for each one."""
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
@@ -114,12 +104,8 @@ class CarNavVectorEnv(VectorEnv):
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
         self.num_envs = int(num_envs)
         self.task = task
-        self.layout: Layout = make_layout(task, start=start, goals=goals, obstacle=obstacle, arena=arena)
-        self.params = CarParams(
-            dt=dt, wheelbase=wheelbase, max_speed=max_speed, max_steer=max_steer,
-            noise_std=tuple(noise_std), start_std=tuple(start_std), horizon=horizon,  # type: ignore[arg-type]
-        )
-        self.formula = task_formula(task, no_revisit, start=start, goals=goals, obstacle=obstacle, arena=arena)
+        self.layout, self.params, overrides = car_setup(task, car_kwargs)
+        self.formula = task_formula(task, no_revisit, **overrides)
         self.reward = reward
         self.reward_mode = reward_mode
         self.observe_monitor = observe_monitor

@@ -392,3 +392,16 @@ def test_vector_env_scores_all_cars_in_one_engine_call(monkeypatch):
     for _ in range(4):
         envs.step(np.zeros((6, 2)))
     assert calls == [(6, 5)]
+
+
+def test_the_cars_defaults_live_in_car_params_alone():
+    from tl_gym.envs.car import CarNavEnv
+    from tl_gym.envs.dynamics import CarParams
+    from tl_gym.envs.vector import CarNavVectorEnv
+
+    assert CarNavEnv().params == CarNavVectorEnv(num_envs=1).params == CarParams()
+    spread = {"start_std": (15, 15, 0.3), "horizon": 7}
+    assert CarNavEnv(**spread).params == CarNavVectorEnv(num_envs=2, **spread).params == CarParams(**spread)
+    for make in (CarNavEnv, lambda **kw: CarNavVectorEnv(num_envs=1, **kw)):
+        with pytest.raises(TypeError, match=r"no keyword\(s\) \['start_spread'\].*start_std"):
+            make(start_spread=1.0)
