@@ -112,7 +112,8 @@ class RunSpec:
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> RunSpec:
-        """Rebuild a spec from `to_json`'s output."""
+        """Rebuild a spec from `to_json`'s output (or from the older sweep runner's, which had ``save_agent``)."""
+        data = {key: value for key, value in data.items() if key != "save_agent"}
         return cls(**{**data, "trajectory_iterations": tuple(data.get("trajectory_iterations", ()))})
 
     @property
