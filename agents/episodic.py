@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-import math
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
+
+from tl_gym.checks import check_positive
 
 from .base import Agent
 from .feedback import FITTED_EXPLORATION_FLOOR, FeedbackSettings, fit_feedback, signal_components
@@ -56,13 +57,11 @@ class EpisodicSearchConfig:
         FeedbackSettings.of(self)
         if self.feedback == "fitted" and getattr(self, "gains", None) is not None:
             raise ValueError("gains (fixed K_t) and feedback='fitted' exclude each other; pass one of them")
-        floor = self.exploration_floor
-        if floor is not None and (isinstance(floor, bool) or not (isinstance(floor, (int, float))
-                                                                    and 0 <= floor < math.inf)):
-            raise ValueError(f"exploration_floor must be None or a finite number >= 0, got {floor!r}")
-        halflife = self.exploration_halflife
-        if isinstance(halflife, bool) or not (isinstance(halflife, (int, float)) and 0 < halflife < math.inf):
-            raise ValueError(f"exploration_halflife must be a positive finite number, got {halflife!r}")
+        if self.exploration_floor is not None:
+            check_positive("exploration_floor", self.exploration_floor, allow_zero=True)
+        check_positive("exploration_halflife", self.exploration_halflife)
+        check_positive("init_std", self.init_std)
+        check_positive("min_std", self.min_std)
 
     def std_floor(self, iteration: int) -> float:
         """The policy's standard-deviation floor after update ``iteration`` (exploration schedule)."""

@@ -47,6 +47,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from tl_gym.checks import check_positive
+
 FEEDBACK_MODES = ("open", "fitted")
 
 #: ``feedback_features`` strings: ``"auto"`` (the signals' components and the angles) or ``"all"``.
@@ -142,8 +144,7 @@ class FeedbackSettings:
         if not (self.angles == "auto" or empty or _index_tuple(self.angles)):
             raise ValueError(f"feedback_angles must be 'auto' or a sequence of distinct observation indices, "
                              f"got {self.angles!r}")
-        if isinstance(self.ridge, bool) or not (isinstance(self.ridge, (int, float)) and 0 <= self.ridge < math.inf):
-            raise ValueError(f"feedback_ridge must be a finite number >= 0, got {self.ridge!r}")
+        check_positive("feedback_ridge", self.ridge, allow_zero=True)
         if isinstance(self.window, bool) or not isinstance(self.window, (int, np.integer)) or self.window < 0:
             raise ValueError(f"feedback_window must be an int >= 0, got {self.window!r}")
         if not isinstance(self.features, str):

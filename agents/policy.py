@@ -23,6 +23,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from tl_gym.checks import check_positive
+
 from .feedback import deviation
 
 #: Default initial standard deviation of every action component. On a ``[-1, 1]``
@@ -84,11 +86,10 @@ class LinearGaussianPolicy:
     ):
         if covariance not in ("diag", "full"):
             raise ValueError(f"covariance must be 'diag' or 'full', got {covariance!r}")
-        if not min_std > 0:
-            raise ValueError(f"min_std must be > 0, got {min_std}")
+        check_positive("min_std", min_std)
         std = np.broadcast_to(np.asarray(init_std, dtype=float), (act_dim,))
-        if not np.all(std > 0):
-            raise ValueError(f"init_std must be > 0, got {init_std}")
+        for value in std.tolist():
+            check_positive("init_std", value)
         try:
             mean = np.broadcast_to(np.asarray(init_mean, dtype=float), (horizon, act_dim)).copy()
         except ValueError:

@@ -31,6 +31,8 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.special import logsumexp
 
+from tl_gym.checks import check_positive
+
 from .base import build_config, check_episodic
 from .episodic import AbstractEpisodicSearch, EpisodicSearchConfig
 from .policy import DEFAULT_INIT_STD, DEFAULT_MIN_STD
@@ -86,12 +88,7 @@ class REPSConfig(EpisodicSearchConfig):
         if self.gains is not None:  # plain lists, so that the config stays JSON
             object.__setattr__(self, "gains", np.asarray(self.gains, dtype=float).tolist())
         check_episodic(self.n_episodes, self.horizon)
-        if not self.epsilon > 0:
-            raise ValueError(f"epsilon must be > 0 (the KL bound), got {self.epsilon}")
-        if not self.init_std > 0:
-            raise ValueError(f"init_std must be > 0, got {self.init_std}")
-        if not self.min_std > 0:
-            raise ValueError(f"min_std must be > 0, got {self.min_std}")
+        check_positive("epsilon (the KL bound)", self.epsilon)
         if self.covariance not in ("diag", "full"):
             raise ValueError(f"covariance must be 'diag' or 'full', got {self.covariance!r}")
         self.check_search()

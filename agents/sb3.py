@@ -48,6 +48,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from tl_gym.checks import check_positive
 from tl_gym.errors import IncompatibleSaveError
 
 from .base import Agent, _describe_env_source, build_config
@@ -289,8 +290,7 @@ class SB3Config:
             raise ValueError(f"end_is_terminal must be true or false, got {self.end_is_terminal!r}")
         if self.noise_type is not None and self.noise_type not in NOISE_TYPES:
             raise ValueError(f"noise_type must be None or one of {NOISE_TYPES}, got {self.noise_type!r}")
-        if not (isinstance(self.noise_std, (int, float)) and self.noise_std >= 0):
-            raise ValueError(f"noise_std must be a number >= 0, got {self.noise_std!r}")
+        check_positive("noise_std", self.noise_std, allow_zero=True)
 
 
 # The hyperparameter file --------------------------------------------------------------------------

@@ -30,13 +30,14 @@ not the literal softmax of densities, which does not learn (see `TLPSConfig.weig
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from scipy.stats import spearmanr
+
+from tl_gym.checks import check_positive
 
 from .base import build_config, check_episodic
 from .episodic import AbstractEpisodicSearch, EpisodicSearchConfig
@@ -133,22 +134,15 @@ class TLPSConfig(EpisodicSearchConfig):
             raise ValueError(f"weights must be one of {WEIGHTINGS}, got {self.weights!r}")
         if not 0 <= self.hybrid_mix <= 1:
             raise ValueError(f"hybrid_mix must lie in [0, 1], got {self.hybrid_mix!r}")
-        _positive("kl_bound", self.kl_bound)
+        check_positive("kl_bound", self.kl_bound)
         if self.alpha is not None:
-            _positive("alpha", self.alpha)
-        _positive("regularization", self.regularization)
-        _positive("init_std", self.init_std)
-        _positive("min_std", self.min_std)
+            check_positive("alpha", self.alpha)
+        check_positive("regularization", self.regularization)
         if self.covariance not in ("diag", "full"):
             raise ValueError(f"covariance must be 'diag' or 'full', got {self.covariance!r}")
         if self.threads is not None and (not isinstance(self.threads, int) or self.threads < 1):
             raise ValueError(f"threads must be a positive int or None, got {self.threads!r}")
         self.check_search()
-
-
-def _positive(name: str, value: Any) -> None:
-    if isinstance(value, bool) or not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
 
 
 class TLPS(AbstractEpisodicSearch):

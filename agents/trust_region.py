@@ -45,6 +45,7 @@ import numpy as np
 import torch
 from scipy.optimize import minimize
 
+from tl_gym.checks import check_positive
 from tl_gym.tltl.ast import Formula
 
 Solver = Literal["projected", "slsqp"]
@@ -165,10 +166,8 @@ def improve_trajectories(
 
 def check_trust_region(epsilon: float, beta: float, solver: str, steps: int, decay: float) -> None:
     """Raise ``ValueError`` naming the first bad trust-region setting."""
-    if not (isinstance(epsilon, (int, float)) and math.isfinite(epsilon) and epsilon > 0):
-        raise ValueError(f"epsilon must be a positive finite number, got {epsilon!r}")
-    if not (isinstance(beta, (int, float)) and math.isfinite(beta) and beta > 0):
-        raise ValueError(f"beta must be a positive finite number, got {beta!r}")
+    check_positive("epsilon", epsilon)
+    check_positive("beta", beta)
     if solver not in SOLVERS:
         raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
     if isinstance(steps, bool) or not (isinstance(steps, int) and steps >= 1):

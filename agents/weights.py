@@ -44,6 +44,8 @@ from typing import Literal
 
 import numpy as np
 
+from tl_gym.checks import check_positive
+
 Weighting = Literal["importance", "hybrid", "paper"]
 WEIGHTINGS = ("importance", "hybrid", "paper")
 _LOG_2PI = math.log(2.0 * math.pi)
@@ -82,8 +84,7 @@ def fit_gaussian(trajectories: np.ndarray, regularization: float) -> GaussianFit
     trajectories = np.asarray(trajectories, dtype=np.float64)
     if trajectories.ndim != 3 or trajectories.shape[0] < 2:
         raise ValueError(f"trajectories must have shape (N, T, S) with N >= 2, got {trajectories.shape}")
-    if not (math.isfinite(regularization) and regularization > 0):
-        raise ValueError(f"regularization must be a positive finite number, got {regularization!r}")
+    check_positive("regularization", regularization)
     mean = trajectories.mean(axis=0)
     dev = trajectories - mean
     cov = np.einsum("nti,ntj->tij", dev, dev) / trajectories.shape[0]  # Eq. 12 (1/N)

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tl_gym.checks import check_positive
+
 STATE_SIZE = 6  # x, y, θ, ẋ, ẏ, θ̇
 NOISE_SIZE = 3  # additive noise on x, y, θ
 
@@ -45,9 +47,7 @@ class CarParams:
 
     def __post_init__(self) -> None:
         for name in ("dt", "wheelbase", "max_speed"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+            check_positive(name, getattr(self, name))
         if not (isinstance(self.max_steer, (int, float)) and 0 < self.max_steer < math.pi / 2):
             raise ValueError(f"max_steer must lie in (0, π/2) rad (tan diverges at π/2), got {self.max_steer!r}")
         for name in ("noise_std", "start_std"):

@@ -41,6 +41,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.error import DependencyNotInstalled
 
+from tl_gym.checks import check_positive
 from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.parser import parse
 from tl_gym.wrapper import TLTLRewardWrapper
@@ -181,8 +182,8 @@ def pendulum_formula(up_by: int = 100, max_angle: float = 0.3, max_speed: float 
         G (t >= 100 -> abs(th) < 0.3) & G abs(th_dot) < 8
     """
     _check_steps("up_by", up_by)
-    _check_positive("max_angle", max_angle)
-    _check_positive("max_speed", max_speed)
+    check_positive("max_angle", max_angle)
+    check_positive("max_speed", max_speed)
     return parse(f"G(t >= {int(up_by)} -> abs(th) < {_num(max_angle)}) & G(abs(th_dot) < {_num(max_speed)})")
 
 
@@ -194,7 +195,7 @@ def mountain_car_formula(flag: float = 0.45, speed_limit: float = 0.045) -> Form
         F position >= 0.45 & G abs(velocity) < 0.045
     """
     _check_finite("flag", flag)
-    _check_positive("speed_limit", speed_limit)
+    check_positive("speed_limit", speed_limit)
     return parse(f"F(position >= {_num(flag)}) & G(abs(velocity) < {_num(speed_limit)})")
 
 
@@ -205,9 +206,9 @@ def parking_formula(success_error: float = 1.44, arrival_speed: float = 1.0, spe
         >>> print(parking_formula())
         F (goal_error < 1.44 & speed < 1) & G speed < 5
     """
-    _check_positive("success_error", success_error)
-    _check_positive("arrival_speed", arrival_speed)
-    _check_positive("speed_limit", speed_limit)
+    check_positive("success_error", success_error)
+    check_positive("arrival_speed", arrival_speed)
+    check_positive("speed_limit", speed_limit)
     return parse(
         f"F(goal_error < {_num(success_error)} & speed < {_num(arrival_speed)}) & G(speed < {_num(speed_limit)})"
     )
@@ -379,11 +380,6 @@ def _check_steps(name: str, value: Any) -> int:
     if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
         raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
     return int(value)
-
-
-def _check_positive(name: str, value: Any) -> None:
-    if not (isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value) and value > 0):
-        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
 
 
 def _check_finite(name: str, value: Any) -> None:

@@ -21,6 +21,7 @@ from tl_gym.envs.car import ACTION_SPACE, CAR_MONITOR_SCALE, RENDER_SIZE, car_se
 from tl_gym.envs.dynamics import car_step, sample_episode_noise
 from tl_gym.envs.tasks import task_formula
 
+from tl_gym.checks import check_positive
 from tl_gym.monitor_view import MonitorView, augment_space
 from tl_gym.shaping import HierarchicalPotential
 from tl_gym.tltl.online import PrefixMonitor
@@ -30,7 +31,6 @@ from tl_gym.wrapper import (
     REWARD_MODES,
     REWARDS,
     check_discount,
-    check_positive,
     terminal_info,
 )
 
@@ -97,9 +97,9 @@ class CarNavVectorEnv(VectorEnv):
         check_discount(gamma)
         if not isinstance(observe_monitor, bool):
             raise TypeError(f"observe_monitor must be True or False, got {observe_monitor!r}")
-        check_positive("beta", beta, allow_inf=False)
+        check_positive("beta", beta)
         check_positive("rho_max", rho_max, allow_inf=True)
-        check_positive("clip", clip, allow_inf=False)
+        check_positive("clip", clip)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
         self.num_envs = int(num_envs)

@@ -86,7 +86,7 @@ def test_formula_outside_the_fragment_is_refused_at_construction_naming_it():
 def test_bad_arguments_are_refused():
     with pytest.raises(TypeError, match="observe_monitor must be True or False"):
         TLTLRewardWrapper(Scripted(), "F(a > 1)", signals={"a": 0}, observe_monitor="yes")
-    with pytest.raises(ValueError, match="monitor_scale must be finite and > 0"):
+    with pytest.raises(ValueError, match="monitor_scale must be a finite number > 0"):
         TLTLRewardWrapper(Scripted(), "F(a > 1)", signals={"a": 0}, observe_monitor=True, monitor_scale=0.0)
 
     class Image(Scripted):

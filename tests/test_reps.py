@@ -67,3 +67,14 @@ def test_reps_improves_task_1_within_a_few_iterations():
     assert np.mean(rho[-2:]) > rho[0] + 20.0
     assert all(row["kl"] <= agent.config.epsilon + 1e-6 for row in agent.history)
     assert agent.history[-1]["policy_std"] < agent.config.init_std  # exploration narrows as it learns
+
+
+@pytest.mark.parametrize("agent", ["reps", "tlps"])
+@pytest.mark.parametrize(("name", "value"), [("epsilon", float("inf")), ("init_std", 0.0), ("min_std", float("nan")),
+                                             ("exploration_halflife", True)])
+def test_both_episodic_agents_refuse_the_same_bad_numbers(agent, name, value):
+    """One positive-number check (tl_gym.checks): REPS no longer accepts an infinite KL bound."""
+    from tl_gym.agents.registry import agent_class
+
+    with pytest.raises(ValueError, match=f"{name}.*must be a finite number > 0"):
+        agent_class(agent)._make_config({name: value})

@@ -96,7 +96,7 @@ def test_targets_count_only_while_safe():
 
 
 def test_bad_arguments():
-    with pytest.raises(ValueError, match="scale must be finite"):
+    with pytest.raises(ValueError, match="scale must be a finite number > 0"):
         HierarchicalPotential(parse("F(a > 0)"), scale=-1.0)
     with pytest.raises(ValueError, match="gamma must lie in"):
         TLTLRewardWrapper(Scripted(), "F(a > 0)", signals={"a": 0}, reward_mode="potential", gamma=0.0)

@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
+from tl_gym.checks import check_positive
 from tl_gym.tltl.online import SIGNAL, VALUE, PrefixMonitor
 
 
@@ -73,8 +74,7 @@ class MonitorView:
     ):
         if not monitor.incremental:
             monitor.state()  # raises the ValueError that names the sub-formula
-        if not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
-            raise ValueError(f"monitor_scale must be finite and > 0, got {scale!r}")
+        check_positive("monitor_scale", scale)
         if horizon is not None and (isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer))
                                     or horizon < 1):
             raise ValueError(f"horizon must be an int >= 1 or None, got {horizon!r}")

@@ -37,6 +37,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 
+from tl_gym.checks import check_positive
 from tl_gym.tltl.ast import And, Eventually, Formula, Then, Until
 from tl_gym.tltl.online import PrefixMonitor, compile_state_formula
 
@@ -148,8 +149,7 @@ class HierarchicalPotential:
     """
 
     def __init__(self, formula: Formula, rho_max: float = math.inf, scale: float = 1.0):
-        if not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
-            raise ValueError(f"scale must be finite and > 0, got {scale!r}")
+        check_positive("scale", scale)
         conjuncts = list(formula.operands) if isinstance(formula, And) else [formula]
         self.scale = float(scale)
         self._safety: list[_Safety] = []

@@ -12,6 +12,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from tl_gym.checks import check_positive
 from tl_gym.errors import TraceError, UnknownSignalError
 from tl_gym.monitor_view import MonitorView, augment, augment_space, split
 from tl_gym.shaping import HierarchicalPotential
@@ -141,9 +142,9 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if reward_mode != "terminal" and reward == "smooth":
             raise ValueError(f"reward_mode={reward_mode!r} pays exact robustness increments; use reward='exact'")
         check_discount(gamma)
-        check_positive("beta", beta, allow_inf=False)
+        check_positive("beta", beta)
         check_positive("rho_max", rho_max, allow_inf=True)
-        check_positive("clip", clip, allow_inf=False)
+        check_positive("clip", clip)
         if not (isinstance(env_reward_weight, numbers.Real) and math.isfinite(env_reward_weight)):
             raise ValueError(f"env_reward_weight must be a finite number, got {env_reward_weight!r}")
         if not isinstance(env, gym.Env):
@@ -350,16 +351,6 @@ def _as_formula(spec: Any) -> Formula:
     if isinstance(spec, str):
         return parse(spec)
     raise TypeError(f"spec must be formula text or a Formula, got {type(spec).__name__}")
-
-
-def check_positive(name: str, value: Any, allow_inf: bool) -> None:
-    """Raise a ValueError naming ``name`` unless ``value`` is a real number > 0 (finite unless ``allow_inf``)."""
-    ok = isinstance(value, numbers.Real) and not isinstance(value, bool) and value > 0
-    if ok and not allow_inf:
-        ok = math.isfinite(value)
-    if not ok:
-        bound = "> 0 (inf allowed)" if allow_inf else "finite and > 0"
-        raise ValueError(f"{name} must be {bound}, got {value!r}")
 
 
 def check_discount(gamma: Any) -> None:
