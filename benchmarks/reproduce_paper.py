@@ -219,7 +219,7 @@ def claims(task: Any, rows: Sequence[results.GroupSummary]) -> str:
     if len(betas) > 1:
         key = "first_positive" if task == 1 else "first_success"
         what = "mean ρ > 0" if task == 1 else "success ≥ 80%"
-        parts = [f"β = {beta:g}: {_median_text(getattr(row, key))}, final success {row.final_success:.0%}"
+        parts = [f"β = {beta:g}: {results.first_text(getattr(row, key))}, final success {row.final_success:.0%}"
                  for beta, row in betas]
         medians = [_median(getattr(row, key)) for _, row in betas]
         if any(m is None for m in medians):
@@ -235,7 +235,7 @@ def claims(task: Any, rows: Sequence[results.GroupSummary]) -> str:
         ahead = _ahead(tlps, reps)
         lines.append(
             f"- *TLPS is ahead of REPS on task 2.* Success ≥ 80% first reached: TLPS "
-            f"{_median_text(tlps.first_success)}, REPS {_median_text(reps.first_success)}; final success "
+            f"{results.first_text(tlps.first_success)}, REPS {results.first_text(reps.first_success)}; final success "
             f"{tlps.final_success:.0%} vs {reps.final_success:.0%}; eval success "
             f"{_percent(tlps.eval_success)} vs {_percent(reps.eval_success)}. On these runs: **{ahead}**."
         )
@@ -287,13 +287,6 @@ def _beta(label: str) -> float | None:
         return float(label.split("=", 1)[1])
     except ValueError:
         return None
-
-
-def _median_text(firsts: Sequence[int | None]) -> str:
-    reached = [f for f in firsts if f is not None]
-    if not reached:
-        return f"never (0/{len(firsts)})"
-    return f"{np.median(reached):g} ({len(reached)}/{len(firsts)})"
 
 
 def _percent(value: float | None) -> str:

@@ -183,7 +183,7 @@ def summarise(task: Any, label: str, runs: Sequence[RunResult]) -> GroupSummary:
     )
 
 
-def _first_text(firsts: Sequence[int | None]) -> str:
+def first_text(firsts: Sequence[int | None]) -> str:
     """Median first iteration over the seeds that got there, and how many did."""
     reached = [f for f in firsts if f is not None]
     if not reached:
@@ -203,7 +203,7 @@ def markdown_table(rows: Sequence[GroupSummary]) -> str:
         success = "–" if math.isnan(row.final_success) else f"{row.final_success:.0%}"
         lines.append(
             f"| {row.label} | {row.seeds} | {row.iterations} | {final} | {success} "
-            f"| {evaluation} | {_first_text(row.first_positive)} | {_first_text(row.first_success)} "
+            f"| {evaluation} | {first_text(row.first_positive)} | {first_text(row.first_success)} "
             f"| {row.env_steps:,.0f} | {row.wall_time:.1f} | {row.note} |"
         )
     return "\n".join(lines)
