@@ -19,63 +19,91 @@ import numpy as np
 
 from tl_gym.checks import check_positive
 
-from .base import Agent
+from .base import Agent, check_episodic
 from .feedback import FITTED_EXPLORATION_FLOOR, FeedbackSettings, fit_feedback, signal_components
-from .policy import LinearGaussianPolicy
+from .policy import DEFAULT_INIT_STD, DEFAULT_MIN_STD, LinearGaussianPolicy
 from .sampling import Rollouts, flat_observations, resolve_horizon
 
 
+@dataclasses.dataclass(frozen=True, kw_only=True)
 class EpisodicSearchConfig:
-    """Checks of the feedback and exploration fields that `TLPSConfig` and `REPSConfig` both declare.
+    """The hyperparameters TLPS and REPS share, declared and checked once; `TLPSConfig` and `REPSConfig` add their own.
 
-    A mixin of methods only (a dataclass base would put its fields before the agent's own):
-
-    - ``feedback``: ``"open"``, the paper's policy with ``K_t`` fixed (``gains``, zeros by default),
-      or ``"fitted"``, ``a_t = k_t + K_t (s_t ⊖ s̄_t)`` with ``K_t`` and the centre ``s̄_t`` refit
-      each update by weighted ridge regression (`tl_gym.agents.feedback`); ``gains`` must then
-      be ``None``.
-    - ``feedback_features``: the observation components the fitted gains act on: ``"auto"`` (the
-      components the formula's signals are read from, found in the first batch, plus the angle
-      components; all when no signal is an observation component), ``"all"``, or indices.
-    - ``feedback_angles``: angle components (deviations wrapped to [-π, π), circular centre):
-      ``"auto"`` (Box bounds exactly ±π) or indices (``[]`` for none).
-    - ``feedback_ridge`` (0.01): ridge on the gain increment in standardised units (>= 0), a
-      pull toward the previous gains; ``feedback_window`` (5): the regression's moments are
-      pooled over steps ``t − window … t + window``.
-    - ``exploration_floor``: the std floor at iteration ``m`` is
-      ``max(min_std, exploration_floor · 0.5^(m / exploration_halflife))``; ``None`` means 0.1
-      with fitted feedback (the gains learn from the drawn noise, which must not collapse) and
-      0 in open loop.
+    Keyword-only, so that an agent's own fields may follow these without defaults clashing.
     """
 
-    def check_search(self) -> None:
-        """Validate and normalise the shared fields (call from ``__post_init__``)."""
+    n_episodes: int = 40
+    """Episodes per update, ``N`` (>= 2; the paper's 40); the batched env runs this many at once."""
+    horizon: int | None = None
+    """Actions per episode, ``T``; ``None`` reads it from the env (the car's is the paper's 200)."""
+    init_std: float = DEFAULT_INIT_STD
+    """Initial standard deviation of every action component of ``k_t^i`` (> 0)."""
+    init_mean: float = 0.0
+    """Initial feed-forward action ``k_t`` (every component, every step)."""
+    min_std: float = DEFAULT_MIN_STD
+    """Permanent floor on the policy's standard deviation (> 0)."""
+    covariance: str = "diag"
+    """``"diag"`` or ``"full"`` covariance ``C_t`` per time step."""
+    gains: Any = None
+    """Fixed feedback gains ``K_t`` of the policy ``a = K_t s_t + k_t`` with ``feedback="open"``: an array
+    (or nested lists) of shape ``(act_dim, obs_dim)`` or ``(T, act_dim, obs_dim)``; ``None`` is zeros (fixed
+    gains around a mean path cancelled exploration in the feasibility studies). Stored as lists."""
+    feedback: str = "fitted"
+    """``"fitted"`` (the default since issue 16): time-varying gains ``K_t`` on the deviation ``s_t ⊖ s̄_t``
+    from the weighted mean state, refit each update by weighted ridge regression on the drawn noise
+    (`tl_gym.agents.feedback`); faster in the paper's setting and the only way to learn from a wide
+    start spread (docs/tlps.md). ``"open"``: the paper's open-loop policy (``K_t`` fixed by ``gains``),
+    kept for the ablation."""
+    feedback_features: Any = "auto"
+    """Components the fitted gains act on: ``"auto"`` (the components the formula's signals are read
+    from, found in the first batch, plus the angle components; all when no signal is an observation
+    component), ``"all"`` or a list of indices. Stored as a list."""
+    feedback_angles: Any = "auto"
+    """Angle components (deviations wrapped to [-π, π), circular centre): ``"auto"`` (Box bounds exactly
+    ±π) or a list of indices (``[]`` for none). Stored as a list."""
+    feedback_ridge: float = 0.01
+    """Ridge on the fitted gains' increment, standardised units (>= 0): a pull toward the previous gains."""
+    feedback_window: int = 5
+    """The fit pools its moments over steps ``t − window … t + window`` (>= 0)."""
+    exploration_floor: float | None = None
+    """Std floor ``exploration_floor · 0.5^(m / exploration_halflife)`` at iteration ``m`` (>= 0, 0 is
+    off); ``None``: 0.1 with ``feedback="fitted"`` (the gains learn from the drawn noise, which must
+    not collapse), 0 with ``"open"``."""
+    exploration_halflife: float = 10.0
+    """Iterations over which the exploration floor halves (> 0)."""
+
+    def __post_init__(self) -> None:
+        """Validate and normalise the shared fields; an agent's config extends this with its own checks."""
+        if self.gains is not None:  # plain lists, so that the config stays JSON
+            object.__setattr__(self, "gains", np.asarray(self.gains, dtype=float).tolist())
+        check_episodic(self.n_episodes, self.horizon)
+        check_positive("init_std", self.init_std)
+        check_positive("min_std", self.min_std)
+        if self.covariance not in ("diag", "full"):
+            raise ValueError(f"covariance must be 'diag' or 'full', got {self.covariance!r}")
         for name in ("feedback_features", "feedback_angles"):
             value = getattr(self, name)
             if isinstance(value, (list, tuple, np.ndarray)):  # plain lists, so that the config stays JSON
                 object.__setattr__(self, name, [v.item() if isinstance(v, np.generic) else v for v in value])
         FeedbackSettings.of(self)
-        if self.feedback == "fitted" and getattr(self, "gains", None) is not None:
+        if self.feedback == "fitted" and self.gains is not None:
             raise ValueError("gains (fixed K_t) and feedback='fitted' exclude each other; pass one of them")
         if self.exploration_floor is not None:
             check_positive("exploration_floor", self.exploration_floor, allow_zero=True)
         check_positive("exploration_halflife", self.exploration_halflife)
-        check_positive("init_std", self.init_std)
-        check_positive("min_std", self.min_std)
 
     def std_floor(self, iteration: int) -> float:
         """The policy's standard-deviation floor after update ``iteration`` (exploration schedule)."""
         floor = self.exploration_floor
         if floor is None:
             floor = FITTED_EXPLORATION_FLOOR if self.feedback == "fitted" else 0.0
-        return max(self.min_std, floor * 0.5 ** (iteration / self.exploration_halflife))  # type: ignore[attr-defined]
+        return max(self.min_std, floor * 0.5 ** (iteration / self.exploration_halflife))
 
 
 class AbstractEpisodicSearch(Agent):
     """Abstract agent over a `LinearGaussianPolicy`; subclasses define `_make_config` and `_update`.
 
-    The config is an `EpisodicSearchConfig` with the fields ``n_episodes``, ``horizon``,
-    ``init_mean``, ``init_std``, ``covariance``, ``min_std`` and ``gains``.
+    The config is an `EpisodicSearchConfig` (a subclass of it).
     """
 
     policy: LinearGaussianPolicy

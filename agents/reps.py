@@ -33,9 +33,8 @@ from scipy.special import logsumexp
 
 from tl_gym.checks import check_positive
 
-from .base import build_config, check_episodic
+from .base import build_config
 from .episodic import AbstractEpisodicSearch, EpisodicSearchConfig
-from .policy import DEFAULT_INIT_STD, DEFAULT_MIN_STD
 from .sampling import rollout
 
 #: Lower bound on the temperature ``η`` of standardised returns: below it the
@@ -43,55 +42,15 @@ from .sampling import rollout
 ETA_MIN = 1e-6
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class REPSConfig(EpisodicSearchConfig):
-    """Hyperparameters of `REPS`; the feedback and exploration fields are checked by `EpisodicSearchConfig`."""
+    """Hyperparameters of `REPS`: the KL bound, and the fields shared with TLPS (`EpisodicSearchConfig`)."""
 
-    n_episodes: int = 40
-    """Episodes sampled per update, ``N`` (>= 2); the batched env runs this many at once."""
-    horizon: int | None = None
-    """Actions per episode, ``T``; ``None`` reads it from the env (it must match the env's)."""
     epsilon: float = 2.0
     """KL bound between the reweighted and the current sample distribution (> 0)."""
-    init_std: float = DEFAULT_INIT_STD
-    """Initial standard deviation of every action component of ``k_t^i`` (> 0)."""
-    init_mean: float = 0.0
-    """Initial feed-forward action ``k_t`` (every component, every step)."""
-    min_std: float = DEFAULT_MIN_STD
-    """Floor on the policy's standard deviation (> 0)."""
-    covariance: str = "diag"
-    """``"diag"`` or ``"full"`` covariance ``C_t`` per time step."""
-    gains: Any = None
-    """Fixed feedback gains ``K_t`` of the policy ``a = K_t s_t + k_t``: an array (or nested lists) of
-    shape ``(act_dim, obs_dim)`` or ``(T, act_dim, obs_dim)``; ``None`` is zeros, the default (fixed
-    gains around a mean path cancelled exploration in the feasibility studies). Stored as lists."""
-    feedback: str = "fitted"
-    """``"fitted"`` (the default, as TLPS's: time-varying gains refit each update, `tl_gym.agents.feedback`;
-    measured better in both settings, docs/tlps.md) or ``"open"`` (the paper's baseline, ``K_t`` fixed by
-    ``gains``)."""
-    feedback_features: Any = "auto"
-    """Components the fitted gains act on: ``"auto"`` (the signals' components and the angles),
-    ``"all"`` or a list of indices (see `EpisodicSearchConfig`). Stored as a list."""
-    feedback_angles: Any = "auto"
-    """Angle components: ``"auto"`` (Box bounds exactly ±π) or a list of indices. Stored as a list."""
-    feedback_ridge: float = 0.01
-    """Ridge on the fitted gains' increment, standardised units (>= 0): a pull toward the previous gains."""
-    feedback_window: int = 5
-    """The fit pools its moments over steps ``t − window … t + window`` (>= 0)."""
-    exploration_floor: float | None = None
-    """Std floor ``exploration_floor · 0.5^(m / exploration_halflife)`` at iteration ``m`` (>= 0, 0 is
-    off); ``None``: 0.1 with ``feedback="fitted"``, 0 with ``"open"``."""
-    exploration_halflife: float = 10.0
-    """Iterations over which the exploration floor halves (> 0)."""
-
     def __post_init__(self) -> None:
-        if self.gains is not None:  # plain lists, so that the config stays JSON
-            object.__setattr__(self, "gains", np.asarray(self.gains, dtype=float).tolist())
-        check_episodic(self.n_episodes, self.horizon)
+        super().__post_init__()
         check_positive("epsilon (the KL bound)", self.epsilon)
-        if self.covariance not in ("diag", "full"):
-            raise ValueError(f"covariance must be 'diag' or 'full', got {self.covariance!r}")
-        self.check_search()
 
 
 def reps_weights(returns: np.ndarray, epsilon: float) -> tuple[np.ndarray, float, float]:

@@ -39,9 +39,8 @@ from scipy.stats import spearmanr
 
 from tl_gym.checks import check_positive
 
-from .base import build_config, check_episodic
+from .base import build_config
 from .episodic import AbstractEpisodicSearch, EpisodicSearchConfig
-from .policy import DEFAULT_INIT_STD, DEFAULT_MIN_STD
 from .sampling import rollout
 from .trust_region import check_trust_region, improve_trajectories
 from .weights import WEIGHTINGS, adapt_alpha, kl_to_uniform, sample_logits, softmax_weights
@@ -49,18 +48,14 @@ from .weights import WEIGHTINGS, adapt_alpha, kl_to_uniform, sample_logits, soft
 SMOOTHING_FORMS = ("nested", "linear")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class TLPSConfig(EpisodicSearchConfig):
     """Hyperparameters of `TLPS`; the defaults and the measurements behind them are in ``docs/tlps.md``.
 
-    The feedback and exploration fields (``feedback`` … ``exploration_halflife``) are shared with
-    REPS and checked by `EpisodicSearchConfig`.
+    The batch, policy, feedback and exploration fields (``n_episodes`` … ``exploration_halflife``)
+    are shared with REPS: see `EpisodicSearchConfig`.
     """
 
-    n_episodes: int = 40
-    """Episodes per update, ``N`` (>= 2; the paper's 40); the batched env runs this many at once."""
-    horizon: int | None = None
-    """Actions per episode, ``T``; ``None`` reads it from the env (the car's is the paper's 200)."""
     epsilon: float = 4.5
     """Trust region ``‖τ̄ − τ‖² ≤ ε`` in squared signal units, summed over steps and signals (> 0).
     On the 300-unit car arena 4.5 lets a trajectory move ~2 units in total, a fraction of the
@@ -88,45 +83,11 @@ class TLPSConfig(EpisodicSearchConfig):
     """Iterations of the projected solver (>= 1); SLSQP gets five times as many at most."""
     solver_decay: float = 0.5
     """Step-length factor of the projected solver after a step that did not improve, in (0, 1)."""
-    init_std: float = DEFAULT_INIT_STD
-    """Initial standard deviation of every action component of ``k_t^i`` (> 0)."""
-    init_mean: float = 0.0
-    """Initial feed-forward action ``k_t`` (every component, every step)."""
-    min_std: float = DEFAULT_MIN_STD
-    """Permanent floor on the policy's standard deviation (> 0)."""
-    covariance: str = "diag"
-    """``"diag"`` or ``"full"`` covariance ``C_t`` per time step."""
-    gains: Any = None
-    """Fixed feedback gains ``K_t`` of the policy ``a = K_t s_t + k_t`` with ``feedback="open"``: an array
-    (or nested lists) of shape ``(act_dim, obs_dim)`` or ``(T, act_dim, obs_dim)``; ``None`` is zeros (fixed
-    gains around a mean path cancelled exploration in the feasibility studies). Stored as lists."""
     threads: int | None = 1
     """Torch threads during the trust-region solve (one is fastest for these small tensors);
     ``None`` keeps the process setting."""
-    feedback: str = 'fitted'
-    """``"fitted"`` (the default since issue 16): time-varying gains ``K_t`` on the deviation from the
-    weighted mean state, refit each update (`tl_gym.agents.feedback`); faster in the paper's setting
-    and the only way to learn from a wide start spread (docs/tlps.md). ``"open"``: the paper's
-    open-loop policy (``K_t`` fixed by ``gains``), kept for the ablation."""
-    feedback_features: Any = "auto"
-    """Components the fitted gains act on: ``"auto"`` (the signals' components and the angles),
-    ``"all"`` or a list of indices (see `EpisodicSearchConfig`). Stored as a list."""
-    feedback_angles: Any = "auto"
-    """Angle components: ``"auto"`` (Box bounds exactly ±π) or a list of indices. Stored as a list."""
-    feedback_ridge: float = 0.01
-    """Ridge on the fitted gains' increment, standardised units (>= 0): a pull toward the previous gains."""
-    feedback_window: int = 5
-    """The fit pools its moments over steps ``t − window … t + window`` (>= 0)."""
-    exploration_floor: float | None = None
-    """Std floor ``exploration_floor · 0.5^(m / exploration_halflife)`` at iteration ``m`` (>= 0, 0 is
-    off); ``None``: 0.1 with ``feedback="fitted"``, 0 with ``"open"``."""
-    exploration_halflife: float = 10.0
-    """Iterations over which the exploration floor halves (> 0)."""
-
     def __post_init__(self) -> None:
-        if self.gains is not None:  # plain lists, so that the config stays JSON
-            object.__setattr__(self, "gains", np.asarray(self.gains, dtype=float).tolist())
-        check_episodic(self.n_episodes, self.horizon)
+        super().__post_init__()
         check_trust_region(self.epsilon, self.beta, self.solver, self.solver_steps, self.solver_decay)
         if self.smoothing not in SMOOTHING_FORMS:
             raise ValueError(f"smoothing must be one of {SMOOTHING_FORMS}, got {self.smoothing!r}")
@@ -138,11 +99,8 @@ class TLPSConfig(EpisodicSearchConfig):
         if self.alpha is not None:
             check_positive("alpha", self.alpha)
         check_positive("regularization", self.regularization)
-        if self.covariance not in ("diag", "full"):
-            raise ValueError(f"covariance must be 'diag' or 'full', got {self.covariance!r}")
         if self.threads is not None and (not isinstance(self.threads, int) or self.threads < 1):
             raise ValueError(f"threads must be a positive int or None, got {self.threads!r}")
-        self.check_search()
 
 
 class TLPS(AbstractEpisodicSearch):
