@@ -45,9 +45,6 @@ from .serialization import (
 
 AgentT = TypeVar("AgentT", bound="Agent")
 
-#: Keys every history row holds, in this order, before the agent's own keys.
-HISTORY_KEYS = ("iteration", "env_steps", "mean_robustness", "success_rate", "wall_time")
-
 # keys make_vec adds to a vector env's spec kwargs; they are not env constructor arguments
 _VECTOR_KEYS = ("num_envs", "vectorization_mode", "vector_kwargs", "wrappers")
 
@@ -93,7 +90,8 @@ class Agent(abc.ABC):
         config: the validated hyperparameters (a dataclass).
         env: the vector env episodes are sampled from.
         formula: the env's TLTL formula.
-        history: one dict per update (keys `HISTORY_KEYS` first, then the agent's own).
+        history: one dict per update: ``iteration``, ``env_steps``, ``mean_robustness``, ``success_rate``,
+            ``wall_time``, then the agent's own keys.
     """
 
     def __init__(self, env: Any, *, seed: int | None = None, env_kwargs: Mapping[str, Any] | None = None,

@@ -47,9 +47,9 @@ class EpisodicSearchConfig:
     gains: Any = None
     """Fixed feedback gains ``K_t`` of the policy ``a = K_t s_t + k_t`` with ``feedback="open"``: an array
     (or nested lists) of shape ``(act_dim, obs_dim)`` or ``(T, act_dim, obs_dim)``; ``None`` is zeros (fixed
-    gains around a mean path cancelled exploration in the feasibility studies). Stored as lists."""
+    gains around a mean path cancelled exploration, docs/tlps.md). Stored as lists."""
     feedback: str = "fitted"
-    """``"fitted"`` (the default since issue 16): time-varying gains ``K_t`` on the deviation ``s_t ⊖ s̄_t``
+    """``"fitted"`` (the default): time-varying gains ``K_t`` on the deviation ``s_t ⊖ s̄_t``
     from the weighted mean state, refit each update by weighted ridge regression on the drawn noise
     (`tl_gym.agents.feedback`); faster in the paper's setting and the only way to learn from a wide
     start spread (docs/tlps.md). ``"open"``: the paper's open-loop policy (``K_t`` fixed by ``gains``),
@@ -140,7 +140,7 @@ class AbstractEpisodicSearch(Agent):
 
     @classmethod
     def _saved_config(cls, config: dict[str, Any]) -> dict[str, Any]:
-        # files saved before fitted feedback (issue 16) hold open-loop policies
+        # files saved before fitted feedback existed hold open-loop policies
         return {"feedback": "open", **config}
 
     @abc.abstractmethod

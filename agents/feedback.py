@@ -1,4 +1,4 @@
-"""Fitted time-varying feedback ``a_t = k_t + K_t (s_t ⊖ s̄_t)`` for the episodic agents (issue 16).
+"""Fitted time-varying feedback ``a_t = k_t + K_t (s_t ⊖ s̄_t)`` for the episodic agents.
 
 The paper keeps ``K_t`` fixed (zeros: an open-loop policy), so nothing reacts to where
 the system actually is; a wide start spread then defeats TLPS and REPS alike. This
@@ -55,8 +55,8 @@ FEEDBACK_MODES = ("open", "fitted")
 FEATURE_CHOICES = ("auto", "all")
 
 #: The exploration floor a fitted feedback gets when ``exploration_floor`` is left at ``None``:
-#: the regression learns from the drawn noise, so the noise must not collapse (issue 16: without
-#: a floor the exploration std collapses within ~15 iterations and the gains freeze).
+#: the regression learns from the drawn noise, so the noise must not collapse (without a floor the
+#: exploration std collapses within ~15 iterations and the gains freeze; docs/tlps.md).
 FITTED_EXPLORATION_FLOOR = 0.1
 
 

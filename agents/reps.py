@@ -17,9 +17,8 @@ Each iteration:
    distribution stays within ``KL(w ‖ uniform) ≤ ε`` of the current one;
 4. refit ``k_t`` and ``C_t`` by weighted maximum likelihood.
 
-The default ``ε = 2`` is the tuned value of the feasibility study (issue 9): on
-task 1 it needed 6–8 updates to a mean robustness above 0 where ``ε = 1`` needed
-14–21.
+The default ``ε = 2`` was tuned on the car's task 1, where it needed 6–8 updates to a
+mean robustness above 0 and ``ε = 1`` needed 14–21 (docs/tlps.md compares the agents).
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ Li, Ma and Belta, "A Policy Search Method For Temporal Logic Specified
 Reinforcement Learning Tasks", ACC 2018, section IV. The policy is the
 time-varying linear-Gaussian ``π(a_t | s_t) = N(K_t s_t + k_t, C_t)`` of
 `LinearGaussianPolicy`, with learned ``k_t``, ``C_t``; each episode draws its own
-feed-forward sequence ``k_t^i``. The paper keeps ``K_t`` fixed; by default (issue 16)
+feed-forward sequence ``k_t^i``. The paper keeps ``K_t`` fixed; by default
 ``K_t`` is refit too, acting on the deviation from the weighted mean state
 (``feedback="fitted"``, `tl_gym.agents.feedback`); ``feedback="open"`` is the paper's.
 
@@ -59,7 +59,7 @@ class TLPSConfig(EpisodicSearchConfig):
     epsilon: float = 4.5
     """Trust region ``‖τ̄ − τ‖² ≤ ε`` in squared signal units, summed over steps and signals (> 0).
     On the 300-unit car arena 4.5 lets a trajectory move ~2 units in total, a fraction of the
-    30-unit goals; it is the feasibility study's ε = 0.005 scaled by 30²."""
+    30-unit goals: ε = 0.005 in goal widths, scaled by 30² (docs/tlps.md)."""
     beta: float = 9.0
     """Sharpness of the log-sum-exp smoothing (> 0; the paper's 9)."""
     smoothing: str = "linear"

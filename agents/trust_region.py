@@ -62,13 +62,11 @@ class TrustRegionResult:
         updated: the updated trajectories τ̄, shape ``(N, T, S)``.
         smooth_before: ρ̂ of the sampled trajectories, shape ``(N,)``.
         smooth_after: ρ̂ of the updated trajectories, shape ``(N,)``.
-        evaluations: value-and-gradient calls made (summed over trajectories for SLSQP).
     """
 
     updated: np.ndarray
     smooth_before: np.ndarray
     smooth_after: np.ndarray
-    evaluations: int
 
 
 @contextmanager
@@ -184,7 +182,6 @@ def _projected(evaluate: Evaluate, tau: np.ndarray, epsilon: float, steps: int, 
     best_x = tau.copy()
     best_value, grad = evaluate(best_x)
     before = best_value.copy()
-    calls = 1
     # per-trajectory step length: grows after a gain, shrinks after a loss ("bold driver");
     # the first step, of length √ε along the gradient, is the linearised solution
     step = np.full(tau.shape[0], radius)
@@ -199,13 +196,12 @@ def _projected(evaluate: Evaluate, tau: np.ndarray, epsilon: float, steps: int, 
         length = np.sqrt(np.sum(offset**2, axis=(1, 2), keepdims=True))
         x = tau[active] + offset * np.minimum(1.0, radius / np.maximum(length, 1e-300))
         value, new_grad = evaluate(x)
-        calls += 1
         better = value > best_value[active]
         improved = active[better]
         best_x[improved], best_value[improved], grad[improved] = x[better], value[better], new_grad[better]
         step[improved] *= _GROWTH
         step[active[~better]] *= decay
-    return TrustRegionResult(best_x, before, best_value, calls)
+    return TrustRegionResult(best_x, before, best_value)
 
 
 def _slsqp(evaluate: Evaluate, tau: np.ndarray, epsilon: float, max_iterations: int) -> TrustRegionResult:
@@ -213,17 +209,15 @@ def _slsqp(evaluate: Evaluate, tau: np.ndarray, epsilon: float, max_iterations: 
     updated = tau.copy()
     before = np.empty(n)
     after = np.empty(n)
-    calls = 0
     for i in range(n):
-        updated[i], before[i], after[i], used = _slsqp_one(evaluate, tau[i], epsilon, max_iterations)
-        calls += used
-    return TrustRegionResult(updated, before, after, calls)
+        updated[i], before[i], after[i] = _slsqp_one(evaluate, tau[i], epsilon, max_iterations)
+    return TrustRegionResult(updated, before, after)
 
 
 def _slsqp_one(
     evaluate: Evaluate, tau: np.ndarray, epsilon: float, max_iterations: int
-) -> tuple[np.ndarray, float, float, int]:
-    """SLSQP on one trajectory ``(T, S)``: ``(τ̄, ρ̂(τ), ρ̂(τ̄), evaluations)``."""
+) -> tuple[np.ndarray, float, float]:
+    """SLSQP on one trajectory ``(T, S)``: ``(τ̄, ρ̂(τ), ρ̂(τ̄))``."""
     shape = tau.shape
     origin = tau.ravel()
     cache: dict[bytes, tuple[float, np.ndarray]] = {}
@@ -250,5 +244,5 @@ def _slsqp_one(
         candidate = origin + offset * math.sqrt(epsilon / length_sq)
     after = -objective(candidate)[0]
     if after < before:  # keep the sample when the solver did not improve it
-        return tau.copy(), before, before, len(cache)
-    return candidate.reshape(shape), before, after, len(cache)
+        return tau.copy(), before, before
+    return candidate.reshape(shape), before, after

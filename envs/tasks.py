@@ -2,8 +2,8 @@
 
 The formulas read the signals ``x`` and ``y`` only (observation indices 0 and 1);
 the obstacle predicate is written with arithmetic, ``sqrt((x - cx)^2 + (y - cy)^2) > r``.
-Agents and benchmarks import `task_formula` to score trajectories with exactly the
-formula the env pays.
+`task_formula` is the formula the env pays; the batched car env and the benchmarks build
+theirs with it, so that every score uses the same text.
 
 Example:
     >>> from tl_gym.envs.tasks import task_formula
