@@ -13,7 +13,7 @@ from gymnasium import spaces
 from tl_gym.envs.dynamics import CarParams, car_step, sample_episode_noise
 from tl_gym.envs.tasks import Layout, make_layout, task_formula
 
-from tl_gym.wrapper import DEFAULT_CLIP, TLTLRewardWrapper
+from tl_gym.wrapper import RewardSettings, TLTLRewardWrapper
 
 RENDER_SIZE = (480, 480)
 #: Divisor of the monitor features (``observe_monitor=True``): a third of the 300-unit arena.
@@ -207,24 +207,15 @@ class CarNavEnv(gym.Env):
             self._viewer = None
 
 
-def make_car_env(
-    task: int = 1,
-    no_revisit: str = "leave",
-    reward: str = "exact",
-    beta: float = 9.0,
-    reward_mode: str = "terminal",
-    rho_max: float = math.inf,
-    clip: float = DEFAULT_CLIP,
-    observe_monitor: bool = False,
-    monitor_scale: float = CAR_MONITOR_SCALE,
-    gamma: float = 1.0,
-    **car_kwargs: Any,
-) -> TLTLRewardWrapper:
+def make_car_env(task: int = 1, no_revisit: str = "leave", **kwargs: Any) -> TLTLRewardWrapper:
     """The entry point of TLCarNav-v0: a `CarNavEnv` wrapped in `TLTLRewardWrapper` with its task's formula.
 
     Args:
         task: 1 or 2.
         no_revisit: task 2's no-revisit conjunct, ``"leave"`` (default) or ``"strict"`` (Eq. 19).
+        **kwargs: the reward settings (`tl_gym.wrapper.RewardSettings`, defaults as the wrapper's but
+            ``monitor_scale``) and the car's keywords:
+
         reward: ``"exact"`` or ``"smooth"`` robustness (`TLTLRewardWrapper`).
         beta: smoothing sharpness for ``reward="smooth"``; 9 as in the paper.
         reward_mode: ``"terminal"`` or ``"dense"`` (`TLTLRewardWrapper`).
@@ -235,13 +226,15 @@ def make_car_env(
         monitor_scale: divisor of the monitor's robustness values and positions; 100 units,
             a third of the arena, keeps them of order one (and the unit of the potential).
         gamma: the discount of ``reward_mode="potential"`` (`TLTLRewardWrapper`).
-        **car_kwargs: `CarNavEnv` arguments (`CarParams` fields such as ``horizon`` and ``start_std``,
+        car keywords: `CarNavEnv` arguments (`CarParams` fields such as ``horizon`` and ``start_std``,
             layout overrides, ``render_mode``).
     """
+    settings, car_kwargs = car_reward_settings(kwargs)
     car = CarNavEnv(task=task, **car_kwargs)
     formula = task_formula(task, no_revisit, **car.layout_overrides)
-    return TLTLRewardWrapper(
-        car, formula, signals={"x": 0, "y": 1}, reward=reward, beta=beta, reward_mode=reward_mode,
-        rho_max=rho_max, clip=clip, observe_monitor=observe_monitor, monitor_scale=monitor_scale,
-        gamma=gamma,
-    )
+    return TLTLRewardWrapper(car, formula, signals={"x": 0, "y": 1}, **dataclasses.asdict(settings))
+
+
+def car_reward_settings(kwargs: Mapping[str, Any]) -> tuple[RewardSettings, dict[str, Any]]:
+    """The car's reward settings (``monitor_scale`` defaults to `CAR_MONITOR_SCALE`) and its other keywords."""
+    return RewardSettings.split(kwargs, monitor_scale=CAR_MONITOR_SCALE)

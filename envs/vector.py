@@ -8,7 +8,6 @@ one batched call of the engine.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -17,20 +16,15 @@ import numpy as np
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
-from tl_gym.envs.car import ACTION_SPACE, CAR_MONITOR_SCALE, RENDER_SIZE, car_setup, observation_space
+from tl_gym.envs.car import ACTION_SPACE, RENDER_SIZE, car_reward_settings, car_setup, observation_space
 from tl_gym.envs.dynamics import car_step, sample_episode_noise
 from tl_gym.envs.tasks import task_formula
 
-from tl_gym.checks import check_positive
 from tl_gym.monitor_view import MonitorView, augment_space
 from tl_gym.shaping import HierarchicalPotential
 from tl_gym.tltl.online import PrefixMonitor
 from tl_gym.wrapper import (
-    DEFAULT_CLIP,
     MONITOR_KEY,
-    REWARD_MODES,
-    REWARDS,
-    check_discount,
     terminal_info,
 )
 
@@ -69,61 +63,37 @@ class CarNavVectorEnv(VectorEnv):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10, "autoreset_mode": AutoresetMode.NEXT_STEP}
 
-    def __init__(
-        self,
-        num_envs: int = 40,
-        task: int = 1,
-        no_revisit: str = "leave",
-        reward: str = "exact",
-        beta: float = 9.0,
-        reward_mode: str = "terminal",
-        rho_max: float = math.inf,
-        clip: float = DEFAULT_CLIP,
-        observe_monitor: bool = False,
-        monitor_scale: float = CAR_MONITOR_SCALE,
-        gamma: float = 1.0,
-        render_mode: str | None = None,
-        **car_kwargs: Any,
-    ):
-        """Check the arguments (as `make_car_env` does) and allocate the batch; see `CarNavEnv` for each one."""
+    def __init__(self, num_envs: int = 40, task: int = 1, no_revisit: str = "leave",
+                 render_mode: str | None = None, **kwargs: Any):
+        """Check the arguments (as `make_car_env` does) and allocate the batch; see `CarNavEnv` for each one.
+
+        ``kwargs`` are the reward settings (`tl_gym.wrapper.RewardSettings`) and the car's keywords.
+        """
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
-        if reward not in REWARDS:
-            raise ValueError(f"reward must be one of {REWARDS}, got {reward!r}")
-        if reward_mode not in REWARD_MODES:
-            raise ValueError(f"reward_mode must be one of {REWARD_MODES}, got {reward_mode!r}")
-        if reward_mode != "terminal" and reward == "smooth":
-            raise ValueError(f"reward_mode={reward_mode!r} pays exact robustness increments; use reward='exact'")
-        check_discount(gamma)
-        if not isinstance(observe_monitor, bool):
-            raise TypeError(f"observe_monitor must be True or False, got {observe_monitor!r}")
-        check_positive("beta", beta)
-        check_positive("rho_max", rho_max, allow_inf=True)
-        check_positive("clip", clip)
+        settings, car_kwargs = car_reward_settings(kwargs)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
         self.num_envs = int(num_envs)
         self.task = task
         self.layout, self.params, overrides = car_setup(task, car_kwargs)
         self.formula = task_formula(task, no_revisit, **overrides)
-        self.reward = reward
-        self.reward_mode = reward_mode
-        self.observe_monitor = observe_monitor
-        self.beta = float(beta)
-        self.rho_max = float(rho_max)
-        self.clip = float(clip)
+        self.settings = settings
+        self.reward, self.reward_mode = settings.reward, settings.reward_mode
+        self.observe_monitor = settings.observe_monitor
+        self.beta, self.rho_max, self.clip, self.gamma = settings.beta, settings.rho_max, settings.clip, settings.gamma
         self.render_mode = render_mode
 
         self.single_observation_space = observation_space(self.params, self.layout)
         # one monitor per car, for dense rewards and the Markov view
         self._views: list[MonitorView] = []
-        self.gamma = float(gamma)
+        monitor_scale = settings.monitor_scale
         self._potentials = (
             [HierarchicalPotential(self.formula, self.rho_max, monitor_scale) for _ in range(self.num_envs)]
-            if reward_mode == "potential" else []
+            if self.reward_mode == "potential" else []
         )
         self._phi = np.zeros(self.num_envs)
-        if reward_mode != "terminal" or observe_monitor:
+        if self.reward_mode != "terminal" or self.observe_monitor:
             bounds = dict(zip(("x", "y"), zip(self.single_observation_space.low[:2],
                                                self.single_observation_space.high[:2])))
             self._views = [
@@ -131,7 +101,7 @@ class CarNavVectorEnv(VectorEnv):
                             bounds)
                 for _ in range(self.num_envs)
             ]
-        if observe_monitor:
+        if self.observe_monitor:
             self.single_observation_space = augment_space(self.single_observation_space, self._views[0], MONITOR_KEY)
         self.single_action_space = ACTION_SPACE
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)

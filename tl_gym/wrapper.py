@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 import math
 import numbers
@@ -28,6 +29,55 @@ REWARD_MODES = ("terminal", "dense", "potential")
 DEFAULT_CLIP = 1e4
 #: The key of the monitor features in a Dict observation (``observe_monitor=True``).
 MONITOR_KEY = "monitor"
+
+
+@dataclasses.dataclass(frozen=True)
+class RewardSettings:
+    """How a formula's robustness is paid: the reward keywords of `TLTLRewardWrapper`, checked once.
+
+    The wrapper, the car's entry point and the batched car all build one, so that every reward
+    keyword has one default and one check. Field meanings: `TLTLRewardWrapper`'s arguments.
+
+    Raises:
+        ValueError, TypeError: a bad value; the message names the keyword.
+    """
+
+    reward: str = "exact"
+    beta: float = 9.0
+    rho_max: float = math.inf
+    reward_mode: str = "terminal"
+    clip: float = DEFAULT_CLIP
+    observe_monitor: bool = False
+    monitor_scale: float = 1.0
+    gamma: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.reward not in REWARDS:
+            raise ValueError(f"reward must be one of {REWARDS}, got {self.reward!r}")
+        if self.reward_mode not in REWARD_MODES:
+            raise ValueError(f"reward_mode must be one of {REWARD_MODES}, got {self.reward_mode!r}")
+        if self.reward_mode != "terminal" and self.reward == "smooth":
+            raise ValueError(f"reward_mode={self.reward_mode!r} pays exact robustness increments; use reward='exact'")
+        check_discount(self.gamma)
+        for name in ("beta", "clip", "monitor_scale"):
+            object.__setattr__(self, name, check_positive(name, getattr(self, name)))
+        object.__setattr__(self, "rho_max", check_positive("rho_max", self.rho_max, allow_inf=True))
+        object.__setattr__(self, "gamma", float(self.gamma))
+        if not isinstance(self.observe_monitor, bool):
+            raise TypeError(f"observe_monitor must be True or False, got {self.observe_monitor!r}")
+
+    @classmethod
+    def split(cls, kwargs: Mapping[str, Any], **defaults: Any) -> tuple[RewardSettings, dict[str, Any]]:
+        """The settings among ``kwargs`` (over ``defaults``) and the keywords that are not reward settings.
+
+        Example:
+            >>> settings, rest = RewardSettings.split({"reward_mode": "dense", "horizon": 5}, monitor_scale=100.0)
+            >>> settings.reward_mode, settings.monitor_scale, rest
+            ('dense', 100.0, {'horizon': 5})
+        """
+        names = {field.name for field in dataclasses.fields(cls)}
+        own = {**defaults, **{k: v for k, v in kwargs.items() if k in names}}
+        return cls(**own), {k: v for k, v in kwargs.items() if k not in names}
 
 
 class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -135,23 +185,13 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             ValueError, TypeError: a bad option, or a signal the observation space cannot address.
         """
         formula = _as_formula(spec)
-        if reward not in REWARDS:
-            raise ValueError(f"reward must be one of {REWARDS}, got {reward!r}")
-        if reward_mode not in REWARD_MODES:
-            raise ValueError(f"reward_mode must be one of {REWARD_MODES}, got {reward_mode!r}")
-        if reward_mode != "terminal" and reward == "smooth":
-            raise ValueError(f"reward_mode={reward_mode!r} pays exact robustness increments; use reward='exact'")
-        check_discount(gamma)
-        check_positive("beta", beta)
-        check_positive("rho_max", rho_max, allow_inf=True)
-        check_positive("clip", clip)
+        settings = RewardSettings(reward=reward, beta=beta, rho_max=rho_max, reward_mode=reward_mode, clip=clip,
+                                  observe_monitor=observe_monitor, monitor_scale=monitor_scale, gamma=gamma)
         if not (isinstance(env_reward_weight, numbers.Real) and math.isfinite(env_reward_weight)):
             raise ValueError(f"env_reward_weight must be a finite number, got {env_reward_weight!r}")
         if not isinstance(env, gym.Env):
             raise TypeError(f"env must be a gymnasium.Env, got {type(env).__name__}")
         reader = _SignalReader(formula.signals, signals, env.observation_space)
-        if not isinstance(observe_monitor, bool):
-            raise TypeError(f"observe_monitor must be True or False, got {observe_monitor!r}")
         view = None
         if observe_monitor:
             horizon = _env_horizon(env) if horizon is None else horizon
@@ -168,12 +208,13 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if view is not None:
             self.observation_space = observation_space
         self.formula = formula
+        self.settings = settings
         self.reward = reward
-        self.beta = float(beta)
-        self.rho_max = float(rho_max)
+        self.beta = settings.beta
+        self.rho_max = settings.rho_max
         self.reward_mode = reward_mode
         self.env_reward_weight = float(env_reward_weight)
-        self.clip = float(clip)
+        self.clip = settings.clip
         self._reader = reader
         self.observe_monitor = observe_monitor
         self.monitor_view = view
@@ -181,7 +222,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._monitor: PrefixMonitor | None = view.monitor
         else:
             self._monitor = PrefixMonitor(formula, self.rho_max) if reward_mode != "terminal" else None
-        self.gamma = float(gamma)
+        self.gamma = settings.gamma
         self._potential = (
             HierarchicalPotential(formula, self.rho_max, monitor_scale) if reward_mode == "potential" else None
         )
