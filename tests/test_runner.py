@@ -270,3 +270,15 @@ def test_ray_missing_names_the_extra(tmp_path, monkeypatch):
     sweep = expand_config(config(tasks=[1], seeds=[0]))
     with pytest.raises(ImportError, match=r"tl_gym\[ray\]"):
         run_sweep(sweep, tmp_path, ray_address="auto")
+
+
+def test_folders_of_the_older_sweep_runner_stay_readable(tmp_path):
+    sweep = expand_config(config(tasks=[1], seeds=[0], agents=[{"label": "s", "agent": STAND_IN}]))
+    run_sweep(sweep, tmp_path, workers=0)
+    # the older runner's specs had save_agent (and agent names such as "sb3:PPO"); the reports still read them
+    manifest = json.loads((tmp_path / "sweep.json").read_text())
+    for spec in manifest["runs"].values():
+        spec["save_agent"] = False
+    (tmp_path / "sweep.json").write_text(json.dumps(manifest))
+    (run,) = results.load_runs(tmp_path)
+    assert run.spec == sweep.runs[0] and run.history["iteration"].tolist() == [1, 2, 3, 4]
