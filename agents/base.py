@@ -8,7 +8,7 @@ final subclasses that fill a few hooks. The base owns
 - the training loop `learn`, its progress bar, history and callbacks;
 - `evaluate` (through the free function `evaluate_policy`), `save` and `load`.
 
-A subclass implements `_make_config`, `_num_envs`, `_setup`, `_update` (one policy
+A subclass names its `config_class` and implements `_num_envs`, `_setup`, `_update` (one policy
 update; it returns that iteration's statistics), `predict`, `_config`,
 `_state_arrays`, `_extra_files` and `_load_state`.
 """
@@ -114,10 +114,13 @@ class Agent(abc.ABC):
         self._setup()
 
     # Hooks -------------------------------------------------------------------------
+    #: The agent's hyperparameter dataclass; it validates the values in ``__post_init__``.
+    config_class: type
+
     @classmethod
-    @abc.abstractmethod
     def _make_config(cls, hyperparameters: dict[str, Any]) -> Any:
-        """Validate the hyperparameters and return the agent's config; raise on bad values."""
+        """Validate the hyperparameters and return the agent's config; raise on bad values (`build_config`)."""
+        return build_config(cls.config_class, hyperparameters, cls.__name__)
 
     @abc.abstractmethod
     def _num_envs(self) -> int:

@@ -101,7 +101,7 @@ class EpisodicSearchConfig:
 
 
 class AbstractEpisodicSearch(Agent):
-    """Abstract agent over a `LinearGaussianPolicy`; subclasses define `_make_config` and `_update`.
+    """Abstract agent over a `LinearGaussianPolicy`; subclasses set `config_class` and define `_update`.
 
     The config is an `EpisodicSearchConfig` (a subclass of it).
     """

@@ -32,7 +32,6 @@ from scipy.special import logsumexp
 
 from tl_gym.checks import check_positive
 
-from .base import build_config
 from .episodic import AbstractEpisodicSearch, EpisodicSearchConfig
 from .sampling import rollout
 
@@ -130,10 +129,7 @@ class REPS(AbstractEpisodicSearch):
     """
 
     config: REPSConfig
-
-    @classmethod
-    def _make_config(cls, hyperparameters: dict[str, Any]) -> REPSConfig:
-        return build_config(REPSConfig, hyperparameters, cls.__name__)
+    config_class = REPSConfig
 
 
     def _update(self, iteration: int) -> dict[str, Any]:

@@ -51,7 +51,7 @@ import numpy as np
 from tl_gym.checks import check_positive
 from tl_gym.errors import IncompatibleSaveError
 
-from .base import Agent, _describe_env_source, build_config
+from .base import Agent, _describe_env_source
 from .sampling import env_attribute
 from .serialization import is_jsonable
 
@@ -473,6 +473,7 @@ class SB3Agent(Agent):
     """
 
     config: SB3Config
+    config_class = SB3Config
 
     def __init__(self, env: Any, algo: Any, *, seed: int | None = None, env_kwargs: Mapping[str, Any] | None = None,
                  steps_per_iteration: int | None = None, n_envs: int | None = None, policy: str | None = None,
@@ -518,10 +519,6 @@ class SB3Agent(Agent):
             self._env_source = _describe_env_source(env, self.env_kwargs)
         else:
             super().__init__(env, seed=seed, env_kwargs=env_kwargs, **hyperparameters)
-
-    @classmethod
-    def _make_config(cls, hyperparameters: dict[str, Any]) -> SB3Config:
-        return build_config(SB3Config, hyperparameters, cls.__name__)
 
     def _num_envs(self) -> int:
         return self.config.n_envs

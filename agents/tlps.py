@@ -39,7 +39,6 @@ from scipy.stats import spearmanr
 
 from tl_gym.checks import check_positive
 
-from .base import build_config
 from .episodic import AbstractEpisodicSearch, EpisodicSearchConfig
 from .sampling import rollout
 from .trust_region import check_trust_region, improve_trajectories
@@ -120,10 +119,7 @@ class TLPS(AbstractEpisodicSearch):
     """
 
     config: TLPSConfig
-
-    @classmethod
-    def _make_config(cls, hyperparameters: dict[str, Any]) -> TLPSConfig:
-        return build_config(TLPSConfig, hyperparameters, cls.__name__)
+    config_class = TLPSConfig
 
 
     @property
