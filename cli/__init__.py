@@ -5,6 +5,8 @@
 """
 
 from .arguments import build_parser, parse_hyperparameters, parse_signals, parse_value
-from .commands import build_env, main, make_agent
+from .commands import agent_for_run, build_env, main
 
-__all__ = ["build_env", "build_parser", "main", "make_agent", "parse_hyperparameters", "parse_signals", "parse_value"]
+__all__ = [
+    "agent_for_run", "build_env", "build_parser", "main", "parse_hyperparameters", "parse_signals", "parse_value",
+]

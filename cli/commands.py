@@ -40,8 +40,7 @@ import numpy as np
 from tl_gym.agents import Agent
 from tl_gym.agents.callbacks import as_callback, write_history
 from tl_gym.agents.evaluation import as_vector_env, collect_episodes, predictor_controller
-from tl_gym.agents.registry import is_episodic
-from tl_gym.agents.registry import make_agent as build_agent
+from tl_gym.agents.registry import is_episodic, make_agent
 from tl_gym.agents.sampling import env_attribute, run_episodes
 
 import tl_gym
@@ -81,11 +80,11 @@ def _tl_reward_env_kwargs(run: dict[str, Any]) -> dict[str, Any]:
     return dict(TL_REWARD_ENV_KWARGS[check_tl_reward(run["hyperparameters"].get("tl_reward", DEFAULT_TL_REWARD))])
 
 
-def make_agent(run: dict[str, Any]) -> Any:
+def agent_for_run(run: dict[str, Any]) -> Any:
     """Build the run's agent on its env (through the agent registry)."""
     env = build_env(run)
     env_kwargs = run["env_kwargs"] if isinstance(env, str) else None
-    return build_agent(run["agent"], env, seed=run["seed"], env_kwargs=env_kwargs, **run["hyperparameters"])
+    return make_agent(run["agent"], env, seed=run["seed"], env_kwargs=env_kwargs, **run["hyperparameters"])
 
 
 def default_iterations(agent: Any) -> int:
@@ -122,7 +121,7 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
     }
     if args.iterations is not None and args.iterations < 1:
         raise ValueError(f"--iterations must be >= 1, got {args.iterations}")
-    agent = make_agent(run)
+    agent = agent_for_run(run)
     run["iterations"] = iterations = default_iterations(agent) if args.iterations is None else args.iterations
     snapshots_at = (sorted({int(s) for s in args.snapshots.split(",")}) if args.snapshots
                     else default_snapshots(iterations))
