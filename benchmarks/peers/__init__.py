@@ -1,11 +1,13 @@
 """Adapters that evaluate the benchmark's task formulas with peer robustness libraries.
 
-One module per peer; each exposes ``NAME`` and ``evaluators(task, beta)``, which
+`load` gives each peer's adapter: its ``NAME`` and ``evaluators(task, beta)``, which
 imports the library (raising ImportError when it is not installed) and returns the
 `Evaluator` objects it can offer for that task: exact robustness, and smoothed
 robustness with its gradient where the library has one. A peer that cannot
 express a formula returns an `Unsupported` that says why, so the benchmark's
-table can show it. The peers are installed in their own virtualenv
+table can show it. The libraries that parse formula text (rtamt, argus, STLRom)
+are in `benchmarks.peers.text`, the tensor ones (stlcg++, stljax) in
+`benchmarks.peers.tensor`. The peers are installed in their own virtualenv
 (``benchmarks/requirements-peers.txt``), never in the project's.
 """
 
@@ -14,11 +16,15 @@ from __future__ import annotations
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
-from types import ModuleType
+from typing import NamedTuple
 
 import numpy as np
 
+#: The peers, by the name the benchmark's ``--peers`` takes.
 PEER_MODULES = ("rtamt", "argus", "stlrom", "stlcgpp", "stljax")
+_HOMES = {"rtamt": "text", "argus": "text", "stlrom": "text", "stlcgpp": "tensor", "stljax": "tensor"}
+
+Batch = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 @dataclass(frozen=True)
@@ -59,14 +65,19 @@ class Unsupported:
     reason: str
 
 
-def load(name: str) -> ModuleType:
-    """The adapter module of peer ``name`` (one of `PEER_MODULES`)."""
+class Peer(NamedTuple):
+    """A peer's adapter: the name the table prints and ``evaluators(task, beta)``."""
+
+    NAME: str
+    evaluators: Callable[..., list[Evaluator | Unsupported]]
+
+
+def load(name: str) -> Peer:
+    """The adapter of peer ``name`` (one of `PEER_MODULES`)."""
     if name not in PEER_MODULES:
         raise ValueError(f"unknown peer {name!r}; expected one of {', '.join(PEER_MODULES)}")
-    return importlib.import_module(f"benchmarks.peers.{name}")
-
-
-Batch = Callable[[np.ndarray, np.ndarray], np.ndarray]
+    module = importlib.import_module(f"benchmarks.peers.{_HOMES[name]}")
+    return Peer(module.NAMES[name], getattr(module, f"{name}_evaluators"))
 
 
 def per_trajectory(run_one: Callable[[np.ndarray, np.ndarray], float]) -> Batch:

@@ -1,0 +1,213 @@
+"""The peers that parse formula text: rtamt, argus and STLRom, exact robustness only.
+
+Each library's `Syntax` says how it writes the pieces of the tasks, and `specification`
+assembles them into one text: φ1 = ``F g ∧ G(d_o > r)``, and φ2 = ``g1 T (g2 T g3)``,
+``¬(g2 ∨ g3) U g1``, ``¬g3 U g2``, a no-revisit clause per goal and ``G(d_o > r)``.
+Where a library lacks an operator, the rewrite and its consequence are in its
+evaluators' docstring, and `Evaluator.expressed` carries them to the table.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Any
+
+import numpy as np
+
+from benchmarks.formulas import Task
+from benchmarks.peers import Evaluator, Unsupported, per_trajectory
+
+NAMES = {"rtamt": "rtamt", "argus": "argus", "stlrom": "stlrom"}
+Text = Callable[..., str]
+
+
+@dataclass(frozen=True)
+class Syntax:
+    """How a library writes the pieces of the tasks; each field maps its operands (texts) to text."""
+
+    name: str
+    box: Text  # a goal ψ_g, from a `benchmarks.formulas.Box`
+    distance: Text  # the obstacle distance d_o, from a `benchmarks.formulas.Circle`
+    always: Text
+    phi1: Text  # (g, avoid) -> F g ∧ avoid
+    sequence: Text  # (g1, g2, g3) -> g1 T (g2 T g3)
+    until: Text
+    always_after: Text  # X G φ
+    next: Text | None  # tl_gym's strong X; None: it cannot be written
+    not_: Text
+    and_: Text = "({} and {})".format
+    or_: Text = "({} or {})".format
+    implies: Text = "{} -> {}".format
+    join: str = " and "
+    wrap: Text = "{}".format
+
+
+def specification(task: Task, s: Syntax) -> str:
+    """``task`` in the library's syntax ``s``.
+
+    Raises:
+        ValueError: φ2 with the default no-revisit clause, and ``s`` cannot write X.
+    """
+    g = [s.box(b) for b in task.goals]
+    avoid = s.always(f"{s.distance(task.obstacle)} > {task.obstacle.r:.1f}")
+    if task.key == "phi1":
+        return s.wrap(s.phi1(g[0], avoid))
+    if s.next is None and not task.strict:
+        raise ValueError(f"{s.name} cannot express X, which φ2's default no-revisit clause needs")
+    clauses = [s.sequence(*g), s.until(s.not_(s.or_(g[1], g[2])), g[0]), s.until(s.not_(g[2]), g[1])]
+    for gi in g:
+        leaving = gi if task.strict else s.and_(gi, s.next(s.not_(gi)))  # type: ignore[misc]
+        clauses.append(s.always(s.implies(leaving, s.always_after(s.not_(gi)))))
+    clauses.append(avoid)
+    return s.wrap(s.join.join(f"({c})" for c in clauses))
+
+
+def _exact(name: str, run_one: Callable[[np.ndarray, np.ndarray], float], expressed: str) -> list:
+    return [Evaluator(name, "exact", per_trajectory(run_one), expressed),
+            Unsupported(name, "smooth+grad", "no smoothed semantics")]
+
+
+def _rtamt_next(phi: str) -> str:
+    return f"(not(next(not({phi}))))"  # tl_gym's strong next (−∞ at the last state) from rtamt's weak one
+
+
+def _rtamt_then(phi: str, later: str) -> str:
+    return f"eventually({phi} and {_rtamt_next(later)})"
+
+
+RTAMT = Syntax(
+    name="rtamt",
+    box="((x > {0.x_low:.1f}) and (x < {0.x_high:.1f}) and (y > {0.y_low:.1f}) and (y < {0.y_high:.1f}))".format,
+    distance="sqrt((x - {0.cx:.1f})*(x - {0.cx:.1f}) + (y - {0.cy:.1f})*(y - {0.cy:.1f}))".format,
+    always="always({})".format, phi1="(eventually{}) and ({})".format,
+    sequence=lambda g1, g2, g3: _rtamt_then(g1, _rtamt_then(g2, f"eventually{g3}")),
+    until="(({}) until {})".format, always_after=lambda phi: _rtamt_next(f"always({phi})"), next=_rtamt_next,
+    not_="not{}".format,
+)
+
+
+def rtamt_evaluators(task: Task, beta: float) -> list[Evaluator | Unsupported]:
+    """Exact φ1 and φ2 with rtamt (discrete-time offline STL monitor, pure Python).
+
+    rtamt's unbounded ``eventually``/``always`` range over [t, T) and its ``until`` is
+    tl_gym's non-strict scan ``U(t) = max(ψ(t), min(φ(t), U(t+1)))``, so φ1 and the
+    until clauses of φ2 are written literally. Two rewrites, both exact:
+
+    * rtamt has no ``then``: ``φ T ψ = F(φ & X F ψ)`` for temporal-free φ (the first φ
+      before a later ψ), and ``g1 T (g2 T g3) = F(g1 & X F(g2 & X F g3))``;
+    * rtamt's ``next`` is weak (+∞ at the last sample) while tl_gym's is strong (−∞), so
+      tl_gym's ``X φ`` is written ``not(next(not φ))``.
+
+    rtamt evaluates one trajectory per call on Python lists.
+    """
+    import rtamt
+
+    spec = rtamt.StlDiscreteTimeOfflineSpecification()
+    spec.declare_var("x", "float")
+    spec.declare_var("y", "float")
+    spec.spec = specification(task, RTAMT)
+    spec.parse()
+
+    def run_one(x: np.ndarray, y: np.ndarray) -> float:
+        return float(spec.evaluate({"time": list(range(len(x))), "x": x.tolist(), "y": y.tolist()})[0][1])
+
+    return _exact("rtamt", run_one, "" if task.key == "phi1" else "T as F(φ & X F ψ); X as not next not (exact)")
+
+
+ARGUS = Syntax(
+    name="argus", box="(x > {0.x_low:.1f} && x < {0.x_high:.1f} && y > {0.y_low:.1f} && y < {0.y_high:.1f})".format,
+    distance=lambda circle: "d", always="G({})".format, phi1="F{} && {}".format,
+    sequence=lambda g1, g2, g3: f"F({g1} && F[1,]F({g2} && F[1,]{g3}))",
+    until="(({}) U {})".format, always_after="G[1,]({})".format, next=None, not_="!{}".format,
+    and_="({} && {})".format, or_="({} || {})".format, join=" && ",
+)
+
+
+def argus_evaluators(task: Task, beta: float) -> list[Evaluator | Unsupported]:
+    """Exact φ1, and φ2 where its operators allow, with argus (``argus-temporal-logic``, Rust core).
+
+    Signals are piecewise constant (``interpolation_method="constant"``) on integer
+    times, which makes argus's dense-time ``F``/``G``/``U`` the discrete ones over
+    [t, T). Differences from the task's formula, all forced by argus 0.1.4:
+
+    * it has no ``sqrt``, so the obstacle distance ``d_o`` is computed with numpy and
+      passed as a third signal ``d`` (its cost is inside the timed call);
+    * its ``X`` fails an internal assertion on every trace we tried, and a bounded
+      ``F[a,b]``/``G[a,b]`` acts as ``F[a,]``/``G[a,]`` (``F[1,1.5] x > 0`` on x = 0, 3, 1, 5, 2
+      is 5 at t = 0), so ``X`` cannot be written at all. φ2-strict needs ``X`` only in
+      ``X G ¬g = G[1,] ¬g`` and ``T`` only as ``F(φ & F[1,] ψ)``; both hold the last sample
+      past the end where tl_gym's ``X`` is −∞, and the benchmark's equality check decides
+      whether that matters. φ2's default no-revisit clause needs ``X ¬g`` itself: not offered.
+    """
+    import argus
+
+    if task.key == "phi2":
+        reason = "X fails and bounded F[a,b] acts as F[a,] in argus 0.1.4: X !g cannot be written"
+        return [Unsupported("argus", "exact", reason), Unsupported("argus", "smooth+grad", "no smoothed semantics")]
+    expr = argus.parse_expr(specification(task, ARGUS))
+
+    def signal(times: list[float], values: np.ndarray) -> argus.FloatSignal:
+        return argus.FloatSignal.from_samples(list(zip(times, values.tolist())), interpolation_method="constant")
+
+    def run_one(x: np.ndarray, y: np.ndarray) -> float:
+        times = [float(t) for t in range(len(x))]
+        d = np.hypot(x - task.obstacle.cx, y - task.obstacle.cy)
+        trace = argus.Trace({"x": signal(times, x), "y": signal(times, y), "d": signal(times, d)})
+        return float(argus.eval_robust_semantics(expr, trace, interpolation_method="constant").at(0.0))
+
+    expressed = "d_o passed as a signal (no sqrt)"
+    if task.key != "phi1":
+        expressed += "; X G as G[1,], T as F(φ & F[1,] ψ) (its X is broken)"
+    return _exact("argus", run_one, expressed)
+
+
+def stlrom_syntax(length: int) -> Syntax:
+    """STLRom's syntax for trajectories of ``length`` samples (+1 duplicate): the horizon is in every operator."""
+    h = length
+    return Syntax(
+        name="stlrom", box="(x[t] > {0.x_low:.1f} and x[t] < {0.x_high:.1f} and y[t] > {0.y_low:.1f} "
+                           "and y[t] < {0.y_high:.1f})".format,
+        distance=lambda circle: "d[t]", always=f"alw_[0, {h}] ({{}})".format, phi1=f"ev_[0, {h}] {{}} and {{}}".format,
+        sequence=lambda g1, g2, g3: f"ev_[0, {h}] ({g1} and ev_[1, {h}] (ev_[0, {h}] ({g2} and ev_[1, {h}] {g3})))",
+        until=f"({{}}) until_[0, {h}] {{}}".format, always_after=f"alw_[1, {h}] ({{}})".format,
+        next="ev_[1, 1.5] ({})".format, not_="not {}".format, implies="{} => {}".format,
+        wrap="signal x, y, d\nphi := {}\n".format,
+    )
+
+
+def stlrom_evaluators(task: Task, beta: float) -> list[Evaluator | Unsupported]:
+    """Exact φ1 and an attempt at φ2 with STLRom (C++ online monitor, Breach's successor).
+
+    STLRom is dense-time. With ``PREVIOUS`` interpolation a signal holds each sample
+    until the next one, and one duplicate of the last sample at time T makes
+    ``ev_[0, T]``/``alw_[0, T]`` range over exactly the T samples, i.e. tl_gym's
+    F/G over [0, T); its ``until_`` then matches tl_gym's non-strict U. Its grammar
+    has no ``sqrt``, so the obstacle distance is computed with numpy and passed as a
+    third signal ``d`` (inside the timed call). It has no next operator: φ2 writes
+    ``X φ`` as ``ev_[1, 1.5] φ`` and ``φ T ψ`` as ``ev(φ and ev_[1, T] ψ)``, which see
+    the padded duplicate instead of −∞ after the last state; the benchmark's equality
+    check reports whether that changes φ2's value.
+    """
+    import stlrom
+
+    @lru_cache(maxsize=4)
+    def driver(length: int) -> Any:
+        d = stlrom.STLDriver()
+        d.parse_string(specification(task, stlrom_syntax(length)))
+        d.set_interpol("PREVIOUS")
+        return d
+
+    def run_one(x: np.ndarray, y: np.ndarray) -> float:
+        monitor = driver(len(x)).get_monitor("phi")  # a fresh monitor holds no samples
+        d = np.hypot(x - task.obstacle.cx, y - task.obstacle.cy)
+        samples = np.column_stack([np.arange(len(x) + 1.0), *(np.append(v, v[-1]) for v in (x, y, d))])
+        for sample in samples.tolist():
+            monitor.add_sample(sample)
+        return float(monitor.eval_rob(0.0))
+
+    expressed = "d_o passed as a signal (no sqrt)"
+    if task.key != "phi1":
+        expressed += "; X as ev_[1,1.5], T as ev(φ and ev_[1,T] ψ) (no next)"
+    return _exact("stlrom", run_one, expressed)
