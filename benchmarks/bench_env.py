@@ -18,8 +18,9 @@ import argparse
 import os
 import platform
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -73,59 +74,58 @@ class Clock:
 
 
 Timing = tuple[float, float]  # (cpu seconds, wall seconds)
+XY = {"x": 0, "y": 1}
+
+
+def best(timings: Iterable[Timing]) -> Timing:
+    """Smallest CPU and smallest wall time."""
+    cpu, wall = zip(*timings)
+    return min(cpu), min(wall)
 
 
 def best_of(repeats: int, fn: Callable[[], Timing]) -> Timing:
     """Smallest CPU and smallest wall time over ``repeats`` runs of ``fn``."""
-    runs = [fn() for _ in range(repeats)]
-    return min(r[0] for r in runs), min(r[1] for r in runs)
+    return best(fn() for _ in range(repeats))
 
 
-def time_episodes(env, actions: np.ndarray, episodes: int) -> Timing:
-    """Seconds for ``episodes`` full episodes (reset excluded), stepping ``actions[t]``."""
+def time_episodes(env: Any, actions: np.ndarray, episodes: int, terminal: bool = True) -> Timing:
+    """Seconds for ``episodes`` full episodes, stepping ``actions[t]``; resets (and autoreset steps) not timed.
+
+    Without ``terminal``, the seconds per step of the non-terminal steps (the terminal step and its evaluation
+    are stepped, not timed).
+    """
     env.reset(seed=0)
-    clock = Clock()
+    clock, timed = Clock(), HORIZON if terminal else HORIZON - 1
     for _ in range(episodes):
         with clock:
-            for t in range(HORIZON):
+            for t in range(timed):
                 env.step(actions[t])
-        env.reset()
-    return clock.cpu, clock.wall
+        for t in range(timed, HORIZON):
+            env.step(actions[t])
+        env.step(actions[0]) if isinstance(env, gym.vector.VectorEnv) else env.reset()  # NEXT_STEP autoreset
+    steps = 1 if terminal else episodes * timed
+    return clock.cpu / steps, clock.wall / steps
 
 
-def time_vector(envs, actions: np.ndarray, episodes: int) -> Timing:
-    """Seconds for ``episodes`` episodes of every sub-env, autoreset steps excluded."""
-    envs.reset(seed=0)
-    clock = Clock()
-    for _ in range(episodes):
-        with clock:
-            for t in range(HORIZON):
-                envs.step(actions[t])
-        envs.step(actions[0])  # the NEXT_STEP autoreset step
-    return clock.cpu, clock.wall
+def interleaved_steps(envs: dict[str, Any], actions: np.ndarray, rounds: int, episodes: int) -> dict[str, Timing]:
+    """Best per-step time of each env, their runs interleaved so that all see the same background load."""
+    runs: dict[str, list[Timing]] = {name: [] for name in envs}
+    for _ in range(rounds):
+        for name, env in envs.items():
+            runs[name].append(time_episodes(env, actions, episodes, terminal=False))
+    return {name: best(timings) for name, timings in runs.items()}
 
 
-def time_steps_split(env, actions: np.ndarray, episodes: int) -> tuple[Timing, Timing]:
-    """Per-step seconds of non-terminal steps, and seconds of the terminal step."""
-    body, last = Clock(), Clock()
-    env.reset(seed=0)
-    for _ in range(episodes):
-        with body:
-            for t in range(HORIZON - 1):
-                env.step(actions[t])
-        with last:
-            env.step(actions[HORIZON - 1])
-        env.reset()
-    steps = episodes * (HORIZON - 1)
-    return (body.cpu / steps, body.wall / steps), (last.cpu / episodes, last.wall / episodes)
+def _minus(a: Timing, b: Timing, scale: float = 1.0) -> Timing:
+    return (a[0] - b[0]) * scale, (a[1] - b[1]) * scale
 
 
 def _rate(count: float, timing: Timing) -> str:
     return f"{count / timing[0]:,.0f} | {count / timing[1]:,.0f}"
 
 
-def _micro(timing: Timing, scale: float = 1.0) -> str:
-    return f"{timing[0] * scale * 1e6:.2f} us | {timing[1] * scale * 1e6:.2f} us"
+def _micro(timing: Timing) -> str:
+    return f"{timing[0] * 1e6:.2f} us | {timing[1] * 1e6:.2f} us"
 
 
 def main() -> None:
@@ -133,29 +133,27 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="fewer episodes and repeats (about 20 s)")
     args = parser.parse_args()
     repeats, episodes = (3, 2) if args.quick else (7, 5)
+    half = max(1, episodes // 2)
     rng = np.random.default_rng(0)
     actions = rng.uniform(-1, 1, size=(HORIZON, 2)).astype(np.float32)
     batch_actions = rng.uniform(-1, 1, size=(HORIZON, NUM_ENVS, 2)).astype(np.float32)
-    rows: list[tuple[str, str]] = []
 
     # --- car steps per second ----------------------------------------------------------------
     single = gym.make("TLCarNav-v0", disable_env_checker=True)
     t_single = best_of(repeats, lambda: time_episodes(single, actions, episodes))
-    sync = gym.make_vec("TLCarNav-v0", num_envs=NUM_ENVS, vectorization_mode="sync")
-    sync_episodes = max(1, episodes // 2)
-    t_sync = best_of(repeats, lambda: time_vector(sync, batch_actions, sync_episodes))
-    t_batched = {}
-    for task in (1, 2):
-        batched = CarNavVectorEnv(num_envs=NUM_ENVS, task=task)
-        t_batched[task] = best_of(repeats, lambda b=batched: time_vector(b, batch_actions, episodes))
-    batched_steps = episodes * HORIZON * NUM_ENVS
-    sync_steps = sync_episodes * HORIZON * NUM_ENVS
+
+    def vector_time(envs: gym.vector.VectorEnv, n: int) -> Timing:  # n episodes of every car
+        return best_of(repeats, lambda: time_episodes(envs, batch_actions, n))
+
+    t_sync = vector_time(gym.make_vec("TLCarNav-v0", num_envs=NUM_ENVS, vectorization_mode="sync"), half)
+    t_batched = {task: vector_time(CarNavVectorEnv(num_envs=NUM_ENVS, task=task), episodes) for task in (1, 2)}
+    batched_steps, sync_steps = episodes * HORIZON * NUM_ENVS, half * HORIZON * NUM_ENVS
     speedup = [(batched_steps / t_batched[1][i]) / (sync_steps / t_sync[i]) for i in (0, 1)]
-    rows += [
+    rows = [
         ("single env (gym.make, task 1), car steps/s", _rate(episodes * HORIZON, t_single)),
         (f"SyncVectorEnv({NUM_ENVS}) (task 1), car steps/s", _rate(sync_steps, t_sync)),
-        (f"CarNavVectorEnv({NUM_ENVS}) task 1, car steps/s", _rate(batched_steps, t_batched[1])),
-        (f"CarNavVectorEnv({NUM_ENVS}) task 2, car steps/s", _rate(batched_steps, t_batched[2])),
+        *((f"CarNavVectorEnv({NUM_ENVS}) task {task}, car steps/s", _rate(batched_steps, t_batched[task]))
+          for task in (1, 2)),
         (f"CarNavVectorEnv({NUM_ENVS}) / SyncVectorEnv({NUM_ENVS}) (task 1)", f"{speedup[0]:.0f}x | {speedup[1]:.0f}x"),
         (f"CarNavVectorEnv({NUM_ENVS}) task 1, one 200-step episode of {NUM_ENVS} cars",
          f"{t_batched[1][0] / episodes * 1e3:.1f} ms | {t_batched[1][1] / episodes * 1e3:.1f} ms"),
@@ -163,16 +161,10 @@ def main() -> None:
 
     # --- wrapper overhead ----------------------------------------------------------------------
     for name, make_bare in (("do-nothing env", Idle), ("bare car", lambda: CarNavEnv(task=1))):
-        bare, wrapped = make_bare(), TLTLRewardWrapper(make_bare(), task_formula(1), signals={"x": 0, "y": 1})
-        bare_runs, wrapped_runs = [], []
-        for _ in range(3 * repeats):  # interleaved, so that both see the same background load
-            bare_runs.append(time_steps_split(bare, actions, episodes)[0])
-            wrapped_runs.append(time_steps_split(wrapped, actions, episodes)[0])
-        bare_step = (min(r[0] for r in bare_runs), min(r[1] for r in bare_runs))
-        wrapped_step = (min(r[0] for r in wrapped_runs), min(r[1] for r in wrapped_runs))
-        overhead = (wrapped_step[0] - bare_step[0], wrapped_step[1] - bare_step[1])
-        rows.append((f"wrapper overhead per step on a {name}", _micro(overhead)))
-    rows.append(("  (bare car step)", _micro(bare_step)))
+        envs = {"bare": make_bare(), "wrapped": TLTLRewardWrapper(make_bare(), task_formula(1), signals=XY)}
+        step = interleaved_steps(envs, actions, 3 * repeats, episodes)
+        rows.append((f"wrapper overhead per step on a {name}", _micro(_minus(step["wrapped"], step["bare"]))))
+    rows.append(("  (bare car step)", _micro(step["bare"])))
     for task in (1, 2):
         trace = {"x": np.linspace(0, 300, HORIZON + 1), "y": np.linspace(0, 300, HORIZON + 1)}
         formula = task_formula(task)
@@ -181,34 +173,26 @@ def main() -> None:
     fallback = parse("G(x > 210 -> F(y > 225)) & F G(y > 200)")  # outside the incremental fragment
     for name, formula in (("task 1", task_formula(1)), ("task 2", task_formula(2)),
                           ("task 2 strict", task_formula(2, "strict")), (str(fallback), fallback)):
-        dense = TLTLRewardWrapper(Idle(), formula, signals={"x": 0, "y": 1}, reward_mode="dense")
-        dense_step, _ = _best_split(dense, actions, max(1, repeats // 2), max(1, episodes // 2))
+        dense = TLTLRewardWrapper(Idle(), formula, signals=XY, reward_mode="dense")
+        dense_step = best(time_episodes(dense, actions, half, terminal=False) for _ in range(max(1, repeats // 2)))
         kind = "incremental" if dense._monitor.incremental else "re-evaluated prefix, O(t)"
         rows.append((f"dense mode per step, {name} ({kind})", _micro(dense_step)))
 
     # --- the Markov view (observe_monitor=True) --------------------------------------------------
     for task in (1, 2):
-        def wrap(task: int = task, **kwargs: object) -> TLTLRewardWrapper:
-            return TLTLRewardWrapper(Idle(), task_formula(task), signals={"x": 0, "y": 1}, horizon=HORIZON, **kwargs)
-
-        envs = {"terminal": wrap(), "dense": wrap(reward_mode="dense"),
-                "view": wrap(reward_mode="dense", observe_monitor=True, monitor_scale=100.0)}
-        runs: dict[str, list[Timing]] = {name: [] for name in envs}
-        for _ in range(3 * repeats):  # interleaved, so that all see the same background load
-            for name, env in envs.items():
-                runs[name].append(time_steps_split(env, actions, max(1, episodes // 2))[0])
-        best = {name: (min(r[0] for r in rs), min(r[1] for r in rs)) for name, rs in runs.items()}
+        views = {"terminal": {}, "dense": {"reward_mode": "dense"},
+                 "view": {"reward_mode": "dense", "observe_monitor": True, "monitor_scale": 100.0}}
+        envs = {name: TLTLRewardWrapper(Idle(), task_formula(task), signals=XY, horizon=HORIZON, **kwargs)
+                for name, kwargs in views.items()}
+        step = interleaved_steps(envs, actions, 3 * repeats, half)
         for base in ("terminal", "dense"):
-            overhead = (best["view"][0] - best[base][0], best["view"][1] - best[base][1])
             rows.append((f"Markov view (dense + observe_monitor) per step, task {task}, over the {base} mode",
-                         _micro(overhead)))
-        plain = CarNavVectorEnv(num_envs=NUM_ENVS, task=task)
-        viewed = CarNavVectorEnv(num_envs=NUM_ENVS, task=task, observe_monitor=True, reward_mode="dense")
-        t_plain = best_of(repeats, lambda b=plain: time_vector(b, batch_actions, max(1, episodes // 2)))
-        t_viewed = best_of(repeats, lambda b=viewed: time_vector(b, batch_actions, max(1, episodes // 2)))
-        car_steps = max(1, episodes // 2) * HORIZON * NUM_ENVS
-        per_car = ((t_viewed[0] - t_plain[0]) / car_steps, (t_viewed[1] - t_plain[1]) / car_steps)
-        rows.append((f"Markov view per car step, CarNavVectorEnv({NUM_ENVS}) task {task}", _micro(per_car)))
+                         _micro(_minus(step["view"], step[base]))))
+        t_plain = vector_time(CarNavVectorEnv(num_envs=NUM_ENVS, task=task), half)
+        t_viewed = vector_time(CarNavVectorEnv(num_envs=NUM_ENVS, task=task, observe_monitor=True, reward_mode="dense"),
+                               half)
+        rows.append((f"Markov view per car step, CarNavVectorEnv({NUM_ENVS}) task {task}",
+                     _micro(_minus(t_viewed, t_plain, 1 / (half * HORIZON * NUM_ENVS)))))
 
     _report(rows, args.quick)
 
@@ -219,13 +203,6 @@ def _time_calls(fn: Callable[[], object], n: int) -> Timing:
         for _ in range(n):
             fn()
     return clock.cpu / n, clock.wall / n
-
-
-def _best_split(env, actions: np.ndarray, repeats: int, episodes: int) -> tuple[Timing, Timing]:
-    results = [time_steps_split(env, actions, episodes) for _ in range(repeats)]
-    body = (min(r[0][0] for r in results), min(r[0][1] for r in results))
-    last = (min(r[1][0] for r in results), min(r[1][1] for r in results))
-    return body, last
 
 
 def _report(rows: list[tuple[str, str]], quick: bool) -> None:
