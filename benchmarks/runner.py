@@ -33,6 +33,7 @@ import argparse
 import concurrent.futures as futures
 import dataclasses
 import fnmatch
+import functools
 import hashlib
 import io
 import itertools
@@ -46,7 +47,7 @@ import sys
 import tempfile
 import time
 import traceback
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -162,115 +163,119 @@ def expand_config(data: Mapping[str, Any], variant: str | None = None, source: s
         ConfigError: unknown keys, bad types or values, an unknown agent name, a label the
             hyperparameters cannot fill, or two runs with one spec; the message names the culprit.
     """
-    def fail(message: str) -> ConfigError:
-        return ConfigError(f"{source}: {message}")
+    try:
+        return _expand(data, variant, overrides or {})
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
 
-    _check_keys(data, TOP_KEYS, "top level", fail)
-    variants = _table(data.get("variants", {}), "variants", fail)
+
+def _expand(data: Mapping[str, Any], variant: str | None, overrides: Mapping[str, Any]) -> Sweep:
+    _check_keys(data, TOP_KEYS, "top level")
+    variants = _table(data.get("variants", {}), "variants")
     for name, table in variants.items():  # all checked, not only the one asked for
-        _check_keys(_table(table, f"variants.{name}", fail), VARIANT_KEYS, f"variants.{name}", fail)
+        _check_keys(_table(table, f"variants.{name}"), VARIANT_KEYS, f"variants.{name}")
     if variant is not None and variant not in variants:
-        raise fail(f"no variant {variant!r}; the config has {sorted(variants)}")
-    _check_keys(overrides or {}, VARIANT_KEYS, "overrides", fail)
-    top = {**INHERITED, "env_kwargs": {}, **data, **variants.get(variant, {}), **(overrides or {})}
+        raise ConfigError(f"no variant {variant!r}; the config has {sorted(variants)}")
+    _check_keys(overrides, VARIANT_KEYS, "overrides")
+    top = {**INHERITED, "env_kwargs": {}, **data, **variants.get(variant, {}), **overrides}
     for key in ("name", "env"):
         if not isinstance(top.get(key), str) or not top[key]:
-            raise fail(f"'{key}' must be a non-empty string, got {top.get(key)!r}")
+            raise ConfigError(f"'{key}' must be a non-empty string, got {top.get(key)!r}")
     if not isinstance(top.get("agents"), list) or not top["agents"]:
-        raise fail("no [[agents]] entries")
+        raise ConfigError("no [[agents]] entries")
     runs: list[RunSpec] = []
     for index, entry in enumerate(top["agents"]):
         where = f"agents[{index}]"
-        entry = _check_keys(_table(entry, where, fail), AGENT_KEYS, where, fail)
-        changes = _table(_table(entry.get("variants", {}), f"{where}.variants", fail).get(variant, {}),
-                         f"{where}.variants.{variant}", fail)
-        _check_keys(changes, AGENT_KEYS, f"{where}.variants.{variant}", fail)
-        hyper = {**_table(entry.get("hyperparameters", {}), f"{where}.hyperparameters", fail),
-                 **_table(changes.get("hyperparameters", {}), f"{where}.variants.{variant}.hyperparameters", fail)}
+        entry = _check_keys(_table(entry, where), AGENT_KEYS, where)
+        at = f"{where}.variants.{variant}"
+        changes = _check_keys(_table(_table(entry.get("variants", {}), f"{where}.variants").get(variant, {}), at),
+                              AGENT_KEYS, at)
+        hyper = {**_table(entry.get("hyperparameters", {}), f"{where}.hyperparameters"),
+                 **_table(changes.get("hyperparameters", {}), f"{at}.hyperparameters")}
         entry = {**entry, **changes, "hyperparameters": hyper}
         if not entry.get("skip", False):
-            runs.extend(_expand_agent(entry, top, where, fail))
+            runs.extend(_expand_agent(entry, top, where))
     ids = [run.run_id for run in runs]
     duplicates = sorted({i for i in ids if ids.count(i) > 1})
     if duplicates:
-        raise fail(f"the same run appears twice: {duplicates} (two agents with one label and hyperparameters?)")
+        raise ConfigError(f"the same run appears twice: {duplicates} (two agents with one label and hyperparameters?)")
     if not runs:
-        raise fail(f"variant {variant!r} skips every agent")
+        raise ConfigError(f"variant {variant!r} skips every agent")
     return Sweep(top["name"] + (f"-{variant}" if variant else ""), str(top.get("description", "")), tuple(runs))
 
 
-def _check_keys(table: Mapping[str, Any], valid: set[str], where: str, fail: Any) -> dict[str, Any]:
+def _check_keys(table: Mapping[str, Any], valid: set[str], where: str) -> dict[str, Any]:
     unknown = sorted(set(table) - valid)
     if unknown:
-        raise fail(f"{where}: unknown key(s) {unknown}; valid: {sorted(valid)}")
+        raise ConfigError(f"{where}: unknown key(s) {unknown}; valid: {sorted(valid)}")
     return dict(table)
 
 
-def _table(value: Any, where: str, fail: Any) -> dict[str, Any]:
+def _table(value: Any, where: str) -> dict[str, Any]:
     if not isinstance(value, Mapping):
-        raise fail(f"{where} must be a table, got {value!r}")
+        raise ConfigError(f"{where} must be a table, got {value!r}")
     return dict(value)
 
 
-def _ints(value: Any, where: str, fail: Any, minimum: int) -> list[int]:
+def _ints(value: Any, where: str, minimum: int) -> list[int]:
     if not isinstance(value, list) or not value or not all(
             isinstance(v, int) and not isinstance(v, bool) and v >= minimum for v in value):
-        raise fail(f"{where} must be a non-empty list of ints >= {minimum}, got {value!r}")
+        raise ConfigError(f"{where} must be a non-empty list of ints >= {minimum}, got {value!r}")
     return value
 
 
-def _budget(value: Any, task: int | None, where: str, fail: Any) -> int:
+def _budget(value: Any, task: int | None, where: str) -> int:
     """An ``iterations`` value: an int, or a table by task (``{ 1 = 30, 2 = 50 }``)."""
     if isinstance(value, Mapping):
         value = value.get(str(task))
     if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-        raise fail(f"{where}: iterations must be an int >= 1 (or a table of them by task), got {value!r}"
-                   + (f" for task {task}" if task is not None else ""))
+        raise ConfigError(f"{where}: iterations must be an int >= 1 (or a table of them by task), got {value!r}"
+                          + (f" for task {task}" if task is not None else ""))
     return value
 
 
-def _check_agent(name: Any, where: str, fail: Any) -> str:
+def _check_agent(name: Any, where: str) -> str:
     from tl_gym.agents.registry import SB3_ALGORITHMS, check_agent_name, is_episodic
 
     try:
         check_agent_name(name)
     except ValueError as exc:
-        raise fail(f"{where}: {exc}") from None
+        raise ConfigError(f"{where}: {exc}") from None
     if ":" not in name and not is_episodic(name) and name.lower() not in SB3_ALGORITHMS:
-        raise fail(f"{where}: unknown agent {name!r}: use tlps, reps, an SB3 algorithm "
-                   f"({', '.join(SB3_ALGORITHMS)}) or package.module:Name")
+        raise ConfigError(f"{where}: unknown agent {name!r}: use tlps, reps, an SB3 algorithm "
+                          f"({', '.join(SB3_ALGORITHMS)}) or package.module:Name")
     return name
 
 
-def _expand_agent(entry: dict[str, Any], top: Mapping[str, Any], where: str, fail: Any) -> list[RunSpec]:
+def _expand_agent(entry: dict[str, Any], top: Mapping[str, Any], where: str) -> list[RunSpec]:
     settings = {key: entry.get(key, top.get(key)) for key in INHERITED}
-    agent = _check_agent(entry.get("agent"), f"{where}.agent", fail)
+    agent = _check_agent(entry.get("agent"), f"{where}.agent")
     label = entry.get("label", agent)
-    grid = _table(entry.get("grid", {}), f"{where}.grid", fail)
+    grid = _table(entry.get("grid", {}), f"{where}.grid")
     for key, values in grid.items():
         if not isinstance(values, list) or not values:
-            raise fail(f"{where}.grid.{key} must be a non-empty list, got {values!r}")
-    env_kwargs = {**_table(top["env_kwargs"], "env_kwargs", fail),
-                  **_table(entry.get("env_kwargs", {}), f"{where}.env_kwargs", fail)}
-    tasks = [None] if settings["tasks"] is None else _ints(settings["tasks"], f"{where}.tasks", fail, 1)
+            raise ConfigError(f"{where}.grid.{key} must be a non-empty list, got {values!r}")
+    env_kwargs = {**_table(top["env_kwargs"], "env_kwargs"),
+                  **_table(entry.get("env_kwargs", {}), f"{where}.env_kwargs")}
+    tasks = [None] if settings["tasks"] is None else _ints(settings["tasks"], f"{where}.tasks", 1)
     seeds = settings["seeds"]
     if isinstance(seeds, int) and not isinstance(seeds, bool) and seeds >= 1:
         seeds = list(range(seeds))  # seeds = 5 means seeds 0..4
-    seeds = _ints(seeds, f"{where}.seeds", fail, 0)
+    seeds = _ints(seeds, f"{where}.seeds", 0)
     trajectory_iterations = settings["trajectory_iterations"] or []
     if trajectory_iterations:
-        _ints(trajectory_iterations, f"{where}.trajectory_iterations", fail, 0)
+        _ints(trajectory_iterations, f"{where}.trajectory_iterations", 0)
     runs = []
     for combo in itertools.product(*grid.values()):
         values = {**entry["hyperparameters"], **dict(zip(grid, combo))}
         try:
             run_label = label.format(**values)
         except (KeyError, IndexError, ValueError) as exc:
-            raise fail(f"{where}.label {label!r} cannot be filled from {values}: {exc}") from None
+            raise ConfigError(f"{where}.label {label!r} cannot be filled from {values}: {exc}") from None
         for task in tasks:
             # an agent's own budget can only lower the config's (e.g. SAC), so a variant's cap holds for all
-            iterations = min(_budget(settings["iterations"], task, where, fail),
-                             _budget(top["iterations"], task, "top level", fail))
+            iterations = min(_budget(settings["iterations"], task, where),
+                             _budget(top["iterations"], task, "top level"))
             for seed in seeds:
                 runs.append(RunSpec(
                     env=top["env"], env_kwargs=env_kwargs if task is None else {**env_kwargs, "task": task},
@@ -390,13 +395,19 @@ def code_version() -> str:
     import tl_gym
 
     root = Path(tl_gym.__file__).resolve().parents[1]
-    try:
-        commit, dirty = (subprocess.run(["git", *args], cwd=root, capture_output=True, text=True, check=True)
-                         .stdout.strip() for args in (["rev-parse", "--short", "HEAD"],
-                                                      ["status", "--porcelain", "--", "tl_gym", "agents", "envs"]))
-    except (OSError, subprocess.CalledProcessError):
+    commit = git("rev-parse", "--short", "HEAD", cwd=root)
+    if commit is None:
         return tl_gym.__version__
+    dirty = git("status", "--porcelain", "--", "tl_gym", "agents", "envs", cwd=root)
     return f"{tl_gym.__version__} ({commit}{'+dirty' if dirty else ''})"
+
+
+def git(*args: str, cwd: str | Path | None = None) -> str | None:
+    """The output of ``git ARGS`` (stripped), or None outside a checkout or without git."""
+    try:
+        return subprocess.run(["git", *args], cwd=cwd, capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None
 
 
 def write_atomic(path: str | Path, data: bytes) -> None:
@@ -447,13 +458,15 @@ class SweepReport:
     failed: dict[str, str] = dataclasses.field(default_factory=dict)
     wall_time: float = 0.0
 
-    def settle(self, run: RunSpec, error: BaseException | None) -> None:
-        """Count one run as finished, or as failed with its traceback."""
-        if error is None:
-            self.finished.append(run.run_id)
-        else:
+    def attempt(self, run: RunSpec, work: Callable[[], Any]) -> None:
+        """Call ``work`` and count ``run`` as finished, or as failed with the traceback of what it raised."""
+        try:
+            work()
+        except Exception as error:  # noqa: BLE001 - one failed run must not stop the sweep
             self.failed[run.run_id] = "".join(traceback.format_exception(type(error), error, error.__traceback__))
             print(f"run {run.run_id} failed: {type(error).__name__}: {error}", file=sys.stderr)
+        else:
+            self.finished.append(run.run_id)
 
 
 def run_sweep(sweep: Sweep, out_dir: str | Path, workers: int | None = None, ray_address: str | None = None,
@@ -485,12 +498,7 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, workers: int | None = None, ray
         _run_on_ray(pending, out_dir, ray_address, report)
     elif pending and workers == 0:
         for run in pending:
-            try:
-                execute_run(run, out_dir / "runs" / run.run_id)
-            except Exception as error:  # noqa: BLE001 - one failed run must not stop the sweep
-                report.settle(run, error)
-            else:
-                report.settle(run, None)
+            report.attempt(run, functools.partial(execute_run, run, out_dir / "runs" / run.run_id))
     elif pending:
         # spawn: a fresh interpreter per worker, no torch/thread state inherited through fork
         with futures.ProcessPoolExecutor(min(workers or os.cpu_count() or 1, len(pending)),
@@ -498,7 +506,7 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, workers: int | None = None, ray
             jobs = {pool.submit(execute_run, run.to_json(), str(out_dir / "runs" / run.run_id)): run
                     for run in pending}
             for done, job in enumerate(futures.as_completed(jobs), 1):
-                report.settle(jobs[job], job.exception())
+                report.attempt(jobs[job], job.result)
                 print(f"{sweep.name}: {done}/{len(pending)} runs", file=sys.stderr, flush=True)
     report.wall_time = time.perf_counter() - start
     return report
@@ -518,12 +526,7 @@ def _run_on_ray(pending: Sequence[RunSpec], out_dir: Path, address: str, report:
     while refs:
         (ref,), _ = ray.wait(list(refs), num_returns=1)
         run = refs.pop(ref)
-        try:
-            install_files(ray.get(ref), out_dir / "runs" / run.run_id)
-        except Exception as error:  # noqa: BLE001 - one failed run must not stop the sweep
-            report.settle(run, error)
-        else:
-            report.settle(run, None)
+        report.attempt(run, lambda ref=ref, run=run: install_files(ray.get(ref), out_dir / "runs" / run.run_id))
 
 
 def default_out_dir(sweep: Sweep) -> Path:
@@ -531,32 +534,50 @@ def default_out_dir(sweep: Sweep) -> Path:
     return Path("runs") / "sweeps" / sweep.name
 
 
+# Command lines ----------------------------------------------------------------------------------------------------
+def add_sweep_options(parser: argparse.ArgumentParser) -> None:
+    """The options of every command that runs sweeps (this one, `benchmarks.reproduce_paper`, `benchmarks.suite`)."""
+    parser.add_argument("--workers", type=int, help="local processes (default: CPU count; 0: here, serially)")
+    parser.add_argument("--ray", metavar="ADDRESS", help='run on Ray: "auto", "ray://host:10001" or "local"')
+    parser.add_argument("--quick", action="store_true", help="same as --variant quick (CI-sized)")
+    parser.add_argument("--variant", help="apply the configs' [variants.VARIANT] overrides")
+    parser.add_argument("--only", action="append", default=[], metavar="PATTERN",
+                        help='run only labels matching this shell pattern, e.g. "TLPS*" (repeatable)')
+
+
+def variant_of(parser: argparse.ArgumentParser, args: argparse.Namespace) -> str | None:
+    """The config variant that `add_sweep_options`'s options ask for, after checking them."""
+    if args.quick and args.variant not in (None, "quick"):
+        parser.error("--quick is --variant quick; give one of them")
+    if args.workers is not None and args.workers < 0:
+        parser.error(f"--workers must be >= 0, got {args.workers}")
+    return "quick" if args.quick else args.variant
+
+
+def run_with_options(sweep: Sweep, out_dir: str | Path, args: argparse.Namespace) -> SweepReport:
+    """`run_sweep` with `add_sweep_options`'s options; the failed runs' tracebacks go to stderr."""
+    report = run_sweep(sweep, out_dir, workers=args.workers, ray_address=args.ray, only=args.only)
+    for run_id, text in report.failed.items():
+        print(f"--- {run_id} failed:\n{text}", file=sys.stderr)
+    return report
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Command line (see the module docstring)."""
     parser = argparse.ArgumentParser(prog="python -m benchmarks.runner", description=__doc__.split("\n")[0])
     parser.add_argument("config", help="a TOML config, e.g. benchmarks/configs/paper.toml")
     parser.add_argument("--out", type=Path, help="results folder (default runs/sweeps/<name>[-<variant>])")
-    parser.add_argument("--workers", type=int, help="local processes (default: CPU count; 0: here, serially)")
-    parser.add_argument("--ray", metavar="ADDRESS", help='run on Ray: "auto", "ray://host:10001" or "local"')
-    parser.add_argument("--quick", action="store_true", help="same as --variant quick (CI-sized)")
-    parser.add_argument("--variant", help="apply the config's [variants.VARIANT] overrides")
-    parser.add_argument("--only", action="append", default=[], metavar="PATTERN",
-                        help='run only labels matching this shell pattern, e.g. "TLPS*" (repeatable)')
+    add_sweep_options(parser)
     args = parser.parse_args(argv)
-    if args.quick and args.variant not in (None, "quick"):
-        parser.error("--quick is --variant quick; give one of them")
-    if args.workers is not None and args.workers < 0:
-        parser.error(f"--workers must be >= 0, got {args.workers}")
+    variant = variant_of(parser, args)
     try:
-        sweep = load_config(args.config, variant="quick" if args.quick else args.variant)
+        sweep = load_config(args.config, variant=variant)
     except ConfigError as exc:
         parser.error(str(exc))
     out_dir = args.out or default_out_dir(sweep)
-    report = run_sweep(sweep, out_dir, workers=args.workers, ray_address=args.ray, only=args.only)
+    report = run_with_options(sweep, out_dir, args)
     print(f"{sweep.name}: {len(report.finished)} run(s) finished, {len(report.skipped)} already done, "
           f"{len(report.failed)} failed, {report.wall_time:.1f} s; results in {out_dir}")
-    for run_id, text in report.failed.items():
-        print(f"--- {run_id} failed:\n{text}", file=sys.stderr)
     return 1 if report.failed else 0
 
 
