@@ -49,14 +49,8 @@ def plot_learning_curves(
             if not members:
                 continue
             for ax, key in ((top, "mean_robustness"), (bottom, "success_rate")):
-                iterations, values = stack(members, key)
-                mean, low, high = mean_band(values)
-                if key == "success_rate":  # a rate's band stays within [0, 1]
-                    low, high = np.clip(low, 0.0, 1.0), np.clip(high, 0.0, 1.0)
-                marker = "o" if len(iterations) <= 5 else None  # short budgets (SAC) stay visible
-                ax.plot(iterations, mean, color=colors[label], lw=1.5, marker=marker, markersize=4,
-                        label=f"{label} ({len(members)})")
-                ax.fill_between(iterations, low, high, color=colors[label], alpha=0.2, lw=0)
+                plot_band(ax, *stack(members, key), colors[label], f"{label} ({len(members)})",
+                          rate=key == "success_rate")
         top.axhline(0.0, color="0.4", lw=0.8, ls="--")
         top.set_title(f"task {task}" if task is not None else "")
         top.set_ylabel("mean exact robustness")
@@ -69,6 +63,19 @@ def plot_learning_curves(
     return _saved(fig, path)
 
 
+def plot_band(ax: Any, x: np.ndarray, values: np.ndarray, color: Any, label: str, rate: bool = False,
+              markersize: float = 4) -> None:
+    """The mean over seeds of ``values`` ``(seeds, len(x))`` against ``x``, with its 95% band ([0, 1] for a rate).
+
+    Short curves (five points or fewer, e.g. a cut SAC budget) get markers, so that they stay visible.
+    """
+    mean, low, high = mean_band(values)
+    if rate:
+        low, high = np.clip(low, 0.0, 1.0), np.clip(high, 0.0, 1.0)
+    ax.plot(x, mean, color=color, lw=1.5, marker="o" if len(x) <= 5 else None, markersize=markersize, label=label)
+    ax.fill_between(x, low, high, color=color, alpha=0.2, lw=0)
+
+
 def plot_trajectory_distribution(run: RunResult, path: str | Path | None = None, title: str | None = None) -> Figure:
     """The sampled x-y paths of one run at its recorded iterations, mean ± 2σ, lighter = earlier.
 
@@ -76,6 +83,7 @@ def plot_trajectory_distribution(run: RunResult, path: str | Path | None = None,
         ValueError: the run recorded no trajectories (its config has no ``trajectory_iterations``).
     """
     from tl_gym.agents.plotting import plot_trajectories
+    from tl_gym.envs.rendering import draw_layout
 
     traces = run.traces()
     iterations = sorted({int(key[2:].split("_", 1)[0]) for key in traces})
@@ -84,18 +92,17 @@ def plot_trajectory_distribution(run: RunResult, path: str | Path | None = None,
     snapshots = [(it, {"x": traces[f"it{it}_x"], "y": traces[f"it{it}_y"]}) for it in iterations]
     layout = env_layout(run.spec.env, dict(run.spec.env_kwargs))
 
-    def background(ax: Any) -> None:
-        from tl_gym.envs.rendering import draw_layout
+    layout_patches = []
 
+    def background(ax: Any) -> None:
         draw_layout(ax, layout)
+        layout_patches.extend(ax.patches)
 
     fig = plot_trajectories(snapshots, background=background, title=title)
     ax = fig.axes[0]
     # early iterations spread over the whole arena: fainter bands, and the layout drawn again on top
-    for patch in ax.patches[len(_layout_patches(layout)):]:
+    for patch in ax.patches[len(layout_patches):]:
         patch.set_alpha(0.15)
-    from tl_gym.envs.rendering import draw_layout
-
     before = len(ax.patches)
     draw_layout(ax, layout, labels=False, alpha=0.45)
     for patch in ax.patches[before:]:
@@ -108,15 +115,6 @@ def plot_trajectory_distribution(run: RunResult, path: str | Path | None = None,
         success = float(np.mean(traces[f"it{it}_robustness"] > 0))
         text.set_text(f"iteration {it}" + (" (initial)" if it == 0 else "") + f": success {success:.0%}")
     return _saved(fig, path)
-
-
-def _layout_patches(layout: Any) -> list[Any]:
-    """The patches `draw_layout` adds for ``layout`` (counted on a scratch Axes)."""
-    from tl_gym.envs.rendering import draw_layout
-
-    ax = Figure().add_subplot()
-    draw_layout(ax, layout)
-    return list(ax.patches)
 
 
 def env_layout(env: str, env_kwargs: dict[str, Any]) -> Any:

@@ -17,6 +17,8 @@ Usage::
     python -m benchmarks.reproduce_paper --quick              # CI smoke test; writes to runs/results-quick
     python -m benchmarks.reproduce_paper --seeds 3 --iterations 30 --workers 2
     python -m benchmarks.reproduce_paper --no-run             # only rewrite the pages from results on disk
+
+It takes the runner's sweep options too (``--workers``, ``--ray``, ``--only``; `benchmarks.runner`).
 """
 
 from __future__ import annotations
@@ -25,16 +27,13 @@ import argparse
 import datetime
 import os
 import platform
-import subprocess
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from benchmarks import figures, results
-from benchmarks.runner import Sweep, default_out_dir, load_config, run_sweep
+from benchmarks.runner import Sweep, add_sweep_options, default_out_dir, git, load_config, run_with_options, variant_of
 
 CONFIGS = Path(__file__).parent / "configs"
 PAPER, ABLATIONS = CONFIGS / "paper.toml", CONFIGS / "ablations.toml"
@@ -46,83 +45,69 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Command line (see the module docstring)."""
     parser = argparse.ArgumentParser(prog="python -m benchmarks.reproduce_paper",
                                      description="Reproduce the paper's Figures 2 and 3 and the ablations.")
-    parser.add_argument("--quick", action="store_true",
-                        help="CI smoke test: variant quick, pages to runs/results-quick")
-    parser.add_argument("--variant", help='config variant, e.g. "session" (the reduced grid in the docs)')
+    add_sweep_options(parser)
     parser.add_argument("--seeds", type=int, help="seeds per curve (overrides the config's)")
     parser.add_argument("--iterations", type=int, help="iterations per run (caps every agent's)")
-    parser.add_argument("--workers", type=int, help="local worker processes (default: CPU count)")
-    parser.add_argument("--ray", metavar="ADDRESS", help="run the sweeps on Ray")
-    parser.add_argument("--no-ablations", action="store_true", help="skip the ablation sweep")
     parser.add_argument("--no-run", action="store_true", help="do not run: write the pages from results on disk")
-    parser.add_argument("--docs", type=Path, help="where the pages go (default docs/results, or runs/results-quick)")
     args = parser.parse_args(argv)
-    if args.quick and args.variant not in (None, "quick"):
-        parser.error("--quick is --variant quick; give one of them")
+    variant = variant_of(parser, args)
     for name in ("seeds", "iterations"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             parser.error(f"--{name} must be >= 1")
-    variant = "quick" if args.quick else args.variant
     overrides = {k: v for k, v in (("seeds", args.seeds), ("iterations", args.iterations)) if v is not None}
-    docs = args.docs or (Path("runs/results-quick") if args.quick else Path("docs/results"))
-    configs = [PAPER] + ([] if args.no_ablations else [ABLATIONS])
-    failed = 0
+    docs = Path("runs/results-quick") if args.quick else Path("docs/results")
     command = "python -m benchmarks.reproduce_paper " + " ".join(sys.argv[1:] if argv is None else argv)
-    for config in configs:
+    failed = 0
+    writers: dict[Path, Callable[[Sequence[results.RunResult], Path, str], list[Path]]] = {
+        PAPER: write_paper, ABLATIONS: write_ablations}
+    for config, write in writers.items():
         sweep = load_config(config, variant=variant, overrides=overrides)
         out_dir = default_out_dir(sweep)
         if not args.no_run:
-            report = run_sweep(sweep, out_dir, workers=args.workers, ray_address=args.ray)
-            failed += len(report.failed)
-            for run_id, text in report.failed.items():
-                print(f"--- {run_id} failed:\n{text}", file=sys.stderr)
+            failed += len(run_with_options(sweep, out_dir, args).failed)
         runs = results.load_runs(out_dir)
         if not runs:
             print(f"{sweep.name}: no finished runs in {out_dir}; nothing written", file=sys.stderr)
             continue
-        context = Provenance(sweep, config, out_dir, command.strip(), runs)
-        written = write_paper(runs, docs, context) if config == PAPER else write_ablations(runs, docs, context)
+        written = write(runs, docs, provenance(sweep, config, out_dir, command.strip(), runs))
         print(f"{sweep.name}: {len(runs)}/{len(sweep.runs)} runs finished; wrote {', '.join(map(str, written))}")
     return 1 if failed else 0
 
 
-class Provenance:
-    """What produced a results page: command, config, variant, commit, machine, runs."""
-
-    def __init__(self, sweep: Sweep, config: Path, out_dir: Path, command: str, runs: Sequence[results.RunResult]):
-        self.sweep, self.config, self.out_dir, self.command, self.runs = sweep, config, out_dir, command, runs
-
-    def markdown(self) -> str:
-        """A short paragraph and a list of curves with their seeds and budgets."""
-        described = results.describe_runs(self.runs)
-        finished = {run.spec.run_id for run in self.runs}
-        missing = sum(run.run_id not in finished for run in self.sweep.runs)
-        variant = self.sweep.name.partition("-")[2]
-        versions: dict[str, int] = {}
-        for run in self.runs:
-            key = run.summary.get("code", "not recorded")
-            versions[key] = versions.get(key, 0) + 1
-        code = "; ".join(f"{key}: {count} run(s)" for key, count in versions.items())
-        lines = [
-            f"**Reduced grid** (config variant `{variant}`): fewer seeds and, where noted, smaller budgets than "
-            "the full benchmark (`python -m benchmarks.reproduce_paper`); see the table below for what ran.\n"
-            if variant else "",
-            f"Produced by `{self.command}` from `{_relative(self.config)}` (sweep `{self.sweep.name}`, "
-            f"results in `{self.out_dir}`), tl_gym at commit `{_git_commit()}`, on "
-            f"{os.cpu_count()} CPU cores ({platform.machine()}, Python {platform.python_version()}), "
-            f"written {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC. "
-            f"Code of the runs: {code}. {len(self.runs)} finished runs"
-            + (f"; {missing} run(s) of the grid not finished yet." if missing else "."),
-            "",
-            "| curve | agent | hyperparameters | env kwargs | seeds | iterations |",
-            "|---|---|---|---|---|---|",
-        ]
-        for label, entry in described["labels"].items():
-            hyper = ", ".join(f"{k}={v}" for k, v in entry["hyperparameters"].items()) or "defaults"
-            env = ", ".join(f"{k}={v}" for k, v in entry["env_kwargs"].items()) or "–"
-            seeds = ", ".join(str(s) for s in sorted(entry["seeds"]))
-            lines.append(f"| {label} | `{entry['agent']}` | {hyper} | {env} | {seeds} | {entry['iterations']} |")
-        return "\n".join(lines)
+def provenance(sweep: Sweep, config: Path, out_dir: Path, command: str, runs: Sequence[results.RunResult]) -> str:
+    """What produced a results page (command, config, variant, commit, machine), and its curves' seeds and budgets."""
+    finished = {run.spec.run_id for run in runs}
+    missing = sum(run.run_id not in finished for run in sweep.runs)
+    variant = sweep.name.partition("-")[2]
+    versions: dict[str, int] = {}
+    for run in runs:
+        key = run.summary.get("code", "not recorded")
+        versions[key] = versions.get(key, 0) + 1
+    code = "; ".join(f"{key}: {count} run(s)" for key, count in versions.items())
+    lines = [
+        f"**Reduced grid** (config variant `{variant}`): fewer seeds and, where noted, smaller budgets than "
+        "the full benchmark (`python -m benchmarks.reproduce_paper`); see the table below for what ran.\n"
+        if variant else "",
+        f"Produced by `{command}` from `{_relative(config)}` (sweep `{sweep.name}`, "
+        f"results in `{out_dir}`), tl_gym at commit `{git('rev-parse', '--short', 'HEAD') or 'unknown'}`, on "
+        f"{os.cpu_count()} CPU cores ({platform.machine()}, Python {platform.python_version()}), "
+        f"written {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC. "
+        f"Code of the runs: {code}. {len(runs)} finished runs"
+        + (f"; {missing} run(s) of the grid not finished yet." if missing else "."),
+        "",
+        "| curve | agent | hyperparameters | env kwargs | seeds | iterations |",
+        "|---|---|---|---|---|---|",
+    ]
+    labels: dict[str, list[results.RunResult]] = {}
+    for run in runs:
+        labels.setdefault(run.spec.label, []).append(run)
+    for label, members in labels.items():
+        spec = members[0].spec
+        hyper = ", ".join(f"{k}={v}" for k, v in spec.hyperparameters.items()) or "defaults"
+        env = ", ".join(f"{k}={v}" for k, v in spec.env_kwargs.items() if k != "task") or "–"
+        seeds = ", ".join(str(s) for s in sorted({run.spec.seed for run in members}))
+        lines.append(f"| {label} | `{spec.agent}` | {hyper} | {env} | {seeds} | {spec.iterations} |")
+    return "\n".join(lines)
 
 
 HOW_TO_READ = (
@@ -135,71 +120,48 @@ HOW_TO_READ = (
 )
 
 
-def write_paper(runs: Sequence[results.RunResult], docs: Path, context: Provenance) -> list[Path]:
+def _page(title: str, context: str, body: Sequence[str], images: str, intro: Sequence[str] = (),
+          tail: Sequence[str] = ()) -> str:
+    return "\n".join([f"# {title}", "", *intro, context, "", *body, "", HOW_TO_READ, "", images, "", *tail])
+
+
+def write_paper(runs: Sequence[results.RunResult], docs: Path, context: str) -> list[Path]:
     """Write the per-task tables, the claims, Figure 3 and the Figure-2 plots; return the paths."""
     docs.mkdir(parents=True, exist_ok=True)
     written = [docs / "fig3_learning_curves.png"]
     figures.plot_learning_curves(runs, written[0], title="Exact robustness of the sampled episodes (Figure 3)")
-    tables = results.summaries_by_task(runs)
-    for task, rows in tables.items():
-        figure = docs / f"fig2_trajectories_task{task}.png"
+    for task, rows in results.summaries_by_task(runs).items():
+        images = "![learning curves](fig3_learning_curves.png)"
         default = [r for r in runs if r.task == task and r.spec.label == DEFAULT_TLPS and r.spec.trajectory_iterations]
         if default:
             run = min(default, key=lambda r: r.spec.seed)
+            written.append(docs / f"fig2_trajectories_task{task}.png")
             figures.plot_trajectory_distribution(
-                run, figure, title=f"Task {task}: {DEFAULT_TLPS}, seed {run.spec.seed}, sampled paths (mean ± 2σ)")
-            written.append(figure)
-        page = docs / f"paper_task{task}.md"
-        page.write_text("\n".join([
-            f"# Task {task}: TLPS vs REPS vs stable-baselines3",
-            "",
-            context.markdown(),
-            "",
-            "## Results",
-            "",
-            results.markdown_table(rows),
-            "",
-            HOW_TO_READ,
-            "",
-            "![learning curves](fig3_learning_curves.png)" + (f"\n\n![trajectories]({figure.name})" if default else ""),
-            "",
-            "## The paper's claims against these runs",
-            "",
-            claims(task, rows),
-            "",
-        ]))
-        written.append(page)
+                run, written[-1], title=f"Task {task}: {DEFAULT_TLPS}, seed {run.spec.seed}, sampled paths (mean ± 2σ)")
+            images += f"\n\n![trajectories]({written[-1].name})"
+        written.append(docs / f"paper_task{task}.md")
+        written[-1].write_text(_page(f"Task {task}: TLPS vs REPS vs stable-baselines3", context,
+                                     ["## Results", "", results.markdown_table(rows)], images,
+                                     tail=["## The paper's claims against these runs", "", claims(task, rows), ""]))
     return written
 
 
-def write_ablations(runs: Sequence[results.RunResult], docs: Path, context: Provenance) -> list[Path]:
+def write_ablations(runs: Sequence[results.RunResult], docs: Path, context: str) -> list[Path]:
     """Write the ablation tables and curves; return the paths."""
     docs.mkdir(parents=True, exist_ok=True)
     figure = docs / "ablations_learning_curves.png"
     figures.plot_learning_curves(runs, figure, title="TLPS ablations (exact robustness of sampled episodes)")
     sections = [f"## Task {task}\n\n{results.markdown_table(rows)}"
                 for task, rows in results.summaries_by_task(runs).items()]
+    intro = ("Weights (`hybrid`, the default, against `importance` and the paper's literal `paper` form), the "
+             "exploration schedule (a decaying floor on the policy's std, `exploration_floor`) against the default, "
+             "fixed feedback gains (the paper keeps K_t fixed and learns k_t, C_t; these arms run the paper's "
+             "K_t = 0, open loop, pinned with feedback=\"open\" in the config; the `heading feedback K` arm steers "
+             "against the heading, steering action −1.0·θ) and task 2 "
+             "with `no_revisit=\"strict\"` (Eq. 19 literally). Every TLPS arm changes one thing from the default, "
+             "so compare each with the `weights=hybrid` row.")
     page = docs / "ablations.md"
-    page.write_text("\n".join([
-        "# TLPS ablations",
-        "",
-        "Weights (`hybrid`, the default, against `importance` and the paper's literal `paper` form), the "
-        "exploration schedule (a decaying floor on the policy's std, `exploration_floor`) against the default, "
-        "fixed feedback gains (the paper keeps K_t fixed and learns k_t, C_t; these arms run the paper's "
-        "K_t = 0, open loop, pinned with feedback=\"open\" in the config; the `heading feedback K` arm steers "
-        "against the heading, steering action −1.0·θ) and task 2 "
-        "with `no_revisit=\"strict\"` (Eq. 19 literally). Every TLPS arm changes one thing from the default, "
-        "so compare each with the `weights=hybrid` row.",
-        "",
-        context.markdown(),
-        "",
-        *sections,
-        "",
-        HOW_TO_READ,
-        "",
-        f"![ablation curves]({figure.name})",
-        "",
-    ]))
+    page.write_text(_page("TLPS ablations", context, sections, f"![ablation curves]({figure.name})", [intro, ""]))
     return [page, figure]
 
 
@@ -221,7 +183,7 @@ def claims(task: Any, rows: Sequence[results.GroupSummary]) -> str:
         what = "mean ρ > 0" if task == 1 else "success ≥ 80%"
         parts = [f"β = {beta:g}: {results.first_text(getattr(row, key))}, final success {row.final_success:.0%}"
                  for beta, row in betas]
-        medians = [_median(getattr(row, key)) for _, row in betas]
+        medians = [results.median_first(getattr(row, key)) for _, row in betas]
         if any(m is None for m in medians):
             verdict = "not every β got there"
         elif all(b <= a for a, b in zip(medians, medians[1:])) and medians[-1] <= 0.8 * medians[0]:
@@ -243,12 +205,11 @@ def claims(task: Any, rows: Sequence[results.GroupSummary]) -> str:
 
 
 def _claim(text: str, firsts: Sequence[int | None], paper: int, what: str) -> str:
-    reached = [f for f in firsts if f is not None]
-    if not reached:
+    median = results.median_first(firsts)
+    if median is None:
         verdict = f"**not reproduced**: no seed reached {what}"
     else:
-        median = float(np.median(reached))
-        share = f"{len(reached)}/{len(firsts)} seeds"
+        share = f"{sum(f is not None for f in firsts)}/{len(firsts)} seeds"
         verdict = (f"**agrees** ({share}, median iteration {median:g} ≤ {paper})" if median <= paper
                    else f"**slower than the paper** ({share}, median iteration {median:g} > {paper})")
     return f"- *{text}.* {verdict}."
@@ -275,16 +236,9 @@ def _ahead(a: results.GroupSummary, b: results.GroupSummary) -> str:
             f"{min(reached_a)}–{max(reached_a)}, {b.label} {min(reached_b)}–{max(reached_b)})")
 
 
-def _median(firsts: Sequence[int | None]) -> float | None:
-    reached = [f for f in firsts if f is not None]
-    return float(np.median(reached)) if reached else None
-
-
 def _beta(label: str) -> float | None:
-    if not label.startswith("TLPS β="):
-        return None
     try:
-        return float(label.split("=", 1)[1])
+        return float(label.removeprefix("TLPS β=")) if label.startswith("TLPS β=") else None
     except ValueError:
         return None
 
@@ -298,14 +252,6 @@ def _relative(path: Path) -> str:
         return str(path.resolve().relative_to(Path.cwd()))
     except ValueError:
         return str(path)
-
-
-def _git_commit() -> str:
-    try:
-        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True)
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-    return out.stdout.strip()
 
 
 if __name__ == "__main__":

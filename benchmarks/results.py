@@ -16,6 +16,8 @@ Example:
     ([1.0, 2.0], True)
     >>> first_iteration(np.array([1, 2, 3]), np.array([-1.0, 0.5, 2.0]), 0.0)
     2
+    >>> median_first([4, None, 8]), first_text([4, None, 8]), first_text([None])
+    (6.0, '6 (2/3)', 'never (0/1)')
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ import csv
 import dataclasses
 import json
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -183,12 +185,17 @@ def summarise(task: Any, label: str, runs: Sequence[RunResult]) -> GroupSummary:
     )
 
 
+def median_first(firsts: Sequence[int | None]) -> float | None:
+    """Median first iteration over the seeds that got there (None: no seed did)."""
+    reached = [f for f in firsts if f is not None]
+    return float(np.median(reached)) if reached else None
+
+
 def first_text(firsts: Sequence[int | None]) -> str:
     """Median first iteration over the seeds that got there, and how many did."""
-    reached = [f for f in firsts if f is not None]
-    if not reached:
-        return f"never (0/{len(firsts)})"
-    return f"{np.median(reached):g} ({len(reached)}/{len(firsts)})"
+    median = median_first(firsts)
+    reached = sum(f is not None for f in firsts)
+    return f"never (0/{len(firsts)})" if median is None else f"{median:g} ({reached}/{len(firsts)})"
 
 
 def markdown_table(rows: Sequence[GroupSummary]) -> str:
@@ -215,21 +222,6 @@ def summaries_by_task(runs: Iterable[RunResult]) -> dict[Any, list[GroupSummary]
     for (task, label), members in group_runs(runs).items():
         tables.setdefault(task, []).append(summarise(task, label, members))
     return tables
-
-
-def describe_runs(runs: Sequence[RunResult]) -> Mapping[str, Any]:
-    """Provenance for a results page: run count, iterations, seeds, distinct hyperparameters per label."""
-    labels: dict[str, dict[str, Any]] = {}
-    for run in runs:
-        entry = labels.setdefault(run.spec.label, {
-            "agent": run.spec.agent,
-            "hyperparameters": dict(run.spec.hyperparameters),
-            "env_kwargs": {k: v for k, v in run.spec.env_kwargs.items() if k != "task"},
-            "iterations": run.spec.iterations,
-            "seeds": set(),
-        })
-        entry["seeds"].add(run.spec.seed)
-    return {"runs": len(runs), "labels": labels}
 
 
 def per_seed_table(runs: Sequence[RunResult], task: Any) -> str:

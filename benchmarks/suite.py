@@ -13,6 +13,8 @@ Usage::
     python -m benchmarks.suite --quick                # CI smoke run (tiny), results in runs/ only
     python -m benchmarks.suite --tasks car1 pendulum  # some tasks
     python -m benchmarks.suite --report-only          # redraw from finished runs
+
+It takes the runner's sweep options too (``--workers``, ``--ray``, ``--only``; `benchmarks.runner`).
 """
 
 from __future__ import annotations
@@ -26,8 +28,9 @@ import numpy as np
 from matplotlib import colormaps
 from matplotlib.figure import Figure
 
-from benchmarks.results import RunResult, group_runs, load_runs, mean_band
-from benchmarks.runner import load_config, run_sweep
+from benchmarks.figures import plot_band
+from benchmarks.results import RunResult, group_runs, load_runs
+from benchmarks.runner import add_sweep_options, load_config, run_with_options, variant_of
 
 HERE = Path(__file__).resolve().parent
 CONFIGS = HERE / "configs" / "suite"
@@ -73,11 +76,8 @@ def plot_task(name: str, runs: Sequence[RunResult], path: Path | None) -> Figure
         steps, values = eval_curve(members)
         if not steps.size:
             continue
-        mean, low, high = mean_band(values)
-        color = colormaps["tab10"](i % 10)
-        ax.plot(steps, mean, color=color, lw=1.5, marker="o" if len(steps) <= 5 else None, markersize=3,
-                label=f"{label} ({len(members)} seeds)")
-        ax.fill_between(steps, np.clip(low, 0, 1), np.clip(high, 0, 1), color=color, alpha=0.2, lw=0)
+        plot_band(ax, steps, values, colormaps["tab10"](i % 10), f"{label} ({len(members)} seeds)", rate=True,
+                  markersize=3)
     ax.axhline(SOLVED, color="0.4", lw=0.8, ls="--")
     ax.set_xlabel("env steps")
     ax.set_ylabel("success on fresh episodes (ρ > 0)")
@@ -165,15 +165,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Command line (see the module docstring)."""
     parser = argparse.ArgumentParser(prog="python -m benchmarks.suite", description=__doc__.split("\n")[0])
     parser.add_argument("--tasks", nargs="*", default=[], help="config stems to run (default: all)")
-    parser.add_argument("--variant", help="the configs' [variants.VARIANT] (e.g. session)")
-    parser.add_argument("--quick", action="store_true", help="CI smoke run: variant quick, no docs written")
-    parser.add_argument("--workers", type=int, default=None, help="local processes (default: CPU count)")
-    parser.add_argument("--out", default="runs/suite", help="results directory")
+    parser.add_argument("--out", default="runs/suite", help="results directory (--quick: the report too)")
     parser.add_argument("--report-only", action="store_true", help="only redraw the report from finished runs")
-    parser.add_argument("--only", action="append", default=[], metavar="PATTERN",
-                        help='run only labels matching this shell pattern, e.g. "PPO*" (repeatable)')
+    add_sweep_options(parser)
     args = parser.parse_args(argv)
-    variant = "quick" if args.quick else args.variant
+    variant = variant_of(parser, args)
     results: dict[str, tuple[str, list[RunResult]]] = {}
     planned: dict[str, list[str]] = {}
     failed = 0
@@ -181,10 +177,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         sweep = load_config(path, variant=variant)
         out_dir = Path(args.out) / sweep.name
         if not args.report_only:
-            report = run_sweep(sweep, out_dir, workers=args.workers, only=args.only)
-            failed += len(report.failed)
-            for run_id, text in report.failed.items():
-                print(f"--- {run_id} failed:\n{text}", file=sys.stderr)
+            failed += len(run_with_options(sweep, out_dir, args).failed)
         runs = load_runs(out_dir) if (out_dir / "sweep.json").is_file() else []
         results[path.stem] = (sweep.description or path.stem, runs)  # a task without runs says so
         planned[path.stem] = list(dict.fromkeys(run.label for run in sweep.runs))
