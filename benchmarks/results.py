@@ -27,7 +27,7 @@ import csv
 import dataclasses
 import json
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -224,46 +224,41 @@ def summaries_by_task(runs: Iterable[RunResult]) -> dict[Any, list[GroupSummary]
     return tables
 
 
-def per_seed_table(runs: Sequence[RunResult], task: Any) -> str:
+def per_seed_table(rows: Sequence[Mapping[str, Any]], task: Any) -> str:
     """Per-label markdown table of ``task``: each seed's first iteration at the target, their median, final evaluation.
 
-    The target is mean ρ > 0 on task 1 and success ≥ 80 % otherwise; the median counts a seed that
-    never got there as infinite (shown "–"). Evaluation columns are the stochastic policy's (``eval_stochastic``).
+    ``rows`` are `per_seed_rows`'. The target is mean ρ > 0 on task 1 and success ≥ 80 % otherwise; the median
+    counts a seed that never got there as infinite (shown "–"). Evaluation columns are the stochastic policy's.
     """
-    key, what = (0, "mean ρ > 0 at") if task == 1 else (1, "80 % at")
+    key, what = ("first_rho_positive", "mean ρ > 0 at") if task == 1 else ("first_success_80", "80 % at")
     lines = [f"| variant | seeds | {what} (per seed) | median | eval success | median eval success | eval mean ρ |",
              "|---|---|---|---|---|---|---|"]
-    for (group_task, label), members in group_runs(runs).items():
-        if group_task != task:
-            continue
-        members = sorted(members, key=lambda run: run.spec.seed)
-        firsts = [_firsts(run)[key] for run in members]
+    labels: dict[str, list[Mapping[str, Any]]] = {}
+    for row in rows:
+        if row["task"] == task:
+            labels.setdefault(row["variant"], []).append(row)
+    for label, members in labels.items():
+        members = sorted(members, key=lambda row: row["seed"])
+        firsts = [row[key] for row in members]
         median = float(np.median([math.inf if f is None else f for f in firsts]))
-        evals = [run.summary["eval_stochastic"] for run in members]
-        success = [e["success_rate"] for e in evals]
+        success = [row["eval_success_stochastic"] for row in members]
         lines.append(f"| {label} | {len(members)} | {', '.join('–' if f is None else str(f) for f in firsts)} | "
                      f"{'–' if math.isinf(median) else f'{median:g}'} | {min(success):.1%}–{max(success):.1%} | "
-                     f"{np.median(success):.1%} | {np.mean([e['mean_robustness'] for e in evals]):.2f} |")
+                     f"{np.median(success):.1%} | {np.mean([row['eval_rho_stochastic'] for row in members]):.2f} |")
     return "\n".join(lines)
-
-
-def _firsts(run: RunResult) -> tuple[int | None, int | None]:
-    iterations = run.history["iteration"]
-    return (first_iteration(iterations, run.history["mean_robustness"], 0.0),
-            first_iteration(iterations, run.history["success_rate"], SUCCESS_TARGET, strict=False))
 
 
 def per_seed_rows(runs: Sequence[RunResult]) -> list[dict[str, Any]]:
     """One ``summary.csv`` row per run: first iterations at the targets, best and final batch, final evaluation."""
     rows = []
     for run in runs:
-        success, rho = run.history["success_rate"], run.history["mean_robustness"]
-        positive, success_80 = _firsts(run)
+        iterations, success, rho = (run.history[k] for k in ("iteration", "success_rate", "mean_robustness"))
         stochastic, deterministic = run.summary["eval_stochastic"], run.summary["eval_deterministic"]
         rows.append({
             "task": run.task, "variant": run.spec.label, "seed": run.spec.seed, "iterations": len(success),
-            "first_rho_positive": positive, "first_success_80": success_80, "best_success": float(success.max()),
-            "final_success": float(success[-1]), "final_rho": float(rho[-1]),
+            "first_rho_positive": first_iteration(iterations, rho, 0.0),
+            "first_success_80": first_iteration(iterations, success, SUCCESS_TARGET, strict=False),
+            "best_success": float(success.max()), "final_success": float(success[-1]), "final_rho": float(rho[-1]),
             "eval_success_stochastic": stochastic["success_rate"],
             "eval_success_deterministic": deterministic["success_rate"],
             "eval_rho_stochastic": stochastic["mean_robustness"],
@@ -280,10 +275,10 @@ def write_per_seed_report(runs: Sequence[RunResult], out: str | Path) -> list[Pa
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    rows = per_seed_rows(sorted(runs, key=lambda run: (run.task, run.spec.label, run.spec.seed)))
-    write_history(rows, out / "summary.csv")
+    rows = per_seed_rows(runs)
+    write_history(sorted(rows, key=lambda row: (row["task"], row["variant"], row["seed"])), out / "summary.csv")
     tasks = list(dict.fromkeys(run.task for run in runs))
-    (out / "tables.md").write_text("\n".join(f"### Task {task}\n\n{per_seed_table(runs, task)}\n" for task in tasks))
+    (out / "tables.md").write_text("\n".join(f"### Task {task}\n\n{per_seed_table(rows, task)}\n" for task in tasks))
     return [out / "tables.md", out / "summary.csv", *(path for task in tasks
                                                       for path in figures.plot_seed_panels(runs, task, out))]
 

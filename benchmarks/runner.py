@@ -7,18 +7,13 @@ Usage::
     python -m benchmarks.runner benchmarks/configs/research.toml --only "spread_*" --out DIR
     python -m benchmarks.runner benchmarks/configs/paper.toml --ray auto        # on a Ray cluster
 
-Every run gets a folder ``OUT/runs/<run_id>`` (`RunSpec.run_id`)::
-
-    spec.json          the spec, written first
-    history.csv        one row per iteration, rewritten atomically after each (live progress)
-    trajectories.npz   sampled signal traces at ``trajectory_iterations`` (Figure-2 plots), optional
-    done.json          summary (final batch, evaluation, wall time); written last, atomically
-
-``done.json`` is the only mark of a finished run: a rerun skips finished runs and restarts the
-others from scratch, so killing a sweep loses at most the runs in flight. ``OUT/sweep.json``
-lists the runs of the config, which is what `benchmarks.results` reports. Locally the runs go
-to a process pool (one torch thread each); with ``--ray`` each run is a Ray task that returns
-its files to the driver, so workers need tl_gym installed but no shared filesystem.
+Every run gets a folder ``OUT/runs/<run_id>`` (`RunSpec.run_id`): ``spec.json`` first, ``history.csv``
+rewritten atomically after each iteration, ``trajectories.npz`` (sampled signal traces, optional), and
+``done.json`` (the summary) last, atomically. ``done.json`` is the only mark of a finished run: a rerun
+skips finished runs and restarts the others from scratch, so killing a sweep loses at most the runs in
+flight. ``OUT/sweep.json`` lists the config's runs for `benchmarks.results`. Runs go to a local process
+pool (one torch thread each) or, with ``--ray``, to Ray tasks that return their files to the driver.
+``docs/benchmarks.md`` describes the config keys and the files.
 
 Example:
     >>> spec = RunSpec(env="TLCarNav-v0", env_kwargs={"task": 1}, agent="tlps", label="TLPS",
