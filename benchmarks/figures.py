@@ -19,12 +19,7 @@ from matplotlib.figure import Figure
 from benchmarks.results import RunResult, group_runs, mean_band, stack
 
 
-def plot_learning_curves(
-    runs: Sequence[RunResult],
-    path: str | Path | None = None,
-    labels: Sequence[str] | None = None,
-    title: str | None = None,
-) -> Figure:
+def plot_learning_curves(runs: Sequence[RunResult], path: str | Path | None = None, title: str | None = None) -> Figure:
     """Mean exact robustness (top row) and success rate (bottom row) per iteration, one column per task.
 
     Every curve is the mean over seeds with a 95% Student-t band; the exact robustness of the
@@ -33,12 +28,11 @@ def plot_learning_curves(
     Args:
         runs: finished runs (`benchmarks.results.load_runs`).
         path: where to save the PNG (optional).
-        labels: which labels to draw, in this order (default: all, in config order).
         title: figure title.
     """
     groups = group_runs(runs)
     tasks = list(dict.fromkeys(task for task, _ in groups))
-    order = list(labels) if labels is not None else list(dict.fromkeys(label for _, label in groups))
+    order = list(dict.fromkeys(label for _, label in groups))
     colors = {label: colormaps["tab10"](i % 10) for i, label in enumerate(order)}
     fig = Figure(figsize=(5.2 * len(tasks), 7), constrained_layout=True)
     axes = np.asarray(fig.subplots(2, len(tasks), sharex="col", squeeze=False))

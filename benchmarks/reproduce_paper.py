@@ -28,7 +28,7 @@ import datetime
 import os
 import platform
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -58,9 +58,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     docs = Path("runs/results-quick") if args.quick else Path("docs/results")
     command = "python -m benchmarks.reproduce_paper " + " ".join(sys.argv[1:] if argv is None else argv)
     failed = 0
-    writers: dict[Path, Callable[[Sequence[results.RunResult], Path, str], list[Path]]] = {
-        PAPER: write_paper, ABLATIONS: write_ablations}
-    for config, write in writers.items():
+    for config, write in ((PAPER, write_paper), (ABLATIONS, write_ablations)):
         sweep = load_config(config, variant=variant, overrides=overrides)
         out_dir = default_out_dir(sweep)
         if not args.no_run:

@@ -185,8 +185,8 @@ def summarise(task: Any, label: str, runs: Sequence[RunResult]) -> GroupSummary:
     )
 
 
-def median_first(firsts: Sequence[int | None]) -> float | None:
-    """Median first iteration over the seeds that got there (None: no seed did)."""
+def median_first(firsts: Sequence[float | None]) -> float | None:
+    """Median over the seeds that got there of when they first did (iteration, env steps); None: no seed did."""
     reached = [f for f in firsts if f is not None]
     return float(np.median(reached)) if reached else None
 

@@ -29,7 +29,7 @@ from matplotlib import colormaps
 from matplotlib.figure import Figure
 
 from benchmarks.figures import plot_band
-from benchmarks.results import RunResult, group_runs, load_runs
+from benchmarks.results import RunResult, group_runs, load_runs, median_first
 from benchmarks.runner import add_sweep_options, load_config, run_with_options, variant_of
 
 HERE = Path(__file__).resolve().parent
@@ -105,13 +105,12 @@ def task_table(runs: Sequence[RunResult]) -> tuple[str, list[tuple[str, float, f
             continue
         final = success[:, -1]
         solves = [steps_to_solve(steps, row) for row in success]
-        reached = [s for s in solves if s is not None]
-        median_steps = float(np.median(reached)) if reached else None
-        solve_text = f"{median_steps:,.0f} ({len(reached)}/{len(solves)})" if reached else f"never (0/{len(solves)})"
+        median_steps, reached = median_first(solves), sum(s is not None for s in solves)
+        solve_text = f"{median_steps:,.0f} ({reached}/{len(solves)})" if reached else f"never (0/{len(solves)})"
         note = "; ".join(sorted({run.spec.note for run in members if run.spec.note}))
         lines.append(f"| {label} | {len(members)} | {steps[-1]:,.0f} | {np.median(final):.0%} "
                      f"({final.min():.0%}–{final.max():.0%}) | {solve_text} | {np.median(rho[:, -1]):.3g} | {note} |")
-        rows.append((label, float(np.median(final)), median_steps, len(reached), len(solves)))
+        rows.append((label, float(np.median(final)), median_steps, reached, len(solves)))
     return "\n".join(lines), rows
 
 
