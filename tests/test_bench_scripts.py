@@ -91,3 +91,32 @@ def test_handwritten_smooth_phi1_equals_tl_gym():
     np.testing.assert_allclose(values, expected.detach().numpy(), rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(grad_x, xt.grad.numpy(), rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(grad_y, yt.grad.numpy(), rtol=1e-9, atol=1e-12)
+
+
+def test_peer_formula_texts():
+    """The text peers' formulas: assembled from one clause list; X only where the library can write it."""
+    from benchmarks.peers import load
+    from benchmarks.peers.text import ARGUS, RTAMT, specification, stlrom_syntax
+
+    assert load("rtamt").NAME == "rtamt" and load("stlcgpp").NAME == "stlcg++"
+    with pytest.raises(ValueError, match="unknown peer"):
+        load("nope")
+    phi2, strict = task_formula("phi2"), task_formula("phi2-strict")
+    with pytest.raises(ValueError, match="argus cannot express X"):
+        specification(phi2, ARGUS)
+    assert specification(strict, ARGUS).count(") && (") == 6  # 7 clauses: sequence, 2 untils, 3 no-revisit, avoid
+    assert specification(strict, stlrom_syntax(7)).startswith("signal x, y, d\nphi := (ev_[0, 7] (")
+    # rtamt's strong X: twice in the sequence, then per goal once (strict) or twice (leaving the goal)
+    assert specification(strict, RTAMT).count("(not(next(not(") == 2 + 3
+    assert specification(phi2, RTAMT).count("(not(next(not(") == 2 + 2 * 3
+
+
+@pytest.mark.parametrize("key", TASKS)
+def test_rtamt_translation_equals_tl_gym(key):
+    pytest.importorskip("rtamt")
+    from benchmarks.peers import load
+
+    task = task_formula(key)
+    x, y = bench.trajectories(6, 12, seed=4, tasks=[task])
+    (exact, _) = load("rtamt").evaluators(task, 9.0)
+    np.testing.assert_allclose(exact.run(x, y), task.formula.robustness({"x": x, "y": y}), rtol=1e-12)

@@ -282,3 +282,23 @@ def test_folders_of_the_older_sweep_runner_stay_readable(tmp_path):
     (tmp_path / "sweep.json").write_text(json.dumps(manifest))
     (run,) = results.load_runs(tmp_path)
     assert run.spec == sweep.runs[0] and run.history["iteration"].tolist() == [1, 2, 3, 4]
+
+
+def test_sweep_options_are_checked_and_failures_go_to_stderr(tmp_path, capsys):
+    import argparse
+
+    from benchmarks.runner import add_sweep_options, run_with_options, variant_of
+
+    parser = argparse.ArgumentParser()
+    add_sweep_options(parser)
+    assert variant_of(parser, parser.parse_args(["--quick"])) == "quick"
+    assert variant_of(parser, parser.parse_args(["--variant", "session"])) == "session"
+    for bad in (["--quick", "--variant", "session"], ["--workers", "-1"]):
+        with pytest.raises(SystemExit):
+            variant_of(parser, parser.parse_args(bad))
+    agents = [{"label": "bad", "agent": STAND_IN, "hyperparameters": {"fail": True}},
+              {"label": "good", "agent": STAND_IN}]
+    sweep = expand_config(config(agents=agents, tasks=[1], seeds=[0]))
+    report = run_with_options(sweep, tmp_path, parser.parse_args(["--workers", "0", "--only", "ba*"]))
+    assert len(report.failed) == 1 and not report.finished  # --only left "good" out
+    assert "stand-in told to fail" in capsys.readouterr().err
