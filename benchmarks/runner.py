@@ -534,7 +534,8 @@ def add_sweep_options(parser: argparse.ArgumentParser) -> None:
     """The options of every command that runs sweeps (this one, `benchmarks.reproduce_paper`, `benchmarks.suite`)."""
     parser.add_argument("--workers", type=int, help="local processes (default: CPU count; 0: here, serially)")
     parser.add_argument("--ray", metavar="ADDRESS", help='run on Ray: "auto", "ray://host:10001" or "local"')
-    parser.add_argument("--quick", action="store_true", help="same as --variant quick (CI-sized)")
+    parser.add_argument("--quick", action="store_true",
+                        help="the quick variant (CI-sized); reproduce_paper and suite then write their pages in runs/")
     parser.add_argument("--variant", help="apply the configs' [variants.VARIANT] overrides")
     parser.add_argument("--only", action="append", default=[], metavar="PATTERN",
                         help='run only labels matching this shell pattern, e.g. "TLPS*" (repeatable)')
