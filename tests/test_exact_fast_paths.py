@@ -1,9 +1,14 @@
 """Shortcuts of the exact evaluator give the general path's answers, errors included."""
 
+import math
+
 import numpy as np
 import pytest
+from hypothesis import given
 
+from tests import strategies as S
 from tl_gym import TraceError, parse
+from tl_gym.tltl import exact, operators
 from tl_gym.tltl import trace as trace_module
 
 # F/G of a predicate over sqrt/exp/log take the extreme before the function (position 0 only);
@@ -62,3 +67,12 @@ def test_errors_name_the_trajectory_of_the_whole_batch_not_of_its_group(monkeypa
     x[20, 3] = -200.0
     with pytest.raises(TraceError, match="trajectory 20, position 3"):
         parse("F(sqrt(x + 100) > 1)").robustness({"x": x})
+
+
+@given(S.formulas(min_depth=3, leaves=S.predicates(exprs=S.safe_expressions())), S.batched_traces())
+def test_rewritten_plan_equals_the_plain_plan(formula, trace):
+    """Every rewrite of the exact plan (position 0, monotone predicates) against the plain plan, bit for bit."""
+    for alg in (operators.numeric(math.inf), operators.BOOLEAN):
+        plain, _ = exact._evaluate(formula, trace, alg, first=True, rewrite=False)
+        rewritten, _ = exact._evaluate(formula, trace, alg, first=True)
+        np.testing.assert_array_equal(rewritten, plain)
