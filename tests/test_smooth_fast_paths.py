@@ -4,8 +4,11 @@ per-trajectory Jacobian at position 0, and predicates between signals and number
 import numpy as np
 import pytest
 import torch
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 from tests import reference as ref
+from tests import strategies as S
 from tl_gym import TraceError, parse
 from tl_gym.tltl import smooth
 from tl_gym.tltl import trace as trace_module
@@ -168,3 +171,31 @@ def test_eventually_of_a_conjunction_skips_its_logarithm_and_keeps_its_values():
             assert all(torch.isfinite(t.grad).all() for t in tensors.values())
             np.testing.assert_allclose(reused.smooth_robustness(trace, beta), ref.smooth_robustness(
                 reused, {k: v.tolist() for k, v in trace.items()}, beta), rtol=1e-9, atol=1e-12)
+
+
+@settings(max_examples=40, deadline=None)
+@given(S.formulas(min_depth=2, max_depth=4, leaves=S.predicates(exprs=S.smooth_expressions())),
+       S.batched_traces(max_length=5), st.sampled_from(smooth.FORMS), st.booleans())
+def test_rewritten_plan_equals_the_plain_plan(formula, trace, form, first):
+    """Every rewrite of the smoothing plan (position 0, linear predicates, F over &, gradient factors, spare
+    operands) gives the plain plan's values and gradients."""
+    n, length = trace["x"].shape
+    signals = {k: np.ascontiguousarray(np.asarray(v, dtype=float).T) for k, v in trace.items()}
+    magnitudes = {k: float(np.abs(v).max()) for k, v in trace.items()}
+    results, refused = [], []
+    for rewrite in (False, True):
+        try:
+            group, z = smooth._evaluate(formula, {k: v.copy() for k, v in signals.items()}, n, length, BETA, 50.0,
+                                        form, first, magnitudes, rewrite=rewrite)
+        except TraceError:  # too large to smooth, or undefined: both plans must refuse it
+            refused.append(rewrite)
+            continue
+        weights = np.linspace(-1.0, 2.0, z.size).reshape(z.shape)
+        grads = group.backward(weights.copy())
+        results.append((z, {k: grads.get(k, np.zeros((length, n))) for k in signals}))
+    assert refused in ([], [False, True])
+    assume(not refused)
+    (plain, plain_grads), (rewritten, grads) = results
+    np.testing.assert_allclose(rewritten, plain, rtol=1e-9, atol=1e-9)
+    for name in signals:
+        np.testing.assert_allclose(grads[name], plain_grads[name], rtol=1e-7, atol=1e-7)
