@@ -17,6 +17,7 @@ temporal, its nesting depth) is computed once, bottom-up, and kept on the node.
 
 from __future__ import annotations
 
+import copyreg
 import dataclasses
 import math
 import operator
@@ -755,8 +756,25 @@ def _state_without_caches(self: Any) -> dict[str, Any]:
     return {k: v for k, v in self.__dict__.items() if not k.startswith("_")}
 
 
+_PICKLE_HEIGHT = 40  # pickle and deepcopy recurse several frames per level: deeper trees go through their text
+
+
+def _reduce(self: Any) -> tuple[Any, ...]:
+    """Pickle (and deepcopy) support at any depth: a deep tree is rebuilt by parsing its canonical text."""
+    if height(self) > _PICKLE_HEIGHT:
+        return (_from_text, (isinstance(self, Formula), str(self)))
+    return (copyreg.__newobj__, (type(self),), _state_without_caches(self))
+
+
+def _from_text(is_formula: bool, text: str) -> Any:
+    from tl_gym.tltl.parser import parse
+
+    return parse(text) if is_formula else parse(f"{text} > 0").lhs  # type: ignore[attr-defined]
+
+
 for _cls in (*FORMULA_NODES, Var, Num, Neg, BinOp, Call):
     _cls.__hash__ = _cached_hash  # type: ignore[method-assign]
     _cls.__eq__ = _structural_eq  # type: ignore[method-assign]
     _cls.__repr__ = _repr  # type: ignore[method-assign]
     _cls.__getstate__ = _state_without_caches  # type: ignore[attr-defined]
+    _cls.__reduce__ = _reduce  # type: ignore[method-assign]

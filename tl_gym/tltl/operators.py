@@ -425,17 +425,12 @@ def bracket(node: Formula, parts: list[tuple[float, float]], horizon: int) -> tu
 # ρ at position 0 of the prefix s_0 … s_t, from the value before s_t and what s_t brings.
 
 
-def combine(node: Formula, values: Sequence[float]) -> float:
-    """A Boolean connective on its operands' values (floats): the exact rules on one position."""
-    if isinstance(node, Not):
-        return -values[0]
-    if isinstance(node, And):
-        return min(values)
-    if isinstance(node, Or):
-        return max(values)
-    if isinstance(node, Implies):
-        return max(-values[0], values[1])
-    raise TypeError(f"{type(node).__name__} is not a Boolean connective")
+CONNECTIVES: dict[type, Callable[[Sequence[float]], float]] = {  # the exact rules at one position, on floats
+    Not: lambda v: -v[0],
+    And: min,
+    Or: max,
+    Implies: lambda v: max(-v[0], v[1]),
+}
 
 
 def online_extremum(best: float, new: float, largest: bool) -> float:
@@ -452,15 +447,16 @@ def online_until(left_so_far: float, best: float, phi: float, psi: float) -> tup
     return min(left_so_far, phi), (candidate if candidate > best else best)
 
 
-def online_then_chain(best: list[float], values: Sequence[float]) -> None:
+def online_then_chain(best: list[float], value: Callable[[int], float]) -> None:
     """φ1 T (φ2 T (… T φm)), temporal-free operands = max over s1 < … < sm of min(φ1(s1), …, φm(sm)).
 
-    ``best[i]`` is that max for the first i+1 operands; updated in place, the last first, each from
-    the previous one's value before this state.
+    ``best[i]`` is that max for the first i+1 operands, updated in place, the last first, each from
+    the previous one's value before this state; ``value(i)`` is φ_{i+1} at the new state (asked only
+    when it can matter).
     """
-    for i in range(len(values) - 1, 0, -1):
+    for i in range(len(best) - 1, 0, -1):
         if best[i - 1] > -math.inf:
-            candidate = min(best[i - 1], values[i])
+            candidate = min(best[i - 1], value(i))
             if candidate > best[i]:
                 best[i] = candidate
-    best[0] = max(best[0], values[0])
+    best[0] = max(best[0], value(0))
