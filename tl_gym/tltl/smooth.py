@@ -124,8 +124,8 @@ class _Group:
 
         Back to front through the plan. A step's pending gradient already includes its own
         gradient factor; when every operand of a step has the same factor, it is applied to
-        the step's gradient (the smaller array) before its backward rule runs (except for `_nary_linear`,
-        which applies the linear predicates' factor itself).
+        the step's gradient (the smaller array) before its backward rule runs (except for the rules that
+        also send gradients to the signals directly, `_DIRECT`).
         """
         plan = self.plan
         assert plan is not None
@@ -138,7 +138,7 @@ class _Group:
                 continue
             step = plan.steps[i]
             inputs = step.inputs
-            common = factors[inputs[0]] if inputs and step.run is not _nary_linear and all(
+            common = factors[inputs[0]] if inputs and step.run not in _DIRECT and all(
                 factors[j] == factors[inputs[0]] for j in inputs) else None
             if common is not None and common != 1.0:
                 g = np.multiply(g, common, out=g)
@@ -457,6 +457,8 @@ def _combine(first: np.ndarray, first_slope: float, rest: list[tuple[np.ndarray,
 
 
 # --------------------------------------------------------------------------- compiling
+
+_DIRECT = (_nary_linear, _on_segments)  # rules whose backward also writes signal gradients itself
 
 _READS_OWN_VALUE = (Implies,)  # rules whose backward reads the value they returned (plus T in linear form)
 
