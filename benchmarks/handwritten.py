@@ -168,11 +168,7 @@ def robustness(task: Task, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return phi1(task, x, y) if task.key == "phi1" else phi2(task, x, y)
 
 
-# --------------------------------------------------------------------------- fused kernels (numba)
-# One pass over each trajectory, from its last state to its first, every temporal operator a running
-# value: what a user would write in numba for one formula (issue 17's "fused per-formula kernel").
-
-
+# fused kernels (numba): one pass over each trajectory, every temporal operator a running value (issue 17)
 def _fused_phi1(x: np.ndarray, y: np.ndarray, b: np.ndarray, c: np.ndarray, out: np.ndarray) -> None:
     for i in range(x.shape[0]):
         reach, near = -np.inf, np.inf  # near: the least squared distance to the obstacle (sqrt is monotone)
@@ -186,9 +182,8 @@ def _fused_phi1(x: np.ndarray, y: np.ndarray, b: np.ndarray, c: np.ndarray, out:
 def _fused_phi2(x: np.ndarray, y: np.ndarray, b: np.ndarray, c: np.ndarray, strict: bool, out: np.ndarray) -> None:
     g, later, nxt = np.empty(3), np.empty(3), np.empty(3)  # goal margins now, their max after t, at t + 1
     for i in range(x.shape[0]):
-        order = then23 = later3 = until1 = until2 = -np.inf
+        order = then23 = later3 = until1 = until2 = later[0] = later[1] = later[2] = -np.inf
         rest = near = np.inf
-        later[:] = -np.inf
         for t in range(x.shape[1] - 1, -1, -1):
             xi, yi = x[i, t], y[i, t]
             for k in range(3):
@@ -197,18 +192,16 @@ def _fused_phi2(x: np.ndarray, y: np.ndarray, b: np.ndarray, c: np.ndarray, stri
             then23, later3 = max(then23, min(g[1], later3)), max(later3, g[2])
             until1, until2 = max(g[0], min(-max(g[1], g[2]), until1)), max(g[1], min(-g[2], until2))
             last = t == x.shape[1] - 1
-            for k in range(3):
+            for k in range(3):  # strict: G(g -> X G !g); default: G((g & X !g) -> X G !g), void at the last state
                 never = -np.inf if last else -later[k]  # X G !g
-                if strict:
-                    rest = min(rest, max(-g[k], never))
-                elif not last:
-                    rest = min(rest, max(-min(g[k], -nxt[k]), never))
+                if strict or not last:
+                    rest = min(rest, max(-g[k] if strict else -min(g[k], -nxt[k]), never))
                 later[k], nxt[k] = max(later[k], g[k]), g[k]
             near = min(near, (xi - c[0]) * (xi - c[0]) + (yi - c[1]) * (yi - c[1]))
         out[i] = min(order, until1, until2, rest, np.sqrt(near) - c[2])
 
 
-_KERNELS: dict[str, object] = {}
+_KERNELS: dict = {}
 
 
 def fused(task: Task, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -218,10 +211,7 @@ def fused(task: Task, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
         _KERNELS.update(phi1=njit(cache=True)(_fused_phi1), phi2=njit(cache=True)(_fused_phi2))
     boxes = np.array([[b.x_low, b.x_high, b.y_low, b.y_high] for b in task.goals])
-    circle = np.array([task.obstacle.cx, task.obstacle.cy, task.obstacle.r])
-    out = np.empty(x.shape[0])
-    if task.key == "phi1":
-        _KERNELS["phi1"](x, y, boxes[0], circle, out)  # type: ignore[operator]
-    else:
-        _KERNELS["phi2"](x, y, boxes, circle, task.strict, out)  # type: ignore[operator]
+    circle, out = np.array([task.obstacle.cx, task.obstacle.cy, task.obstacle.r]), np.empty(x.shape[0])
+    args = (boxes[0], circle, out) if task.key == "phi1" else (boxes, circle, task.strict, out)
+    _KERNELS[task.key[:4]](x, y, *args)
     return out

@@ -9,6 +9,7 @@ Rewrites of the plan, each giving the plain plan's values (`tests/test_exact_fas
 * **position 0**: the root, and the operands of Boolean connectives above temporal operators,
   are computed at position 0 only: a top-level F, G, U or T becomes one reduction over time
   instead of a scan (`_AT_ZERO`);
+* **linear predicates**: a signal against a number (``x < 5``) is one subtraction (`_linear_predicate`);
 * **monotone predicates**: F / G at position 0 of ``f(e) ⋈ c`` with f in sqrt, exp, log takes
   the extreme of e over time and applies f to it alone (`_monotone_extreme`).
 
@@ -27,7 +28,7 @@ import numpy as np
 
 from tl_gym.errors import TraceError
 from tl_gym.tltl import operators as ops
-from tl_gym.tltl.ast import Always, Call, Constant, Eventually, Formula, Next, Num, Predicate, Then, Until
+from tl_gym.tltl.ast import Always, Call, Constant, Eventually, Formula, Next, Num, Predicate, Then, Until, Var
 from tl_gym.tltl.expressions import evaluate_expression, margin_bound
 from tl_gym.tltl.plan import Plan, Step, cached, compile_plan, prune
 from tl_gym.tltl.trace import Trace, check_rho_max, chunks, prepare
@@ -87,6 +88,18 @@ def _predicate(group: _Group, step: Step, _: list) -> np.ndarray:
                 "(its arithmetic is undefined there)"
             )
     return np.asarray(ops.holds(node.op, margin) if group.alg.boolean else margin, dtype=group.alg.dtype)
+
+
+def _linear_predicate(group: _Group, step: Step, _: list) -> np.ndarray:
+    """Rewrite: a predicate between a signal and a number or another signal (``x < 5``): one subtraction."""
+    node: Predicate = step.node  # type: ignore[assignment]
+    signals = group.signals
+    lhs, rhs = ((signals[e.name][:, :1] if step.first else signals[e.name]) if isinstance(e, Var) else e.value
+                for e in (node.lhs, node.rhs))
+    if margin_bound(node.lhs, node.rhs, tuple(group.magnitudes.items())) >= 1e307:  # may overflow: the general rule
+        return _predicate(group, step, [])
+    margin = ops.margin(node.op, lhs, rhs)
+    return ops.holds(node.op, margin) if group.alg.boolean else margin
 
 
 def _operator(group: _Group, step: Step, values: list) -> np.ndarray:
@@ -183,7 +196,9 @@ def plan_for(formula: Formula, first: bool, boolean: bool, rewrite: bool = True)
             if isinstance(node, Constant):
                 step.run = _constant
             elif isinstance(node, Predicate):
-                step.run = _predicate
+                linear = rewrite and (isinstance(node.lhs, Var) or isinstance(node.rhs, Var)) and all(
+                    isinstance(e, (Var, Num)) for e in (node.lhs, node.rhs))
+                step.run = _linear_predicate if linear else _predicate
             elif step.segments:
                 step.run = _on_segments
             elif step.first and type(node) in _AT_ZERO:
