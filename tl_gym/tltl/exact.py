@@ -30,7 +30,7 @@ from tl_gym.errors import TraceError
 from tl_gym.tltl import operators as ops
 from tl_gym.tltl.ast import Always, Call, Constant, Eventually, Formula, Next, Num, Predicate, Then, Until, Var
 from tl_gym.tltl.expressions import evaluate_expression, margin_bound
-from tl_gym.tltl.plan import Plan, Step, cached, compile_plan, prune
+from tl_gym.tltl.plan import Plan, Step, cached, chosen, compile_plan, prune
 from tl_gym.tltl.trace import Trace, check_rho_max, chunks, prepare
 
 
@@ -186,37 +186,44 @@ def _monotone_extreme(group: _Group, step: Step, _: list) -> np.ndarray:
 # --------------------------------------------------------------------------- compiling
 
 
-def plan_for(formula: Formula, first: bool, boolean: bool, rewrite: bool = True) -> Plan:
-    """The formula's plan for the exact evaluator (cached on the formula); ``rewrite=False``: the plain one."""
+REWRITES = frozenset({"at_zero", "linear", "monotone"})
+
+
+def plan_for(formula: Formula, first: bool, boolean: bool, rewrite: bool | frozenset[str] = True) -> Plan:
+    """The formula's plan for the exact evaluator (cached on the formula).
+
+    ``rewrite``: True applies every rewrite (`REWRITES`), False none (the plain plan), or a set of names.
+    """
+    rewrites = chosen(rewrite, REWRITES)
 
     def build() -> Plan:
-        plan = compile_plan(formula, first, at_zero=rewrite)
+        plan = compile_plan(formula, first, at_zero="at_zero" in rewrites)
         for step in plan.steps:
             node = step.node
             if isinstance(node, Constant):
                 step.run = _constant
             elif isinstance(node, Predicate):
-                linear = rewrite and (isinstance(node.lhs, Var) or isinstance(node.rhs, Var)) and all(
+                linear = "linear" in rewrites and (isinstance(node.lhs, Var) or isinstance(node.rhs, Var)) and all(
                     isinstance(e, (Var, Num)) for e in (node.lhs, node.rhs))
                 step.run = _linear_predicate if linear else _predicate
             elif step.segments:
                 step.run = _on_segments
             elif step.first and type(node) in _AT_ZERO:
                 step.run = _AT_ZERO[type(node)]
-                if (isinstance(node, (Eventually, Always)) and not boolean and rewrite
+                if (isinstance(node, (Eventually, Always)) and not boolean and "monotone" in rewrites
                         and _monotone_parts(node.child) is not None):
                     step.run, step.inputs = _monotone_extreme, ()
             elif type(node) in ops.EXACT:
                 step.run = _operator
             else:
                 raise TypeError(f"no evaluation rule for formula node {type(node).__name__}")
-        return prune(plan) if rewrite else plan
+        return prune(plan)
 
-    return cached(formula, ("exact", first, boolean, rewrite), build)
+    return cached(formula, ("exact", first, boolean, rewrites), build)
 
 
 def _evaluate(formula: Formula, trace: Trace, alg: ops.Lattice, first: bool,
-              rewrite: bool = True) -> tuple[np.ndarray, bool]:
+              rewrite: bool | frozenset[str] = True) -> tuple[np.ndarray, bool]:
     plan = plan_for(formula, first, alg.boolean, rewrite)
     prepared = prepare(formula.signals, trace)
     parts = [  # trajectories are independent: evaluate them group by group (see `chunks`)

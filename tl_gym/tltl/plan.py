@@ -129,6 +129,18 @@ def prune(plan: Plan) -> Plan:
     return Plan(kept)
 
 
+def chosen(rewrite: bool | frozenset[str], every: frozenset[str]) -> frozenset[str]:
+    """The rewrites to apply: all of ``every`` (True), none (False), or the named ones."""
+    if rewrite is True:
+        return every
+    if rewrite is False:
+        return frozenset()
+    unknown = set(rewrite) - every
+    if unknown:
+        raise ValueError(f"unknown rewrites {sorted(unknown)}; known: {sorted(every)}")
+    return frozenset(rewrite)
+
+
 def cached(formula: Formula, key: Hashable, build: Callable[[], Any]) -> Any:
     """``build()``, kept on the formula under ``key`` (formulas are immutable; pickling drops it)."""
     plans = formula.__dict__.get("_plans")

@@ -68,7 +68,7 @@ from tl_gym.tltl.ast import (
     Var,
 )
 from tl_gym.tltl.expressions import evaluate_with_gradient, margin_bound
-from tl_gym.tltl.plan import Plan, Step, cached, compile_plan
+from tl_gym.tltl.plan import Plan, Step, cached, chosen, compile_plan
 from tl_gym.tltl.trace import Trace, check_rho_max, chunks, is_torch, prepare
 
 _INF = ops.INF  # stands for +∞ in β-scaled units
@@ -463,43 +463,50 @@ _DIRECT = (_nary_linear, _on_segments)  # rules whose backward also writes signa
 _READS_OWN_VALUE = (Implies,)  # rules whose backward reads the value they returned (plus T in linear form)
 
 
-def plan_for(formula: Formula, first: bool, form: str, rewrite: bool = True) -> Plan:
-    """The formula's plan for the smoother (cached on the formula); ``rewrite=False``: the plain one."""
+REWRITES = frozenset({"at_zero", "linear", "parts", "spare"})
+
+
+def plan_for(formula: Formula, first: bool, form: str, rewrite: bool | frozenset[str] = True) -> Plan:
+    """The formula's plan for the smoother (cached on the formula).
+
+    ``rewrite``: True applies every rewrite (`REWRITES`), False none (the plain plan), or a set of names.
+    """
+    rewrites = chosen(rewrite, REWRITES)
 
     def build() -> Plan:
-        plan = compile_plan(formula, first, at_zero=rewrite)
+        plan = compile_plan(formula, first, at_zero="at_zero" in rewrites)
         steps = plan.steps
         for step in steps:
             node = step.node
             if isinstance(node, Constant):
                 step.run = _constant
             elif isinstance(node, Predicate):
-                step.run = _linear_predicate if rewrite and _linear_slopes(node) is not None else _predicate
+                linear = "linear" in rewrites and _linear_slopes(node) is not None
+                step.run = _linear_predicate if linear else _predicate
             elif step.segments:
                 step.run = _on_segments
             elif step.first and type(node) in _AT_ZERO:
                 step.run = _AT_ZERO[type(node)]
             elif type(node) in ops.EXACT:
                 step.run = _rule
-                if rewrite and isinstance(node, (And, Or)) and any(
+                if "linear" in rewrites and isinstance(node, (And, Or)) and any(
                         isinstance(c, Predicate) and _linear_slopes(c) is not None for c in node.operands):
                     step.run = _nary_linear
             else:
                 raise TypeError(f"no smoothing rule for formula node {type(node).__name__}")
-        if not rewrite:
-            return plan
         for step in steps:
             # an operand read by this step alone, whose backward does not read its value, may be overwritten
-            step.options["spare"] = [steps[j].readers == 1 and not _reads_own_value(steps[j], form)
-                                     for j in step.inputs]
+            spare = [steps[j].readers == 1 and not _reads_own_value(steps[j], form) for j in step.inputs]
+            if "spare" in rewrites:
+                step.options["spare"] = spare
             node = step.node
-            if step.first and isinstance(node, (Eventually, Always)) and step.options["spare"][0]:
+            if "parts" in rewrites and step.first and isinstance(node, (Eventually, Always)) and spare[0]:
                 child = steps[step.inputs[0]]
                 if isinstance(child.node, And if isinstance(node, Eventually) else Or):
                     child.run, child.options["parts"], step.options["parts"] = _nary_linear, True, True
         return plan
 
-    return cached(formula, ("smooth", first, form, rewrite), build)
+    return cached(formula, ("smooth", first, form, rewrites), build)
 
 
 def _reads_own_value(step: Step, form: str) -> bool:
@@ -531,7 +538,7 @@ def _check(beta: float, rho_max: float, form: str) -> None:
 
 def _evaluate(formula: Formula, signals: dict[str, np.ndarray], n: int, length: int, beta: float, rho_max: float,
               form: str, first_only: bool, magnitudes: dict[str, float], first_row: int = 0,
-              rewrite: bool = True) -> tuple[_Group, np.ndarray]:
+              rewrite: bool | frozenset[str] = True) -> tuple[_Group, np.ndarray]:
     """Smoothed values (β units) of one group of time-major signals; the group can then run `backward`."""
     top = min(beta * rho_max, _INF) if math.isfinite(rho_max) else _INF
     group = _Group(signals, n, length, float(beta), top, form, magnitudes, first_row)
