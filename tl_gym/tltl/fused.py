@@ -191,13 +191,17 @@ def _source(plan: Plan, names: tuple[str, ...]) -> str:
         monotone = _monotone(plan, k)
         if monotone is not None:
             expr, func, number, grows = monotone
-            init += [f"lo{k} = INF", f"hi{k} = -INF"]
             inner = _expression(expr, column, body, k, "m")
             checked.append(inner)
-            body += [f"lo{k} = min(lo{k}, {inner})", f"hi{k} = max(hi{k}, {inner})"]
-            after += [f"flo{k} = np.{func}(lo{k})", f"fhi{k} = np.{func}(hi{k})",
-                      f"if not (flo{k} - flo{k} == 0.0 and fhi{k} - fhi{k} == 0.0):", "    return i"]
-            extreme = f"fhi{k}" if grows == isinstance(node, Eventually) else f"flo{k}"
+            largest = grows == isinstance(node, Eventually)
+            # the extreme used, and the ends that may leave f's domain: the low end for sqrt and log
+            # (the high end is then finite), the high end for exp (it may overflow)
+            ends = {"hi" if largest else "lo", "lo" if func in ("sqrt", "log") else "hi"}
+            for end in sorted(ends):
+                init.append(f"{end}{k} = {'-INF' if end == 'hi' else 'INF'}")
+                body.append(f"{end}{k} = {'max' if end == 'hi' else 'min'}({end}{k}, {inner})")
+                after += [f"f{end}{k} = np.{func}({end}{k})", f"if not (f{end}{k} - f{end}{k} == 0.0):", "    return i"]
+            extreme = f"fhi{k}" if largest else f"flo{k}"
             after.append(f"v{k} = {extreme} - {number!r}" if grows else f"v{k} = {number!r} - {extreme}")
         elif isinstance(node, Constant):
             code.append(f"v{k} = {'top' if node.value else '-top'}")
