@@ -19,7 +19,7 @@ Rewrites of the plan, each tested equal to the plain plan (`tests/test_smooth_fa
   ``&``/``|`` of such predicates sum their weights per signal before scaling;
 * **F over &, G over |** at position 0 reduces the operands' extreme and divides the weights
   by their softmax total, instead of taking its logarithm;
-* **gains**: a step whose gradient is a constant multiple of what it receives (β for a
+* **gradient factors**: a step whose gradient is a constant multiple of what it receives (β for a
   predicate) has that *gradient factor* applied by its reader, to the smaller array;
 * **spare operands**: a value read by one step only lends its memory to that step;
 * at position 0 the per-trajectory Jacobian is computed group by group during the
