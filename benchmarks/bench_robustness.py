@@ -1,23 +1,11 @@
-"""Speed of tl_gym's robustness against hand-written numpy and peer libraries (issues 3 and 10).
+"""Speed of tl_gym's robustness against hand-written numpy and numba and peer libraries (issues 3, 10, 17).
 
-For the paper's φ1 (Eq. 16) and φ2 (Eq. 19, default and strict no-revisit) on
-seeded random trajectories of every size in the grid, the script measures
-trajectories per second of
-
-* tl_gym, exact (numpy) and smoothed with gradient (value + backward of the sum, torch float64);
-* hand-written vectorised numpy functions of the same formulas (`benchmarks.handwritten`),
-  the practical speed limit;
-* every peer library that imports (`benchmarks.peers`): rtamt, argus, STLRom, stlcg++, stljax.
-
-Every library runs in this one process, so the machine's drift cancels in the
-ratios. Before any time is reported a library's values are checked against
-tl_gym's (1e-6 relative, exact against exact and smoothed against smoothed); one
-that disagrees is reported as such, with the largest difference, and not timed.
-Libraries whose cost is per trajectory are timed on a prefix of the batch sized
-by ``--budget`` seconds. The table goes to stdout and, with the machine's
-description and the issue's targets, to ``docs/results/speed.md``.
-
-Run from the repository root, in the benchmark's virtualenv::
+Trajectories per second, on the paper's φ1 and φ2 (both no-revisit readings) and seeded random paths, of
+tl_gym (exact, also with the numba backend if installed; smoothed with the gradient of the sum, torch float64),
+of hand-written numpy and numba functions (`benchmarks.handwritten`) and of every peer that imports
+(`benchmarks.peers`), in one process. A library's values are first checked against tl_gym's (1e-6 relative);
+one that disagrees is reported, not timed. Per-trajectory libraries are timed on a prefix (``--budget``).
+The table goes to stdout and, with the machine and the targets, to ``docs/results/speed.md``::
 
     .venv-bench/bin/python -m benchmarks.bench_robustness           # full grid (about half an hour)
     .venv-bench/bin/python -m benchmarks.bench_robustness --quick   # tiny grid, seconds
@@ -42,10 +30,12 @@ import numpy as np
 from benchmarks import handwritten, peers
 from benchmarks.formulas import ARENA, TASKS, Task, task_formula
 from benchmarks.peers import Evaluator, Unsupported
+from tl_gym.tltl import fused
 
 RTOL = 1e-6  # relative tolerance of the value check (absolute below |ρ| = 1)
 TL_GYM = "tl_gym"
 HANDWRITTEN = "numpy (hand-written)"
+FUSED, TL_GYM_NUMBA = "numba (hand-written, fused)", "tl_gym, backend='numba'"  # with the numba extra (issue 17)
 SMOOTH_LINEAR = "smooth+grad, linear form"
 # φ2's nested smoothing costs O(T²) per trajectory: one trajectory of T = 20,000 ran > 14 min here (killed).
 NESTED_MAX_LENGTH = 2_000
@@ -101,8 +91,8 @@ def tl_gym_evaluators(task: Task, beta: float) -> list[Evaluator]:
 
     formula = task.formula
 
-    def exact(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        return np.asarray(formula.robustness({"x": x, "y": y}))
+    def exact(x: np.ndarray, y: np.ndarray, backend: str = "numpy") -> np.ndarray:
+        return np.asarray(formula.robustness({"x": x, "y": y}, backend=backend))
 
     def smooth(form: str) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
         def run(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -121,6 +111,8 @@ def tl_gym_evaluators(task: Task, beta: float) -> list[Evaluator]:
     ]
     if task.key != "phi1":
         out.append(Evaluator(TL_GYM, SMOOTH_LINEAR, smooth("linear"), per_trajectory=False))
+    if fused.available():
+        out.append(Evaluator(TL_GYM_NUMBA, "exact", lambda x, y: exact(x, y, "numba"), False, compiles=True))
     return out
 
 
@@ -130,6 +122,8 @@ def handwritten_evaluators(task: Task, beta: float) -> list[Evaluator]:
     if task.key == "phi1":
         out.append(Evaluator(HANDWRITTEN, "smooth+grad", lambda x, y: handwritten.smooth_phi1(task, x, y, beta)[0],
                              per_trajectory=False))
+    if fused.available():
+        out.append(Evaluator(FUSED, "exact", lambda x, y: handwritten.fused(task, x, y), False, compiles=True))
     return out
 
 
@@ -443,8 +437,24 @@ def targets(rows: list[Row], alternated: tuple[int, float, float, float] | None 
                 f"- smoothed {task} with gradient vs stlcg++: {smooth:,.0f} vs {stlcg:,.1f} traj/s: "
                 f"**{smooth / stlcg:,.0f}×** (target ≥ 100×: {_met(smooth / stlcg >= 100)})."
             )
+    lines.extend(issue17(rate, n_big))
     lines.extend(linearity(rows))
     return lines
+
+
+def issue17(rate: Callable[..., float | None], n_big: int) -> list[str]:
+    """Issue 17's targets from the rows of one run (None where a row is missing)."""
+    checks = [(f"exact {t}, N = {n_big:,}: {TL_GYM_NUMBA} vs {FUSED}", 0.5, rate(t, n_big, 200, TL_GYM_NUMBA, "exact"),
+               rate(t, n_big, 200, FUSED, "exact")) for t in ("phi1", "phi2")]
+    for lib in (TL_GYM, TL_GYM_NUMBA):
+        checks += [(f"exact {t}, N = 40: {lib} vs hand-written numpy", 1.0, rate(t, 40, 200, lib, "exact"),
+                    rate(t, 40, 200, HANDWRITTEN, "exact")) for t in ("phi1", "phi2")]
+    checks += [("smoothed phi2 (linear form) + gradient, N = 40: tl_gym vs hand-written exact numpy phi2", 0.2,
+                rate("phi2", 40, 200, TL_GYM, SMOOTH_LINEAR), rate("phi2", 40, 200, HANDWRITTEN, "exact")),
+               (f"smoothed phi1 + gradient, N = {n_big:,}: tl_gym vs hand-written numpy", 1.0,
+                rate("phi1", n_big, 200, TL_GYM, "smooth+grad"), rate("phi1", n_big, 200, HANDWRITTEN, "smooth+grad"))]
+    return [f"- {what}: throughput **{ours / theirs:.2f}×** theirs (issue 17 target ≥ {bar:g}×: "
+            f"{_met(ours / theirs >= bar)})." for what, bar, ours, theirs in checks if ours and theirs]
 
 
 def linearity(rows: list[Row]) -> list[str]:

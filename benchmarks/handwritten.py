@@ -166,3 +166,52 @@ def smooth_phi1(task: Task, x: np.ndarray, y: np.ndarray, beta: float,
 def robustness(task: Task, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Hand-written robustness of ``task`` (dispatch on φ1 / φ2), shape ``(N,)``."""
     return phi1(task, x, y) if task.key == "phi1" else phi2(task, x, y)
+
+
+# fused kernels (numba): one pass over each trajectory, every temporal operator a running value (issue 17)
+def _fused_phi1(x: np.ndarray, y: np.ndarray, b: np.ndarray, c: np.ndarray, out: np.ndarray) -> None:
+    for i in range(x.shape[0]):
+        reach, near = -np.inf, np.inf  # near: the least squared distance to the obstacle (sqrt is monotone)
+        for t in range(x.shape[1]):
+            xi, yi = x[i, t], y[i, t]
+            reach = max(reach, min(xi - b[0], b[1] - xi, yi - b[2], b[3] - yi))
+            near = min(near, (xi - c[0]) * (xi - c[0]) + (yi - c[1]) * (yi - c[1]))
+        out[i] = min(reach, np.sqrt(near) - c[2])
+
+
+def _fused_phi2(x: np.ndarray, y: np.ndarray, b: np.ndarray, c: np.ndarray, strict: bool, out: np.ndarray) -> None:
+    g, later, nxt = np.empty(3), np.empty(3), np.empty(3)  # goal margins now, their max after t, at t + 1
+    for i in range(x.shape[0]):
+        order = then23 = later3 = until1 = until2 = later[0] = later[1] = later[2] = -np.inf
+        rest = near = np.inf
+        for t in range(x.shape[1] - 1, -1, -1):
+            xi, yi = x[i, t], y[i, t]
+            for k in range(3):
+                g[k] = min(xi - b[k, 0], b[k, 1] - xi, yi - b[k, 2], b[k, 3] - yi)
+            order = max(order, min(g[0], then23))  # g1 T (g2 T g3) at 0; then23 holds position t + 1
+            then23, later3 = max(then23, min(g[1], later3)), max(later3, g[2])
+            until1, until2 = max(g[0], min(-max(g[1], g[2]), until1)), max(g[1], min(-g[2], until2))
+            last = t == x.shape[1] - 1
+            for k in range(3):  # strict: G(g -> X G !g); default: G((g & X !g) -> X G !g), void at the last state
+                never = -np.inf if last else -later[k]  # X G !g
+                if strict or not last:
+                    rest = min(rest, max(-g[k] if strict else -min(g[k], -nxt[k]), never))
+                later[k], nxt[k] = max(later[k], g[k]), g[k]
+            near = min(near, (xi - c[0]) * (xi - c[0]) + (yi - c[1]) * (yi - c[1]))
+        out[i] = min(order, until1, until2, rest, np.sqrt(near) - c[2])
+
+
+_KERNELS: dict = {}
+
+
+def fused(task: Task, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The numba-compiled fused kernel of ``task`` (needs numba), shape ``(N,)``."""
+    if not _KERNELS:
+        from numba import njit
+
+        _KERNELS.update(phi1=njit(cache=True)(_fused_phi1), phi2=njit(cache=True)(_fused_phi2))
+    boxes = np.array([[b.x_low, b.x_high, b.y_low, b.y_high] for b in task.goals])
+    circle, out = np.array([task.obstacle.cx, task.obstacle.cy, task.obstacle.r]), np.empty(x.shape[0])
+    args = (boxes[0], circle, out) if task.key == "phi1" else (boxes, circle, task.strict, out)
+    _KERNELS[task.key[:4]](x, y, *args)
+    return out

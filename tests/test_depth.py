@@ -8,6 +8,8 @@ Random chains 50–300 deep are checked against the naive reference (tests/refer
 
 from __future__ import annotations
 
+import copy
+import pickle
 import sys
 
 import numpy as np
@@ -57,6 +59,16 @@ def test_parse_print_hash_and_equality(case):
     if name == "nested F":
         assert formula.depth == 10_001 and formula.is_temporal
         assert formula != parse("F " * 9_999 + "x > 1")  # one level apart: not equal
+
+
+def test_pickle_and_deepcopy(case):
+    """Deep trees are pickled and copied through their text, shallow ones field by field: equal either way."""
+    _, formula, expected, _ = case
+    for copied in (pickle.loads(pickle.dumps(formula)), copy.deepcopy(formula)):
+        assert copied == formula and copied is not formula
+        assert copied.robustness(_trace()) == expected
+    shallow = parse("F(x > -2 & -(y) < 3) U G(x * y > 1e-3)")
+    assert pickle.loads(pickle.dumps(shallow)) == shallow == copy.deepcopy(shallow)
 
 
 def test_exact_robustness(case):

@@ -1,9 +1,14 @@
 """Shortcuts of the exact evaluator give the general path's answers, errors included."""
 
+import math
+
 import numpy as np
 import pytest
+from hypothesis import given
 
+from tests import strategies as S
 from tl_gym import TraceError, parse
+from tl_gym.tltl import exact, operators
 from tl_gym.tltl import trace as trace_module
 
 # F/G of a predicate over sqrt/exp/log take the extreme before the function (position 0 only);
@@ -62,3 +67,13 @@ def test_errors_name_the_trajectory_of_the_whole_batch_not_of_its_group(monkeypa
     x[20, 3] = -200.0
     with pytest.raises(TraceError, match="trajectory 20, position 3"):
         parse("F(sqrt(x + 100) > 1)").robustness({"x": x})
+
+
+@given(S.formulas(min_depth=3, leaves=S.predicates(exprs=S.safe_expressions())), S.batched_traces())
+def test_rewritten_plan_equals_the_plain_plan(formula, trace):
+    """The rewrites of the exact plan, all and each alone, against the plain plan, bit for bit."""
+    for alg in (operators.numeric(math.inf), operators.BOOLEAN):
+        plain, _ = exact._evaluate(formula, trace, alg, first=True, rewrite=False)
+        for rewrite in (True, *(frozenset({name}) for name in exact.REWRITES)):
+            rewritten, _ = exact._evaluate(formula, trace, alg, first=True, rewrite=rewrite)
+            np.testing.assert_array_equal(rewritten, plain)

@@ -4,8 +4,11 @@ per-trajectory Jacobian at position 0, and predicates between signals and number
 import numpy as np
 import pytest
 import torch
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 from tests import reference as ref
+from tests import strategies as S
 from tl_gym import TraceError, parse
 from tl_gym.tltl import smooth
 from tl_gym.tltl import trace as trace_module
@@ -168,3 +171,44 @@ def test_eventually_of_a_conjunction_skips_its_logarithm_and_keeps_its_values():
             assert all(torch.isfinite(t.grad).all() for t in tensors.values())
             np.testing.assert_allclose(reused.smooth_robustness(trace, beta), ref.smooth_robustness(
                 reused, {k: v.tolist() for k, v in trace.items()}, beta), rtol=1e-9, atol=1e-12)
+
+
+@settings(max_examples=40, deadline=None)
+@given(S.formulas(min_depth=2, max_depth=4, leaves=S.predicates(exprs=S.smooth_expressions())),
+       S.batched_traces(max_length=5), st.sampled_from(smooth.FORMS), st.booleans(),
+       st.sampled_from([True, *(frozenset({name}) for name in sorted(smooth.REWRITES))]))
+def test_rewritten_plan_equals_the_plain_plan(formula, trace, form, first, rewrites):
+    """The rewrites of the smoothing plan, all and each alone (position 0, linear predicates, F over &, spare
+    operands; gradient factors always), give the plain plan's values and gradients."""
+    n, length = trace["x"].shape
+    signals = {k: np.ascontiguousarray(np.asarray(v, dtype=float).T) for k, v in trace.items()}
+    magnitudes = {k: float(np.abs(v).max()) for k, v in trace.items()}
+    results, refused = [], []
+    for rewrite in (False, rewrites):
+        try:
+            group, z = smooth._evaluate(formula, {k: v.copy() for k, v in signals.items()}, n, length, BETA, 50.0,
+                                        form, first, magnitudes, rewrite=rewrite)
+        except TraceError:  # too large to smooth, or undefined: both plans must refuse it
+            refused.append(rewrite)
+            continue
+        weights = np.linspace(-1.0, 2.0, z.size).reshape(z.shape)
+        grads = group.backward(weights.copy())
+        results.append((z, {k: grads.get(k, np.zeros((length, n))) for k in signals}))
+    assert refused in ([], [False], [False, rewrites])  # at position 0 the rewritten plan reads fewer positions
+    assume(not refused)
+    (plain, plain_grads), (rewritten, grads) = results
+    np.testing.assert_allclose(rewritten, plain, rtol=1e-9, atol=1e-9)
+    for name in signals:
+        np.testing.assert_allclose(grads[name], plain_grads[name], rtol=1e-7, atol=1e-7)
+
+
+@pytest.mark.parametrize("text", ["(X(0 < x)) U (0 < 0)", "!((!X(0 < x)) U (y < 0))", "(F(x > y)) U (x < 1)"])
+def test_gradient_of_a_temporal_left_operand_judged_on_segments(text):
+    """The segments' rule sends gradients to the signals itself: no operand's factor may scale them
+    (found by hypothesis's gradcheck)."""
+    formula = parse(text)
+    tensors = tuple(torch.zeros((1, 3), dtype=torch.float64, requires_grad=True) for _ in range(2))
+    assert torch.autograd.gradcheck(lambda x, y: formula.smooth_robustness({"x": x, "y": y}, 0.5, 5.0), tensors,
+                                    eps=1e-6, atol=1e-6, rtol=1e-4)
+    assert torch.autograd.gradcheck(lambda x, y: formula.smooth_robustness_over_time({"x": x, "y": y}, 0.5, 5.0),
+                                    tensors, eps=1e-6, atol=1e-6, rtol=1e-4)

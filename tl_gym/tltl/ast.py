@@ -17,6 +17,7 @@ temporal, its nesting depth) is computed once, bottom-up, and kept on the node.
 
 from __future__ import annotations
 
+import copyreg
 import dataclasses
 import math
 import operator
@@ -334,7 +335,7 @@ class Formula:
         return [repr(self)]  # a node class from elsewhere, with no syntax of its own
 
     # Semantics (the evaluators live in their own modules) ---------------------------
-    def robustness(self, trace: Trace, rho_max: float = math.inf) -> float | np.ndarray:
+    def robustness(self, trace: Trace, rho_max: float = math.inf, backend: str = "numpy") -> float | np.ndarray:
         """Robustness of the trace at position 0 (> 0 means it satisfies the formula).
 
         Args:
@@ -342,10 +343,19 @@ class Formula:
                 extra names are ignored.
             rho_max: the value of ``true`` (and minus that of ``false`` and of ``X φ``
                 at the last state).
+            backend: ``"numpy"`` (the default), or ``"numba"``: one fused loop compiled for
+                this formula (`tl_gym.tltl.fused`, needs the ``tl_gym[fast]`` extra; formulas
+                it does not cover, or a missing numba, use numpy).
 
         Returns:
             A float for ``(T,)`` signals, an array of shape ``(N,)`` for ``(N, T)``.
         """
+        if backend == "numba":
+            from tl_gym.tltl import fused
+
+            return fused.robustness(self, trace, rho_max)
+        if backend != "numpy":
+            raise ValueError(f"backend must be 'numpy' or 'numba', got {backend!r}")
         from tl_gym.tltl import exact
 
         return exact.robustness(self, trace, rho_max)
@@ -755,8 +765,25 @@ def _state_without_caches(self: Any) -> dict[str, Any]:
     return {k: v for k, v in self.__dict__.items() if not k.startswith("_")}
 
 
+_PICKLE_HEIGHT = 40  # pickle and deepcopy recurse several frames per level: deeper trees go through their text
+
+
+def _reduce(self: Any) -> tuple[Any, ...]:
+    """Pickle (and deepcopy) support at any depth: a deep tree is rebuilt by parsing its canonical text."""
+    if height(self) > _PICKLE_HEIGHT:
+        return (_from_text, (isinstance(self, Formula), str(self)))
+    return (copyreg.__newobj__, (type(self),), _state_without_caches(self))
+
+
+def _from_text(is_formula: bool, text: str) -> Any:
+    from tl_gym.tltl.parser import parse
+
+    return parse(text) if is_formula else parse(f"{text} > 0").lhs  # type: ignore[attr-defined]
+
+
 for _cls in (*FORMULA_NODES, Var, Num, Neg, BinOp, Call):
     _cls.__hash__ = _cached_hash  # type: ignore[method-assign]
     _cls.__eq__ = _structural_eq  # type: ignore[method-assign]
     _cls.__repr__ = _repr  # type: ignore[method-assign]
     _cls.__getstate__ = _state_without_caches  # type: ignore[attr-defined]
+    _cls.__reduce__ = _reduce  # type: ignore[method-assign]

@@ -1,97 +1,118 @@
 """Exact robustness and Boolean semantics of TLTL, vectorised over trajectories and time.
 
-One evaluator serves both semantics through an `_Algebra`: robustness uses
-(max, min, negation, ±ρ_max), the Boolean semantics (or, and, not, true/false).
-Each node maps the ``(N, T)`` values of its children to its own ``(N, T)``
-values, entry ``[i, t]`` judging trajectory ``i`` from position ``t`` on
-(the paper's ρ(s_{t:T}, φ)), or to its value at position 0 only when that is all
-its parent needs. Every operator costs O(N·T), except ``U``/``T`` whose left
-operand is temporal: that operand must be judged on every truncated segment
-s_{t''..t'-1}, which costs O(N·T²) time (and O(N·T) memory).
+A formula is compiled once into a plan (`tl_gym.tltl.plan`) whose steps run the rules of
+`tl_gym.tltl.operators` on ``(N, T)`` arrays, group by group of trajectories. Robustness
+runs them in the reals (max, min, negation, ±ρ_max), `satisfied` in the Booleans.
+
+Rewrites of the plan, each giving the plain plan's values (`tests/test_exact_fast_paths.py`):
+
+* **position 0**: the root, and the operands of Boolean connectives above temporal operators,
+  are computed at position 0 only: a top-level F, G, U or T becomes one reduction over time
+  instead of a scan (`_AT_ZERO`);
+* **linear predicates**: a signal against a number (``x < 5``) is one subtraction (`_linear_predicate`);
+* **monotone predicates**: F / G at position 0 of ``f(e) ⋈ c`` with f in sqrt, exp, log takes
+  the extreme of e over time and applies f to it alone (`_monotone_extreme`).
+
+Every operator costs O(N·T), except ``U``/``T`` whose left operand is temporal: that operand
+must be judged on every truncated segment, O(N·T²) time (and O(N·T) memory).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Generator
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from tl_gym.errors import TraceError
-from tl_gym.tltl.ast import (
-    Always,
-    And,
-    Call,
-    Constant,
-    Eventually,
-    Formula,
-    Implies,
-    Next,
-    Not,
-    Num,
-    Or,
-    Predicate,
-    Then,
-    Until,
-)
+from tl_gym.tltl import operators as ops
+from tl_gym.tltl.ast import Always, Call, Constant, Eventually, Formula, Next, Num, Predicate, Then, Until, Var
 from tl_gym.tltl.expressions import evaluate_expression, margin_bound
-from tl_gym.tltl.iterative import resolve
+from tl_gym.tltl.plan import Plan, Step, cached, chosen, compile_plan, prune
 from tl_gym.tltl.trace import Trace, check_rho_max, chunks, prepare
 
-# A rule that needs its operands' values yields their keys ``(node, first_only)`` and gets the values back.
-_Rule = Generator[tuple[Formula, bool], np.ndarray, np.ndarray]
+
+@dataclass
+class _Group:
+    """One group of trajectories being evaluated: its ``(n, length)`` signals and the lattice."""
+
+    alg: ops.Lattice
+    signals: dict[str, np.ndarray]
+    n: int
+    length: int
+    magnitudes: dict[str, float]
+    first_row: int  # index of the group's first trajectory in the caller's batch
+
+    def full(self, value: Any, length: int | None = None) -> np.ndarray:
+        return np.full((self.n, self.length if length is None else length), value, dtype=self.alg.dtype)
+
+    def prefix(self, length: int) -> _Group:
+        """The same trajectories truncated to s_0 … s_{length-1}."""
+        return _Group(self.alg, {k: v[:, :length] for k, v in self.signals.items()}, self.n, length,
+                      self.magnitudes, self.first_row)
 
 
-@dataclass(frozen=True)
-class _Algebra:
-    """The lattice an evaluation runs in: numbers with max/min, or Booleans with or/and."""
-
-    top: Any
-    bottom: Any
-    dtype: Any
-    maximum: Callable[[Any, Any], Any]
-    minimum: Callable[[Any, Any], Any]
-    negate: Callable[[Any], Any]
-    predicate: Callable[[Any, str], Any]  # predicate value from its numeric margin
-    empty_max: Any  # value of a max over no terms (−inf / False)
-    empty_min: Any  # value of a min over no terms (+inf / True)
+def run(plan: Plan, group: _Group) -> np.ndarray:
+    """The root's values: every step in order, each from its inputs' values (callers must not modify them)."""
+    values: list[Any] = [None] * len(plan.steps)
+    for i, step in enumerate(plan.steps):
+        values[i] = step.run(group, step, [values[j] for j in step.inputs])  # type: ignore[misc]
+    return values[-1]
 
 
-def _numeric_predicate(margin: Any, op: str) -> Any:
-    return margin
+# --------------------------------------------------------------------------- leaves and plain rules
 
 
-def _boolean_predicate(margin: Any, op: str) -> Any:
-    # For finite doubles a < b exactly when b - a > 0 (subtraction is exact at 0).
-    return margin > 0 if op in ("<", ">") else margin >= 0
+def _constant(group: _Group, step: Step, _: list) -> np.ndarray:
+    return group.full(group.alg.top if step.node.value else group.alg.bottom, 1 if step.first else None)
 
 
-def numeric_algebra(rho_max: float) -> _Algebra:
-    """Robustness: max/min over reals, ``true`` = ρ_max (> 0, +inf allowed)."""
-    rho_max = check_rho_max(rho_max)
-    return _Algebra(
-        top=float(rho_max), bottom=-float(rho_max), dtype=np.float64,
-        maximum=np.maximum, minimum=np.minimum, negate=np.negative,
-        predicate=_numeric_predicate, empty_max=-math.inf, empty_min=math.inf,
-    )
+def _predicate(group: _Group, step: Step, _: list) -> np.ndarray:
+    node: Predicate = step.node  # type: ignore[assignment]
+    signals = {k: v[:, :1] for k, v in group.signals.items()} if step.first else group.signals
+    shape = (group.n, 1 if step.first else group.length)
+    with np.errstate(all="ignore"):
+        margin = ops.margin(node.op, evaluate_expression(node.lhs, signals), evaluate_expression(node.rhs, signals))
+    margin = np.broadcast_to(margin, shape)
+    # Undefined arithmetic (log of a negative, overflow...) is refused. Unless the signals' magnitudes
+    # prove the margin finite, one cheap sum clears almost every call; only then look closer.
+    if margin_bound(node.lhs, node.rhs, tuple(group.magnitudes.items())) >= 1e307:
+        with np.errstate(all="ignore"):
+            suspicious = not np.isfinite(np.sum(margin))
+        if suspicious and not np.isfinite(margin).all():
+            i, t = np.argwhere(~np.isfinite(margin))[0]
+            raise TraceError(
+                f"predicate {str(node)!r} is NaN or infinite at trajectory {group.first_row + i}, position {t} "
+                "(its arithmetic is undefined there)"
+            )
+    return np.asarray(ops.holds(node.op, margin) if group.alg.boolean else margin, dtype=group.alg.dtype)
 
 
-BOOLEAN = _Algebra(
-    top=True, bottom=False, dtype=bool,
-    maximum=np.logical_or, minimum=np.logical_and, negate=np.logical_not,
-    predicate=_boolean_predicate, empty_max=False, empty_min=True,
-)
+def _linear_predicate(group: _Group, step: Step, _: list) -> np.ndarray:
+    """Rewrite: a predicate between a signal and a number or another signal (``x < 5``): one subtraction."""
+    node: Predicate = step.node  # type: ignore[assignment]
+    signals = group.signals
+    lhs, rhs = ((signals[e.name][:, :1] if step.first else signals[e.name]) if isinstance(e, Var) else e.value
+                for e in (node.lhs, node.rhs))
+    if margin_bound(node.lhs, node.rhs, tuple(group.magnitudes.items())) >= 1e307:  # may overflow: the general rule
+        return _predicate(group, step, [])
+    margin = ops.margin(node.op, lhs, rhs)
+    return ops.holds(node.op, margin) if group.alg.boolean else margin
 
 
-# Increasing functions whose extreme over time can be taken before applying them.
-_MONOTONE = {"sqrt": np.sqrt, "exp": np.exp, "log": np.log}
+def _operator(group: _Group, step: Step, values: list) -> np.ndarray:
+    return ops.EXACT[type(step.node)](group.alg, *values)
 
 
-def _suffix(ufunc: np.ufunc, values: np.ndarray) -> np.ndarray:
-    """``out[:, t] = ufunc`` over ``values[:, t:]``: a suffix scan along time."""
-    return ufunc.accumulate(values[:, ::-1], axis=1)[:, ::-1]
+def _on_segments(group: _Group, step: Step, values: list) -> np.ndarray:
+    sub = plan_for(step.node.left, False, group.alg.boolean)  # type: ignore[attr-defined]
+    out = ops.exact_on_segments(group.alg, step.node, lambda k: run(sub, group.prefix(k)), values[0])  # type: ignore[arg-type]
+    return out[:, :1] if step.first else out
+
+
+# --------------------------------------------------------------------------- rewrites: position 0
 
 
 def _exclusive_prefix(ufunc: np.ufunc, values: np.ndarray, empty: Any) -> np.ndarray:
@@ -102,268 +123,131 @@ def _exclusive_prefix(ufunc: np.ufunc, values: np.ndarray, empty: Any) -> np.nda
     return out
 
 
-class _Evaluator:
-    """Evaluates every node of one formula on one batch of ``(N, T)`` signals.
-
-    A node is evaluated either at every position, shape ``(N, T)`` (entry ``[i, t]``
-    judges s_t … s_{T-1}), or, when only position 0 is needed (``first_only``), shape
-    ``(N, 1)``: Boolean connectives pass the request down, and a top-level F, G, U or T
-    becomes one reduction over time instead of a scan.
-    """
-
-    def __init__(
-        self, alg: _Algebra, signals: dict[str, np.ndarray], n: int, length: int, magnitudes: dict[str, float],
-        first_row: int = 0,
-    ):
-        self.alg = alg
-        self.first_row = first_row  # index of this group's first trajectory in the caller's batch
-        self.signals = signals
-        self.magnitudes = magnitudes
-        self.n = n
-        self.length = length
-        self.cache: dict[tuple[Formula, bool], np.ndarray] = {}  # a repeated sub-formula is evaluated once
-
-    def full(self, value: Any, length: int | None = None) -> np.ndarray:
-        return np.full((self.n, self.length if length is None else length), value, dtype=self.alg.dtype)
-
-    def __call__(self, node: Formula, first_only: bool = False) -> np.ndarray:
-        """Values of ``node``; callers must not modify them in place (they are shared).
-
-        Rules ``yield`` the ``(child, first_only)`` keys they need (`tl_gym.tltl.iterative.resolve`
-        evaluates those first, without recursion, so any nesting depth works).
-        """
-        key = (node, first_only)
-        cached = self.cache.get(key)
-        if cached is not None:
-            return cached
-        return resolve(key, self.cache, self._start, self._finish)
-
-    def _start(self, key: tuple[Formula, bool]) -> Any:
-        node, first_only = key
-        try:
-            rule = _RULES[type(node)]
-        except KeyError:
-            raise TypeError(f"no evaluation rule for formula node {type(node).__name__}") from None
-        return rule(self, node, first_only)
-
-    def _finish(self, key: tuple[Formula, bool], values: np.ndarray) -> np.ndarray:
-        self.cache[key] = values
-        return values
-
-    def on_prefix(self, node: Formula, length: int) -> np.ndarray:
-        """Values of ``node`` at every position of the truncated trace s_0 … s_{length-1}."""
-        signals = {k: v[:, :length] for k, v in self.signals.items()}
-        sub = _Evaluator(self.alg, signals, self.n, length, self.magnitudes, self.first_row)
-        return sub(node)
-
-    # rules ----------------------------------------------------------------------------
-    def constant(self, node: Constant, first_only: bool) -> np.ndarray:
-        return self.full(self.alg.top if node.value else self.alg.bottom, 1 if first_only else None)
-
-    def predicate(self, node: Predicate, first_only: bool) -> np.ndarray:
-        signals = {k: v[:, :1] for k, v in self.signals.items()} if first_only else self.signals
-        shape = (self.n, 1 if first_only else self.length)
-        with np.errstate(all="ignore"):
-            lhs = evaluate_expression(node.lhs, signals, None)
-            rhs = evaluate_expression(node.rhs, signals, None)
-            margin = rhs - lhs if node.op in ("<", "<=") else lhs - rhs
-        margin = np.broadcast_to(margin, shape)
-        # Undefined arithmetic (log of a negative, overflow...) is refused. A NaN or inf makes the
-        # sum non-finite, so one cheap pass clears almost every call; only then look closer.
-        with np.errstate(all="ignore"):
-            suspicious = not self._cannot_overflow(node) and not np.isfinite(np.sum(margin))
-        if suspicious and not np.isfinite(margin).all():
-            i, t = np.argwhere(~np.isfinite(margin))[0]
-            raise TraceError(
-                f"predicate {str(node)!r} is NaN or infinite at trajectory {self.first_row + i}, position {t} "
-                "(its arithmetic is undefined there)"
-            )
-        return np.asarray(self.alg.predicate(margin, node.op), dtype=self.alg.dtype)
-
-    def _cannot_overflow(self, node: Predicate) -> bool:
-        """Whether the margin is known finite from the signals' magnitudes (`margin_bound`)."""
-        return margin_bound(node.lhs, node.rhs, tuple(self.magnitudes.items())) < 1e307
-
-    def not_(self, node: Not, first_only: bool) -> _Rule:
-        return self.alg.negate((yield node.child, first_only))
-
-    def and_(self, node: And, first_only: bool) -> _Rule:
-        return (yield from self._extreme_of_operands(node, first_only, self.alg.minimum))
-
-    def or_(self, node: Or, first_only: bool) -> _Rule:
-        return (yield from self._extreme_of_operands(node, first_only, self.alg.maximum))
-
-    def _extreme_of_operands(self, node: And | Or, first_only: bool, pick: np.ufunc) -> _Rule:
-        first = yield node.operands[0], first_only
-        out = pick(first, (yield node.operands[1], first_only))
-        for child in node.operands[2:]:
-            pick(out, (yield child, first_only), out=out)
-        return out
-
-    def implies(self, node: Implies, first_only: bool) -> _Rule:
-        left = yield node.left, first_only
-        return self.alg.maximum(self.alg.negate(left), (yield node.right, first_only))
-
-    def next_(self, node: Next, first_only: bool) -> _Rule:
-        if first_only:
-            if self.length == 1:
-                return self.full(self.alg.bottom, 1)
-            return (yield node.child, False)[:, 1:2]
-        child = yield node.child, False
-        out = np.empty_like(child)
-        out[:, :-1] = child[:, 1:]
-        out[:, -1] = self.alg.bottom  # no next state: the paper's "k > 0" fails
-        return out
-
-    def eventually(self, node: Eventually, first_only: bool) -> _Rule:
-        if first_only:
-            hoisted = self._monotone_extreme(node.child, largest=True)
-            if hoisted is not None:
-                return hoisted
-        child = yield node.child, False
-        return self.alg.maximum.reduce(child, axis=1, keepdims=True) if first_only else _suffix(self.alg.maximum, child)
-
-    def always(self, node: Always, first_only: bool) -> _Rule:
-        if first_only:
-            hoisted = self._monotone_extreme(node.child, largest=False)
-            if hoisted is not None:
-                return hoisted
-        child = yield node.child, False
-        return self.alg.minimum.reduce(child, axis=1, keepdims=True) if first_only else _suffix(self.alg.minimum, child)
-
-    def _monotone_extreme(self, node: Formula, largest: bool) -> np.ndarray | None:
-        """Max (F) or min (G) over time of a predicate ``f(e) ⋈ c`` with f increasing, or None.
-
-        For f in sqrt, exp, log the extreme over time commutes with f, so f is applied to
-        the ``(N, 1)`` extreme of e instead of to every state (the obstacle clause
-        ``G(sqrt(...) > r)`` of the car tasks). Both extremes of e are checked to lie in
-        f's domain, so a trace that the general path would refuse takes the general path.
-        """
-        if self.alg.dtype is not np.float64 or not isinstance(node, Predicate):
-            return None
-        if isinstance(node.lhs, Call) and node.lhs.func in _MONOTONE and isinstance(node.rhs, Num):
-            call, constant, grows = node.lhs, node.rhs.value, node.op in (">", ">=")
-        elif isinstance(node.rhs, Call) and node.rhs.func in _MONOTONE and isinstance(node.lhs, Num):
-            call, constant, grows = node.rhs, node.lhs.value, node.op in ("<", "<=")
-        else:
-            return None
-        with np.errstate(all="ignore"):
-            inner = np.broadcast_to(evaluate_expression(call.args[0], self.signals, None), (self.n, self.length))
-            low, high = inner.min(axis=1, keepdims=True), inner.max(axis=1, keepdims=True)
-            function = _MONOTONE[call.func]
-            ends = function(low), function(high)
-        if not (np.isfinite(ends[0]).all() and np.isfinite(ends[1]).all()):
-            return None  # outside f's domain somewhere (or NaN): the general path names the position
-        # margin = f(e) - c if it grows with f, else c - f(e); pick the extreme of the margin
-        extreme = ends[1] if grows == largest else ends[0]
-        return extreme - constant if grows else constant - extreme
-
-    def until(self, node: Until, first_only: bool) -> _Rule:
-        alg = self.alg
-        if node.left.is_temporal:
-            out = yield from self._binary_on_segments(node, alg.minimum, alg.empty_min)
-        elif first_only:  # max_t' min(ψ(t'), min_{t'' < t'} φ(t'')): one prefix scan
-            before = _exclusive_prefix(alg.minimum, (yield node.left, False), alg.empty_min)
-            return alg.maximum.reduce(alg.minimum((yield node.right, False), before), axis=1, keepdims=True)
-        else:
-            left = yield node.left, False
-            out = _until_scan(alg, left, (yield node.right, False))
-        return out[:, :1] if first_only else out
-
-    def then(self, node: Then, first_only: bool) -> _Rule:
-        alg = self.alg
-        if node.left.is_temporal:
-            out = yield from self._binary_on_segments(node, alg.maximum, alg.empty_max)
-            return out[:, :1] if first_only else out
-        left = yield node.left, False
-        right = yield node.right, False
-        if first_only:  # max_t' min(ψ(t'), max_{t'' < t'} φ(t'')): one prefix scan
-            before = _exclusive_prefix(alg.maximum, left, alg.empty_max)
-            return alg.maximum.reduce(alg.minimum(right, before), axis=1, keepdims=True)
-        # ρ(φ T ψ, t) = max_{s ≥ t} min(φ(s), max_{t' > s} ψ(t')): two suffix scans.
-        later_right = np.empty_like(right)
-        later_right[:, -1] = alg.empty_max
-        later_right[:, :-1] = _suffix(alg.maximum, right)[:, 1:]
-        return _suffix(alg.maximum, alg.minimum(left, later_right))
-
-    def _binary_on_segments(self, node: Until | Then, inner: np.ufunc, inner_empty: Any) -> _Rule:
-        """U/T with a temporal left operand, judged on each segment s_{t''..t'-1}: O(N·T²) time."""
-        right = yield node.right, False
-        out = self.full(self.alg.empty_max)
-        for t_prime in range(self.length):
-            # reduced[t] = inner reduction of φ(s_{t''..t'-1}) over t'' in [t, t'); empty at t = t'
-            reduced = self.full(inner_empty, t_prime + 1)
-            if t_prime > 0:
-                reduced[:, :t_prime] = _suffix(inner, self.on_prefix(node.left, t_prime))
-            term = self.alg.minimum(right[:, t_prime : t_prime + 1], reduced)
-            out[:, : t_prime + 1] = self.alg.maximum(out[:, : t_prime + 1], term)
-        return out
+def _next_at_zero(group: _Group, step: Step, values: list) -> np.ndarray:
+    return group.full(group.alg.bottom, 1) if group.length == 1 else values[0][:, 1:2]
 
 
-def _until_scan(alg: _Algebra, left: np.ndarray, right: np.ndarray) -> np.ndarray:
-    """``U(t) = max(ψ(t), min(φ(t), U(t+1)))`` at every position, temporal-free φ.
-
-    Each position is the map ``x ↦ max(A, min(B, x))`` with ``(A, B) = (ψ(t), φ(t))``;
-    such maps compose associatively, ``(A1, B1)∘(A2, B2) = (max(A1, min(B1, A2)), min(B1, B2))``,
-    so a doubling suffix scan needs log2(T) whole-array steps. With many short
-    trajectories a backward loop over time (each step vectorised over N) is cheaper.
-    """
-    n, length = right.shape
-    if length <= 1:
-        return right.copy()
-    if n * math.ceil(math.log2(length)) > 2 * n + 3000:  # the loop's per-step overhead is worth ~3000 elements
-        out = right.copy()
-        for t in range(length - 2, -1, -1):
-            out[:, t] = alg.maximum(right[:, t], alg.minimum(left[:, t], out[:, t + 1]))
-        return out
-    a, b = right.copy(), left.copy()
-    shift = 1
-    while shift < length:
-        new_a = alg.maximum(a[:, :-shift], alg.minimum(b[:, :-shift], a[:, shift:]))
-        b[:, :-shift] = alg.minimum(b[:, :-shift], b[:, shift:])
-        a[:, :-shift] = new_a
-        shift *= 2
-    return a
+def _over_time_at_zero(group: _Group, step: Step, values: list) -> np.ndarray:
+    pick = group.alg.maximum if isinstance(step.node, Eventually) else group.alg.minimum
+    return pick.reduce(values[0], axis=1, keepdims=True)
 
 
-_RULES: dict[type, Callable[[_Evaluator, Any], np.ndarray]] = {
-    Constant: _Evaluator.constant,
-    Predicate: _Evaluator.predicate,
-    Not: _Evaluator.not_,
-    And: _Evaluator.and_,
-    Or: _Evaluator.or_,
-    Implies: _Evaluator.implies,
-    Next: _Evaluator.next_,
-    Eventually: _Evaluator.eventually,
-    Always: _Evaluator.always,
-    Until: _Evaluator.until,
-    Then: _Evaluator.then,
+def _binary_at_zero(group: _Group, step: Step, values: list) -> np.ndarray:
+    """U: max_t' min(ψ(t'), min_{t'' < t'} φ(t'')); T: the same with max_{t'' < t'}: one prefix scan."""
+    alg = group.alg
+    inner, empty = (alg.minimum, alg.empty_min) if isinstance(step.node, Until) else (alg.maximum, alg.empty_max)
+    before = _exclusive_prefix(inner, values[0], empty)
+    return alg.maximum.reduce(alg.minimum(values[1], before), axis=1, keepdims=True)
+
+
+_AT_ZERO: dict[type, Callable[[_Group, Step, list], np.ndarray]] = {
+    Next: _next_at_zero, Eventually: _over_time_at_zero, Always: _over_time_at_zero,
+    Until: _binary_at_zero, Then: _binary_at_zero,
 }
 
+# --------------------------------------------------------------------------- rewrites: monotone predicates
 
-def _evaluate(formula: Formula, trace: Trace, alg: _Algebra, first_only: bool) -> tuple[np.ndarray, bool]:
+# Increasing functions whose extreme over time can be taken before applying them.
+_MONOTONE = {"sqrt": np.sqrt, "exp": np.exp, "log": np.log}
+
+
+def _monotone_parts(node: Formula) -> tuple[Call, float, bool] | None:
+    """``(f(e), c, grows)`` for a predicate ``f(e) ⋈ c`` (or ``c ⋈ f(e)``) with f increasing, else None."""
+    if not isinstance(node, Predicate):
+        return None
+    if isinstance(node.lhs, Call) and node.lhs.func in _MONOTONE and isinstance(node.rhs, Num):
+        return node.lhs, node.rhs.value, ops.SIGN[node.op] > 0
+    if isinstance(node.rhs, Call) and node.rhs.func in _MONOTONE and isinstance(node.lhs, Num):
+        return node.rhs, node.lhs.value, ops.SIGN[node.op] < 0
+    return None
+
+
+def _monotone_extreme(group: _Group, step: Step, _: list) -> np.ndarray:
+    """Max (F) or min (G) over time of ``f(e) ⋈ c``: f applied to the ``(N, 1)`` extreme of e.
+
+    Both extremes of e are checked to lie in f's domain; otherwise the predicate is evaluated
+    at every position (which names the position where it is undefined).
+    """
+    child: Predicate = step.node.child  # type: ignore[attr-defined]
+    call, constant, grows = _monotone_parts(child)  # type: ignore[misc]
+    largest = isinstance(step.node, Eventually)
+    with np.errstate(all="ignore"):
+        inner = np.broadcast_to(evaluate_expression(call.args[0], group.signals), (group.n, group.length))
+        low, high = inner.min(axis=1, keepdims=True), inner.max(axis=1, keepdims=True)
+        function = _MONOTONE[call.func]
+        ends = function(low), function(high)
+    if not (np.isfinite(ends[0]).all() and np.isfinite(ends[1]).all()):  # the general path
+        values = _predicate(group, Step(child, False, ()), [])
+        return _over_time_at_zero(group, step, [values])
+    extreme = ends[1] if grows == largest else ends[0]  # the extreme of the margin ±(f(e) − c)
+    return extreme - constant if grows else constant - extreme
+
+
+# --------------------------------------------------------------------------- compiling
+
+
+REWRITES = frozenset({"at_zero", "linear", "monotone"})
+
+
+def plan_for(formula: Formula, first: bool, boolean: bool, rewrite: bool | frozenset[str] = True) -> Plan:
+    """The formula's plan for the exact evaluator (cached on the formula).
+
+    ``rewrite``: True applies every rewrite (`REWRITES`), False none (the plain plan), or a set of names.
+    """
+    rewrites = chosen(rewrite, REWRITES)
+
+    def build() -> Plan:
+        plan = compile_plan(formula, first, at_zero="at_zero" in rewrites)
+        for step in plan.steps:
+            node = step.node
+            if isinstance(node, Constant):
+                step.run = _constant
+            elif isinstance(node, Predicate):
+                linear = "linear" in rewrites and (isinstance(node.lhs, Var) or isinstance(node.rhs, Var)) and all(
+                    isinstance(e, (Var, Num)) for e in (node.lhs, node.rhs))
+                step.run = _linear_predicate if linear else _predicate
+            elif step.segments:
+                step.run = _on_segments
+            elif step.first and type(node) in _AT_ZERO:
+                step.run = _AT_ZERO[type(node)]
+                if (isinstance(node, (Eventually, Always)) and not boolean and "monotone" in rewrites
+                        and _monotone_parts(node.child) is not None):
+                    step.run, step.inputs = _monotone_extreme, ()
+            elif type(node) in ops.EXACT:
+                step.run = _operator
+            else:
+                raise TypeError(f"no evaluation rule for formula node {type(node).__name__}")
+        return prune(plan)
+
+    return cached(formula, ("exact", first, boolean, rewrites), build)
+
+
+def _evaluate(formula: Formula, trace: Trace, alg: ops.Lattice, first: bool,
+              rewrite: bool | frozenset[str] = True) -> tuple[np.ndarray, bool]:
+    plan = plan_for(formula, first, alg.boolean, rewrite)
     prepared = prepare(formula.signals, trace)
     parts = [  # trajectories are independent: evaluate them group by group (see `chunks`)
-        _Evaluator(alg, {k: v[rows] for k, v in prepared.signals.items()}, rows.stop - rows.start,
-                   prepared.length, prepared.magnitudes, rows.start)(formula, first_only)
+        run(plan, _Group(alg, {k: v[rows] for k, v in prepared.signals.items()}, rows.stop - rows.start,
+                         prepared.length, prepared.magnitudes, rows.start))
         for rows in chunks(prepared.n, prepared.length)
     ]
-    return (parts[0] if len(parts) == 1 else np.concatenate(parts)), prepared.batched
+    values = parts[0] if len(parts) == 1 else np.concatenate(parts)
+    return (values[:, :1] if first else values), prepared.batched
 
 
 def robustness_over_time(formula: Formula, trace: Trace, rho_max: float = math.inf) -> np.ndarray:
     """Robustness at every position: shape ``(T,)`` or ``(N, T)`` like the signals."""
-    values, batched = _evaluate(formula, trace, numeric_algebra(rho_max), first_only=False)
+    values, batched = _evaluate(formula, trace, ops.numeric(check_rho_max(rho_max)), first=False)
     return np.array(values if batched else values[0])
 
 
 def robustness(formula: Formula, trace: Trace, rho_max: float = math.inf) -> float | np.ndarray:
     """Robustness at position 0: a float, or an ``(N,)`` array for batched signals."""
-    values, batched = _evaluate(formula, trace, numeric_algebra(rho_max), first_only=True)
+    values, batched = _evaluate(formula, trace, ops.numeric(check_rho_max(rho_max)), first=True)
     return values[:, 0].copy() if batched else float(values[0, 0])
 
 
 def satisfied(formula: Formula, trace: Trace) -> bool | np.ndarray:
     """Boolean semantics at position 0: a bool, or an ``(N,)`` bool array."""
-    values, batched = _evaluate(formula, trace, BOOLEAN, first_only=True)
+    values, batched = _evaluate(formula, trace, ops.BOOLEAN, first=True)
     return values[:, 0].copy() if batched else bool(values[0, 0])

@@ -1,4 +1,4 @@
-"""Evaluation of the arithmetic inside predicates, for numpy arrays and torch tensors.
+"""Evaluation of the arithmetic inside predicates, on numpy arrays.
 
 Every function here walks the expression in post-order on an explicit stack (the order
 is computed once per expression, `postorder`), so a sum of 10,000 terms or 10,000 nested
@@ -15,21 +15,11 @@ from typing import Any
 import numpy as np
 
 from tl_gym.tltl.ast import BinOp, Call, Expr, Neg, Num, Var, parts
-from tl_gym.tltl.trace import is_torch
 
-
-def _functions(sample: Any) -> dict[str, Any]:
-    if is_torch(sample):
-        import torch
-
-        return {
-            "abs": torch.abs, "sqrt": torch.sqrt, "exp": torch.exp, "log": torch.log,
-            "min": torch.minimum, "max": torch.maximum, "pow": torch.pow,
-        }
-    return {
-        "abs": np.abs, "sqrt": np.sqrt, "exp": np.exp, "log": np.log,
-        "min": np.minimum, "max": np.maximum, "pow": np.power,
-    }
+_FUNCTIONS: dict[str, Any] = {
+    "abs": np.abs, "sqrt": np.sqrt, "exp": np.exp, "log": np.log,
+    "min": np.minimum, "max": np.maximum, "pow": np.power,
+}
 
 
 def postorder(expr: Expr) -> tuple[Expr, ...]:
@@ -58,15 +48,15 @@ def _unknown(e: Expr) -> TypeError:
     return TypeError(f"no evaluation rule for expression node {type(e).__name__}")
 
 
-def evaluate_expression(expr: Expr, signals: dict[str, Any], sample: Any) -> Any:
-    """Value of ``expr`` on the ``(N, T)`` signals; ``sample`` picks the array library.
+def evaluate_expression(expr: Expr, signals: dict[str, Any]) -> Any:
+    """Value of ``expr`` on the ``(N, T)`` numpy signals.
 
     Numbers are numpy scalars so that they broadcast against the signals (and 0/0 is
     NaN, refused later, not ZeroDivisionError). ``min``/``max`` inside a predicate are
     the exact ones: they are part of the predicate's function f(s), not of the
     robustness (smoothing leaves them alone).
     """
-    fns = _functions(sample)
+    fns = _FUNCTIONS
     values: list[Any] = []  # operands awaiting their operation
     for e in postorder(expr):
         if isinstance(e, Var):

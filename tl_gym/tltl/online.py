@@ -55,6 +55,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from tl_gym.errors import TraceError, UnknownSignalError
+from tl_gym.tltl import operators
 from tl_gym.tltl.ast import (
     Always,
     And,
@@ -76,7 +77,7 @@ from tl_gym.tltl.ast import (
     Var,
     height,
 )
-from tl_gym.tltl.expressions import can_be_non_finite, postorder
+from tl_gym.tltl.expressions import can_be_non_finite, evaluate_expression, postorder
 from tl_gym.tltl.trace import check_rho_max
 
 State = Mapping[str, float]
@@ -89,13 +90,6 @@ _Scalar = Callable[[State], float]
 # Closures nest as deep as the formula; beyond this depth a loop over the nodes takes over
 # (no recursion at any depth, a little slower per node).
 _CLOSURE_DEPTH = 64
-_FLOAT_OPS: dict[str, Callable[[float, float], float]] = {
-    "+": lambda a, b: a + b, "-": lambda a, b: a - b, "*": lambda a, b: a * b, "/": lambda a, b: a / b,
-    "^": math.pow,
-}
-_FLOAT_FUNCTIONS: dict[str, Callable[[float], float]] = {
-    "abs": abs, "sqrt": math.sqrt, "exp": math.exp, "log": math.log,
-}
 
 
 def _compile_expr(expr: Expr) -> _Scalar:
@@ -106,32 +100,12 @@ def _compile_expr(expr: Expr) -> _Scalar:
 
 
 def _expression_loop(expr: Expr) -> _Scalar:
-    """``expr`` on one state by one loop over its nodes in post-order (any depth)."""
-    program = postorder(expr)
+    """``expr`` on one state by the array evaluator's loop over its nodes in post-order (any depth)."""
+    names = tuple(dict.fromkeys(e.name for e in postorder(expr) if isinstance(e, Var)))
 
     def value(s: State) -> float:
-        stack: list[float] = []
-        for e in program:
-            if isinstance(e, Var):
-                stack.append(s[e.name])
-            elif isinstance(e, Num):
-                stack.append(e.value)
-            elif isinstance(e, Neg):
-                stack[-1] = -stack[-1]
-            elif isinstance(e, BinOp):
-                b = stack.pop()
-                stack[-1] = _FLOAT_OPS[e.op](stack[-1], b)
-            elif isinstance(e, Call):
-                k = len(stack) - len(e.args)
-                args = stack[k:]
-                del stack[k:]
-                if e.func in ("min", "max"):
-                    stack.append(min(args) if e.func == "min" else max(args))
-                else:
-                    stack.append(_FLOAT_FUNCTIONS[e.func](args[0]))
-            else:
-                raise TypeError(f"no evaluation rule for expression node {type(e).__name__}")
-        return stack[0]
+        with np.errstate(all="ignore"):
+            return float(evaluate_expression(expr, {n: np.float64(s[n]) for n in names}))
 
     return value
 
@@ -170,13 +144,13 @@ def _expression_closure(expr: Expr) -> _Scalar:
 
 def _compile_predicate(node: Predicate) -> _Scalar:
     lhs, rhs = _compile_expr(node.lhs), _compile_expr(node.rhs)
-    less = node.op in ("<", "<=")
+    op = node.op
     checked = can_be_non_finite(node.lhs) or can_be_non_finite(node.rhs)
     text = str(node)
 
     def value(s: State) -> float:
         try:
-            v = rhs(s) - lhs(s) if less else lhs(s) - rhs(s)
+            v = operators.margin(op, lhs(s), rhs(s))
         except (ValueError, ZeroDivisionError, OverflowError) as exc:
             raise TraceError(f"predicate {text!r} is undefined at this state ({exc})") from None
         if checked and not math.isfinite(v):
@@ -221,16 +195,10 @@ def _state_closure(formula: Formula, rho_max: float) -> _Scalar:
         return lambda s: value
     if isinstance(formula, Predicate):
         return _compile_predicate(formula)
-    if isinstance(formula, Not):
-        inner = _state_closure(formula.child, rho_max)
-        return lambda s: -inner(s)
-    if isinstance(formula, (And, Or)):
-        parts = [_state_closure(c, rho_max) for c in formula.operands]
-        reduce_ = min if isinstance(formula, And) else max
-        return lambda s: reduce_(p(s) for p in parts)
-    if isinstance(formula, Implies):
-        left, right = _state_closure(formula.left, rho_max), _state_closure(formula.right, rho_max)
-        return lambda s: max(-left(s), right(s))
+    if isinstance(formula, (Not, And, Or, Implies)):
+        parts = [_state_closure(c, rho_max) for c in formula.children]
+        combine = operators.CONNECTIVES[type(formula)]
+        return lambda s: combine([p(s) for p in parts])
     raise TypeError(f"{type(formula).__name__} is temporal; compile_state_formula takes temporal-free formulas")
 
 
@@ -271,15 +239,10 @@ def _window_closure(formula: Formula, rho_max: float) -> _WindowFn:
         inner = _window_closure(formula.child, rho_max)
         bottom = -float(rho_max)
         return lambda w, i: inner(w, i + 1) if i + 1 < len(w) else bottom
-    parts = [_window_closure(c, rho_max) for c in formula.children]
-    if isinstance(formula, Not):
-        return lambda w, i: -parts[0](w, i)
-    if isinstance(formula, And):
-        return lambda w, i: min(p(w, i) for p in parts)
-    if isinstance(formula, Or):
-        return lambda w, i: max(p(w, i) for p in parts)
-    if isinstance(formula, Implies):
-        return lambda w, i: max(-parts[0](w, i), parts[1](w, i))
+    if isinstance(formula, (Not, And, Or, Implies)):
+        parts = [_window_closure(c, rho_max) for c in formula.children]
+        combine = operators.CONNECTIVES[type(formula)]
+        return lambda w, i: combine([p(w, i) for p in parts])
     raise TypeError(f"{type(formula).__name__} has no bounded lookahead")
 
 
@@ -405,7 +368,7 @@ class _Extremum(_Node):
     def __init__(self, fn: _WindowFn, depth: int, is_max: bool, names: tuple[str, ...]):
         self.fn = fn
         self.depth = depth
-        self.pick = max if is_max else min
+        self.is_max = is_max
         self.empty = -math.inf if is_max else math.inf
         self.window = _Window(names, depth + 1)
         self.slots = [Slot(VALUE)] + ([] if depth == 0 else [Slot(COUNT, depth + 1), *self.window.slots])
@@ -420,14 +383,14 @@ class _Extremum(_Node):
         self.window.states.append(s)
         self.count += 1
         if self.count > self.depth:  # the window's first position is now final
-            self.final = self.pick(self.final, self.fn(list(self.window.states), 0))
+            self.final = operators.online_extremum(self.final, self.fn(list(self.window.states), 0), self.is_max)
         return self.value()
 
     def value(self) -> float:
         states = list(self.window.states)
         value = self.final
         for i in range(1 if self.count > self.depth else 0, len(states)):
-            value = self.pick(value, self.fn(states, i))
+            value = operators.online_extremum(value, self.fn(states, i), self.is_max)
         return value
 
     def export(self, out: list[float]) -> None:
@@ -549,10 +512,7 @@ class _Until(_Node):
         self.best = -math.inf
 
     def update(self, s: State) -> float:
-        candidate = min(self.right(s), self.left_so_far)
-        if candidate > self.best:
-            self.best = candidate
-        self.left_so_far = min(self.left_so_far, self.left(s))
+        self.left_so_far, self.best = operators.online_until(self.left_so_far, self.best, self.left(s), self.right(s))
         return self.best
 
     def value(self) -> float:
@@ -582,14 +542,8 @@ class _ThenChain(_Node):
         self.best = [-math.inf] * len(self.fns)
 
     def update(self, s: State) -> float:
-        best = self.best
-        for i in range(len(self.fns) - 1, 0, -1):
-            if best[i - 1] > -math.inf:
-                candidate = min(best[i - 1], self.fns[i](s))
-                if candidate > best[i]:
-                    best[i] = candidate
-        best[0] = max(best[0], self.fns[0](s))
-        return best[-1]
+        operators.online_then_chain(self.best, lambda i: self.fns[i](s))
+        return self.best[-1]
 
     def value(self) -> float:
         return self.best[-1]
@@ -621,13 +575,7 @@ class _Combine(_Node):
         return self._combine([child.value() for child in self.children])
 
     def _combine(self, values: list[float]) -> float:
-        if self.kind is Not:
-            return -values[0]
-        if self.kind is And:
-            return min(values)
-        if self.kind is Or:
-            return max(values)
-        return max(-values[0], values[1])  # Implies
+        return operators.CONNECTIVES[self.kind](values)
 
     def export(self, out: list[float]) -> None:
         for child in self.children:

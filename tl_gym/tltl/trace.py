@@ -8,6 +8,7 @@ first NaN or inf.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Union
@@ -46,7 +47,8 @@ def is_torch(value: Any) -> bool:
 
 def _magnitude(low: float, high: float) -> float:
     """The largest |x| from the extremes (two passes, no |x| copy); NaN if either is NaN."""
-    return float(np.max(np.abs([low, high])))
+    biggest = max(abs(low), abs(high))
+    return biggest if low == low and high == high else math.nan
 
 
 def _first_bad(name: str, finite: np.ndarray, batched: bool) -> TraceError:

@@ -1,0 +1,83 @@
+"""The fused numba kernel (``backend="numba"``) gives the numpy plan's robustness, bit for bit.
+
+Three kernels are compiled (into a temporary cache directory), so the module stays fast; it is
+skipped when numba is not installed.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from tests import strategies as S
+from tl_gym import TraceError, parse
+from tl_gym.tltl import fused
+
+pytest.importorskip("numba")
+
+# every operator, and the predicate arithmetic the kernel writes out (exp/log may differ in the last bit)
+EVERY_OPERATOR = parse(
+    "F(x > 1 & y < 2) & G(sqrt((x - 1)^2 + y^2) > 0.5) | X(x <= y) -> ((x > 0) U (y > 1)) & ((x > 0) T (y > 1))"
+    " & !(abs(x) * 2 > 3 + y / 4) & (true | false) & F G(max(x, y) - min(x, -y, 1) >= -(x))"
+)
+DIVISION = parse("G(x / y > -50 | y > 0) -> X X F(x > 0)")
+# F / G of monotone predicates: f applied to the extremes after the loop (outside f's domain: the numpy plan)
+MONOTONE = parse("G(log(x + 2) > -1) | F(sqrt(y) < 1) | G(2 < exp(x / 3)) & F(sqrt(x) >= 0.5)")
+
+
+@pytest.fixture(scope="module", autouse=True)
+def cache_directory(tmp_path_factory):
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("TL_GYM_CACHE", str(tmp_path_factory.mktemp("fused")))
+        yield
+
+
+@settings(max_examples=60, deadline=None)
+@given(S.batched_traces(names=("x", "y"), max_length=9), st.sampled_from([math.inf, 2.5]))
+def test_fused_kernel_equals_the_numpy_plan(trace, rho_max):
+    for formula in (EVERY_OPERATOR, DIVISION):
+        try:
+            expected = formula.robustness(trace, rho_max)
+        except TraceError as error:  # an undefined predicate: the same error, naming the same place
+            with pytest.raises(TraceError, match=str(error).split(" (")[0]):
+                formula.robustness(trace, rho_max, backend="numba")
+            continue
+        np.testing.assert_array_equal(formula.robustness(trace, rho_max, backend="numba"), expected)
+        row = {k: v[0] for k, v in trace.items()}
+        assert formula.robustness(row, rho_max, backend="numba") == formula.robustness(row, rho_max)
+    try:
+        expected = MONOTONE.robustness(trace, rho_max)
+    except TraceError:
+        with pytest.raises(TraceError):
+            MONOTONE.robustness(trace, rho_max, backend="numba")
+    else:  # exp and log of numba and of numpy may differ in the last bit
+        np.testing.assert_allclose(MONOTONE.robustness(trace, rho_max, backend="numba"), expected, rtol=1e-14)
+
+
+def test_kernel_is_compiled_once_and_timed():
+    kernel = fused.kernel_for(EVERY_OPERATOR)
+    assert kernel is not None and kernel.names == ("x", "y") and kernel.seconds > 0
+    assert fused.kernel_for(EVERY_OPERATOR) is kernel  # kept on the formula
+    assert "for t in range(length - 1, -1, -1):" in kernel.source
+
+
+@pytest.mark.parametrize("text", ["(F x > 1) U (y > 0)", "true & F false", " & ".join(f"x > {i}" for i in range(500))])
+def test_formulas_outside_the_kernel_use_the_numpy_plan(text):
+    formula = parse(text)
+    assert fused.kernel_for(formula) is None
+    trace = {"x": np.linspace(-1, 3, 12).reshape(2, 6), "y": np.ones((2, 6))}
+    np.testing.assert_array_equal(formula.robustness(trace, backend="numba"), formula.robustness(trace))
+
+
+def test_without_numba_the_numpy_plan_answers(monkeypatch):
+    monkeypatch.setattr(fused, "available", lambda: False)
+    monkeypatch.setattr(fused, "_WARNED", [])
+    formula = parse("F(x > 1)")
+    with pytest.warns(UserWarning, match="numba is not installed"):
+        assert formula.robustness({"x": [0.0, 2.0]}, backend="numba") == 1.0
+    with pytest.raises(ValueError, match="backend"):
+        formula.robustness({"x": [0.0]}, backend="torch")
