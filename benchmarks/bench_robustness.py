@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks import handwritten, peers
-from benchmarks.formulas import ARENA, TASKS, Task, task_formula
+from benchmarks.formulas import ARENA, TASKS, Task, benchmark_task
 from benchmarks.peers import Evaluator, Unsupported
 from tl_gym.tltl import fused
 
@@ -565,7 +565,7 @@ def main(argv: list[str] | None = None) -> list[Row]:
 
     torch.set_num_threads(args.threads)
     settings = Settings(args.repeats, args.budget, args.max_seconds, args.max_elements)
-    tasks = [task_formula(k) for k in args.tasks]
+    tasks = [benchmark_task(k) for k in args.tasks]
     rows: list[Row] = []
     skipped: list[str] = []
     log(HEADER)

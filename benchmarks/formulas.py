@@ -6,7 +6,7 @@ same goals and obstacle: those of TLCarNav-v0 (`tl_gym.envs.tasks`), whose formu
 is also the one tl_gym evaluates here.
 
 Example:
-    >>> task = task_formula("phi1")
+    >>> task = benchmark_task("phi1")
     >>> task.formula.signals
     ('x', 'y')
     >>> import numpy as np
@@ -84,7 +84,7 @@ class Task:
         return tl_gym_task_formula(1 if self.key == "phi1" else 2, "strict" if self.strict else "leave")
 
 
-def task_formula(key: str) -> Task:
+def benchmark_task(key: str) -> Task:
     """The benchmark task ``key`` (one of `TASKS`) on the shared arena layout.
 
     Raises:

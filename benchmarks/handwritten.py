@@ -13,8 +13,8 @@ Semantics are tl_gym's (the paper's): F/G over [t, T), ``X`` at the last state i
 
 Example:
     >>> import numpy as np
-    >>> from benchmarks.formulas import task_formula
-    >>> task = task_formula("phi1")
+    >>> from benchmarks.formulas import benchmark_task
+    >>> task = benchmark_task("phi1")
     >>> x = np.array([[10.0, 250.0]]); y = np.array([[10.0, 250.0]])
     >>> phi1(task, x, y)
     array([10.])

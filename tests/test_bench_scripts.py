@@ -5,21 +5,21 @@ import pytest
 
 from benchmarks import bench_robustness as bench
 from benchmarks import handwritten
-from benchmarks.formulas import TASKS, task_formula
+from benchmarks.formulas import TASKS, benchmark_task
 from benchmarks.peers import Evaluator
 
 
 @pytest.mark.parametrize("key", TASKS)
 @pytest.mark.parametrize("length", [1, 2, 7, 200])
 def test_handwritten_equals_tl_gym(key, length):
-    task = task_formula(key)
-    x, y = bench.trajectories(300, length, seed=length, tasks=[task_formula(k) for k in TASKS])
+    task = benchmark_task(key)
+    x, y = bench.trajectories(300, length, seed=length, tasks=[benchmark_task(k) for k in TASKS])
     expected = task.formula.robustness({"x": x, "y": y})
     np.testing.assert_allclose(handwritten.robustness(task, x, y), expected, rtol=1e-12, atol=1e-12)
 
 
 def test_trajectories_are_seeded_in_the_arena_and_satisfy_phi1_phi2_sometimes():
-    tasks = [task_formula(k) for k in TASKS]
+    tasks = [benchmark_task(k) for k in TASKS]
     x, y = bench.trajectories(400, 200, seed=0, tasks=tasks)
     assert x.shape == y.shape == (400, 200)
     assert x.min() >= 0 and x.max() <= 300 and y.min() >= 0 and y.max() <= 300
@@ -51,7 +51,7 @@ def test_quick_run_with_tl_gym_and_handwritten_only(tmp_path):
 
 
 def test_alternated_timing_reports_the_calls_and_the_target():
-    task = task_formula("phi1")
+    task = benchmark_task("phi1")
     x, y = bench.trajectories(8, 30, seed=2, tasks=[task])
     times = bench.interleaved(task, x, y, 9.0, rounds=2)
     assert len(times) == 3 and all(0 < t < 10 for t in times)
@@ -62,7 +62,7 @@ def test_alternated_timing_reports_the_calls_and_the_target():
 
 
 def test_a_disagreeing_library_is_reported_not_timed():
-    task = task_formula("phi1")
+    task = benchmark_task("phi1")
     x, y = bench.trajectories(5, 50, seed=1, tasks=[task])
     wrong = Evaluator("liar", "exact", lambda x, y: handwritten.robustness(task, x, y) + 1.0, per_trajectory=False)
     rows = bench.run_cell(task, x, y, [*bench.tl_gym_evaluators(task, 9.0), wrong], bench.Settings(1, 0.01), print)
@@ -75,14 +75,14 @@ def test_bad_arguments_are_rejected():
     with pytest.raises(SystemExit):
         bench.parse_args(["--n", "0"])
     with pytest.raises(ValueError, match="unknown task 'phi3'"):
-        task_formula("phi3")
+        benchmark_task("phi3")
 
 
 def test_handwritten_smooth_phi1_equals_tl_gym():
     """The hand-written smoothed φ1 (the floor of the smoothed-speed target) is tl_gym's value and gradient."""
     import torch
 
-    task = task_formula("phi1")
+    task = benchmark_task("phi1")
     x, y = bench.trajectories(700, 30, seed=3, tasks=[task])  # two groups of rows
     values, grad_x, grad_y = handwritten.smooth_phi1(task, x, y, 9.0)
     xt, yt = torch.from_numpy(x).requires_grad_(True), torch.from_numpy(y).requires_grad_(True)
@@ -101,7 +101,7 @@ def test_peer_formula_texts():
     assert load("rtamt").NAME == "rtamt" and load("stlcgpp").NAME == "stlcg++"
     with pytest.raises(ValueError, match="unknown peer"):
         load("nope")
-    phi2, strict = task_formula("phi2"), task_formula("phi2-strict")
+    phi2, strict = benchmark_task("phi2"), benchmark_task("phi2-strict")
     with pytest.raises(ValueError, match="argus cannot express X"):
         specification(phi2, ARGUS)
     assert specification(strict, ARGUS).count(") && (") == 6  # 7 clauses: sequence, 2 untils, 3 no-revisit, avoid
@@ -116,7 +116,7 @@ def test_rtamt_translation_equals_tl_gym(key):
     pytest.importorskip("rtamt")
     from benchmarks.peers import load
 
-    task = task_formula(key)
+    task = benchmark_task(key)
     x, y = bench.trajectories(6, 12, seed=4, tasks=[task])
     (exact, _) = load("rtamt").evaluators(task, 9.0)
     np.testing.assert_allclose(exact.run(x, y), task.formula.robustness({"x": x, "y": y}), rtol=1e-12)
