@@ -8,7 +8,6 @@ import zipfile
 
 import pytest
 from tl_gym.agents import Agent
-
 from tl_gym.cli import build_env, main
 
 
