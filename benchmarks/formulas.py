@@ -22,7 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cached_property
 
-from tl_gym.envs.tasks import make_layout
+from tl_gym.envs.tasks import Goal, Obstacle, make_layout
 from tl_gym.envs.tasks import task_formula as tl_gym_task_formula
 
 from tl_gym import Formula
@@ -33,45 +33,18 @@ TASKS = ("phi1", "phi2", "phi2-strict")
 
 
 @dataclass(frozen=True)
-class Box:
-    """An open square goal ``x_low < x < x_high``, ``y_low < y < y_high``."""
-
-    x_low: float
-    x_high: float
-    y_low: float
-    y_high: float
-
-    def text(self) -> str:
-        """The goal predicate ψ_g in tl_gym syntax (Eq. 16's conjunction of four)."""
-        return f"x > {self.x_low:g} & x < {self.x_high:g} & y > {self.y_low:g} & y < {self.y_high:g}"
-
-
-@dataclass(frozen=True)
-class Circle:
-    """A circular obstacle; its predicate is ``d_o > r_o`` with ``d_o`` the distance to the centre."""
-
-    cx: float
-    cy: float
-    r: float
-
-    def text(self) -> str:
-        """The obstacle predicate ``d_o > r_o`` in tl_gym syntax."""
-        return f"sqrt((x - {self.cx:g})^2 + (y - {self.cy:g})^2) > {self.r:g}"
-
-
-@dataclass(frozen=True)
 class Task:
     """One benchmark formula: φ1, φ2 (default no-revisit) or φ2 with the paper's strict no-revisit.
 
     Attributes:
         key: ``"phi1"``, ``"phi2"`` or ``"phi2-strict"``.
-        goals: the goal (φ1) or the three goals in visiting order (φ2).
-        obstacle: the obstacle to avoid at every step.
+        goals: the goal (φ1) or the three goals in visiting order (φ2), the env's own `Goal` regions.
+        obstacle: the env's `Obstacle`, to avoid at every step.
     """
 
     key: str
-    goals: tuple[Box, ...]
-    obstacle: Circle
+    goals: tuple[Goal, ...]
+    obstacle: Obstacle
 
     @property
     def strict(self) -> bool:
@@ -93,6 +66,4 @@ def benchmark_task(key: str) -> Task:
     if key not in TASKS:
         raise ValueError(f"unknown task {key!r}; expected one of {', '.join(TASKS)}")
     layout = make_layout(1 if key == "phi1" else 2)
-    goals = tuple(Box(g.x_low, g.x_high, g.y_low, g.y_high) for g in layout.goals)
-    o = layout.obstacle
-    return Task(key, goals, Circle(o.x, o.y, o.radius))
+    return Task(key, tuple(layout.goals), layout.obstacle)

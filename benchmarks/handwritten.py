@@ -23,11 +23,12 @@ Example:
 from __future__ import annotations
 
 import numpy as np
+from tl_gym.envs.tasks import Goal, Obstacle
 
-from benchmarks.formulas import Box, Circle, Task
+from benchmarks.formulas import Task
 
 
-def _box(box: Box, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+def _box(box: Goal, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """ψ_g = min(x − x_l, x_u − x, y − y_l, y_u − y), shape ``(N, T)``."""
     out = np.minimum(x - box.x_low, box.x_high - x)
     np.minimum(out, y - box.y_low, out=out)
@@ -35,11 +36,11 @@ def _box(box: Box, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return out
 
 
-def _clearance(obstacle: Circle, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+def _clearance(obstacle: Obstacle, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """The minimum over time of d_o − r_o, shape ``(N,)`` (the clause G(d_o > r_o))."""
-    dx = x - obstacle.cx
-    dy = y - obstacle.cy
-    return np.sqrt((dx * dx + dy * dy).min(axis=1)) - obstacle.r  # sqrt is monotone: take it once
+    dx = x - obstacle.x
+    dy = y - obstacle.y
+    return np.sqrt((dx * dx + dy * dy).min(axis=1)) - obstacle.radius  # sqrt is monotone: take it once
 
 
 def _suffix(ufunc: np.ufunc, values: np.ndarray) -> np.ndarray:
@@ -137,11 +138,11 @@ def smooth_phi1(task: Task, x: np.ndarray, y: np.ndarray, beta: float,
         goal = np.log(inside)
         np.subtract(low, goal, out=goal)  # smooth min of the four, β units
         reach, reach_weights, reach_total = _weights(goal, 1.0)
-        dx, dy = x[part] - circle.cx, y[part] - circle.cy
+        dx, dy = x[part] - circle.x, y[part] - circle.y
         distance = dx * dx
         distance += dy * dy
         np.sqrt(distance, out=distance)
-        clear_z = distance - circle.r
+        clear_z = distance - circle.radius
         clear_z *= beta
         clear, clear_weights, clear_total = _weights(clear_z, -1.0)
         both = np.minimum(reach, clear)
@@ -211,7 +212,7 @@ def fused(task: Task, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
         _KERNELS.update(phi1=njit(cache=True)(_fused_phi1), phi2=njit(cache=True)(_fused_phi2))
     boxes = np.array([[b.x_low, b.x_high, b.y_low, b.y_high] for b in task.goals])
-    circle, out = np.array([task.obstacle.cx, task.obstacle.cy, task.obstacle.r]), np.empty(x.shape[0])
+    circle, out = np.array([task.obstacle.x, task.obstacle.y, task.obstacle.radius]), np.empty(x.shape[0])
     args = (boxes[0], circle, out) if task.key == "phi1" else (boxes, circle, task.strict, out)
     _KERNELS[task.key[:4]](x, y, *args)
     return out

@@ -35,12 +35,12 @@ def formula(task: Task, stl: Any, sqrt: Callable[[Any], Any]) -> Any:
     b, c = task.goals[0], task.obstacle
     x = stl.Predicate("x", lambda s: s[..., 0])
     y = stl.Predicate("y", lambda s: s[..., 1])
-    d = stl.Predicate("d_o", lambda s: sqrt((s[..., 0] - c.cx) ** 2 + (s[..., 1] - c.cy) ** 2))
+    d = stl.Predicate("d_o", lambda s: sqrt((s[..., 0] - c.x) ** 2 + (s[..., 1] - c.y) ** 2))
     box = stl.And(
         stl.And(stl.And(stl.GreaterThan(x, b.x_low), stl.LessThan(x, b.x_high)), stl.GreaterThan(y, b.y_low)),
         stl.LessThan(y, b.y_high),
     )
-    return stl.And(stl.Eventually(box), stl.Always(stl.GreaterThan(d, c.r)))
+    return stl.And(stl.Eventually(box), stl.Always(stl.GreaterThan(d, c.radius)))
 
 
 def _chunk(length: int) -> int:

@@ -28,8 +28,8 @@ class Syntax:
     """How a library writes the pieces of the tasks; each field maps its operands (texts) to text."""
 
     name: str
-    box: Text  # a goal ψ_g, from a `benchmarks.formulas.Box`
-    distance: Text  # the obstacle distance d_o, from a `benchmarks.formulas.Circle`
+    box: Text  # a goal ψ_g, from a `tl_gym.envs.tasks.Goal`
+    distance: Text  # the obstacle distance d_o, from a `tl_gym.envs.tasks.Obstacle`
     always: Text
     phi1: Text  # (g, avoid) -> F g ∧ avoid
     sequence: Text  # (g1, g2, g3) -> g1 T (g2 T g3)
@@ -51,7 +51,7 @@ def specification(task: Task, s: Syntax) -> str:
         ValueError: φ2 with the default no-revisit clause, and ``s`` cannot write X.
     """
     g = [s.box(b) for b in task.goals]
-    avoid = s.always(f"{s.distance(task.obstacle)} > {task.obstacle.r:.1f}")
+    avoid = s.always(f"{s.distance(task.obstacle)} > {task.obstacle.radius:.1f}")
     if task.key == "phi1":
         return s.wrap(s.phi1(g[0], avoid))
     if s.next is None and not task.strict:
@@ -80,7 +80,7 @@ def _rtamt_then(phi: str, later: str) -> str:
 RTAMT = Syntax(
     name="rtamt",
     box="((x > {0.x_low:.1f}) and (x < {0.x_high:.1f}) and (y > {0.y_low:.1f}) and (y < {0.y_high:.1f}))".format,
-    distance="sqrt((x - {0.cx:.1f})*(x - {0.cx:.1f}) + (y - {0.cy:.1f})*(y - {0.cy:.1f}))".format,
+    distance="sqrt((x - {0.x:.1f})*(x - {0.x:.1f}) + (y - {0.y:.1f})*(y - {0.y:.1f}))".format,
     always="always({})".format, phi1="(eventually{}) and ({})".format,
     sequence=lambda g1, g2, g3: _rtamt_then(g1, _rtamt_then(g2, f"eventually{g3}")),
     until="(({}) until {})".format, always_after=lambda phi: _rtamt_next(f"always({phi})"), next=_rtamt_next,
@@ -153,7 +153,7 @@ def argus_evaluators(task: Task, beta: float) -> list[Evaluator | Unsupported]:
 
     def run_one(x: np.ndarray, y: np.ndarray) -> float:
         times = [float(t) for t in range(len(x))]
-        d = np.hypot(x - task.obstacle.cx, y - task.obstacle.cy)
+        d = np.hypot(x - task.obstacle.x, y - task.obstacle.y)
         trace = argus.Trace({"x": signal(times, x), "y": signal(times, y), "d": signal(times, d)})
         return float(argus.eval_robust_semantics(expr, trace, interpolation_method="constant").at(0.0))
 
@@ -201,7 +201,7 @@ def stlrom_evaluators(task: Task, beta: float) -> list[Evaluator | Unsupported]:
 
     def run_one(x: np.ndarray, y: np.ndarray) -> float:
         monitor = driver(len(x)).get_monitor("phi")  # a fresh monitor holds no samples
-        d = np.hypot(x - task.obstacle.cx, y - task.obstacle.cy)
+        d = np.hypot(x - task.obstacle.x, y - task.obstacle.y)
         samples = np.column_stack([np.arange(len(x) + 1.0), *(np.append(v, v[-1]) for v in (x, y, d))])
         for sample in samples.tolist():
             monitor.add_sample(sample)
