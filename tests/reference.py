@@ -30,26 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from tl_gym.tltl.ast import (
-    Always,
-    And,
-    BinOp,
-    Call,
-    Constant,
-    Eventually,
-    Expr,
-    Formula,
-    Implies,
-    Neg,
-    Next,
-    Not,
-    Num,
-    Or,
-    Predicate,
-    Then,
-    Until,
-    Var,
-)
+from tl_gym.tltl import ast as nodes
+from tl_gym.tltl.ast import Expr, Formula
 
 INF = math.inf
 
@@ -68,19 +50,19 @@ def expr_value(expr: Expr, state: Mapping[str, float]) -> float:
 
 
 def _expr(e: Expr, state: Mapping[str, float]) -> np.float64:
-    if isinstance(e, Var):
+    if isinstance(e, nodes.Var):
         return np.float64(state[e.name])
-    if isinstance(e, Num):
+    if isinstance(e, nodes.Num):
         return np.float64(e.value)
-    if isinstance(e, Neg):
+    if isinstance(e, nodes.Neg):
         return -_expr(e.operand, state)
-    if isinstance(e, BinOp):
+    if isinstance(e, nodes.BinOp):
         a, b = _expr(e.left, state), _expr(e.right, state)
         ops: dict[str, Callable[[Any, Any], Any]] = {
             "+": np.add, "-": np.subtract, "*": np.multiply, "/": np.divide, "^": np.power,
         }
         return ops[e.op](a, b)
-    if isinstance(e, Call):
+    if isinstance(e, nodes.Call):
         args = [_expr(a, state) for a in e.args]
         if e.func == "min":
             return np.min(args)  # NaN-propagating, like the IEEE minimum
@@ -90,13 +72,13 @@ def _expr(e: Expr, state: Mapping[str, float]) -> np.float64:
     raise TypeError(f"reference has no rule for expression node {type(e).__name__}")
 
 
-def margin(pred: Predicate, state: Mapping[str, float]) -> float:
+def margin(pred: nodes.Predicate, state: Mapping[str, float]) -> float:
     """Robustness of a predicate on one state: b − a for ``a < b``, a − b for ``a > b``."""
     a, b = expr_value(pred.lhs, state), expr_value(pred.rhs, state)
     return b - a if pred.op in ("<", "<=") else a - b
 
 
-def checked_margin(pred: Predicate, state: Mapping[str, float]) -> float:
+def checked_margin(pred: nodes.Predicate, state: Mapping[str, float]) -> float:
     """`margin`, raising `UndefinedPredicate` where the arithmetic is NaN or infinite."""
     value = margin(pred, state)
     if not math.isfinite(value):
@@ -104,13 +86,13 @@ def checked_margin(pred: Predicate, state: Mapping[str, float]) -> float:
     return value
 
 
-def checked_holds(pred: Predicate, state: Mapping[str, float]) -> bool:
+def checked_holds(pred: nodes.Predicate, state: Mapping[str, float]) -> bool:
     """`holds`, raising `UndefinedPredicate` where the arithmetic is NaN or infinite."""
     checked_margin(pred, state)
     return holds(pred, state)
 
 
-def holds(pred: Predicate, state: Mapping[str, float]) -> bool:
+def holds(pred: nodes.Predicate, state: Mapping[str, float]) -> bool:
     """Boolean value of a predicate on one state (``<`` strict, ``<=`` not)."""
     a, b = expr_value(pred.lhs, state), expr_value(pred.rhs, state)
     return {"<": a < b, "<=": a <= b, ">": a > b, ">=": a >= b}[pred.op]
@@ -120,7 +102,7 @@ def check_defined(formula: Formula, trace: Mapping[str, Sequence[float]]) -> Non
     """Raise `UndefinedPredicate` if a predicate is NaN/inf at any position of the trace."""
     length = len(next(iter(trace.values())))
     for node in formula.walk():
-        if isinstance(node, Predicate):
+        if isinstance(node, nodes.Predicate):
             for t in range(length):
                 if not math.isfinite(margin(node, _state(trace, t))):
                     raise UndefinedPredicate(f"{node} is undefined at position {t}")
@@ -130,7 +112,7 @@ def largest_margin(formula: Formula, trace: Mapping[str, Sequence[float]]) -> fl
     """The largest |margin| of any predicate at any position of a (T,) trace."""
     length = len(next(iter(trace.values())))
     margins = [abs(margin(node, _state(trace, t)))
-               for node in formula.walk() if isinstance(node, Predicate) for t in range(length)]
+               for node in formula.walk() if isinstance(node, nodes.Predicate) for t in range(length)]
     return max(margins, default=0.0)
 
 
@@ -166,7 +148,7 @@ class Semantics:
     maximum: Callable[[list[Any]], Any]  # over a possibly empty list
     minimum: Callable[[list[Any]], Any]
     negate: Callable[[Any], Any]
-    predicate: Callable[[Predicate, Mapping[str, float]], Any]
+    predicate: Callable[[nodes.Predicate, Mapping[str, float]], Any]
 
 
 def exact_semantics(rho_max: float = INF) -> Semantics:
@@ -212,26 +194,26 @@ class _Reference:
 
     def _value(self, node: Formula, length: int, t: int) -> Any:
         sem, v = self.sem, self.value
-        if isinstance(node, Constant):
+        if isinstance(node, nodes.Constant):
             return sem.top if node.value else sem.bottom
-        if isinstance(node, Predicate):
+        if isinstance(node, nodes.Predicate):
             return sem.predicate(node, self.states[t])
-        if isinstance(node, Not):
+        if isinstance(node, nodes.Not):
             return sem.negate(v(node.child, length, t))
-        if isinstance(node, And):
+        if isinstance(node, nodes.And):
             return sem.minimum([v(c, length, t) for c in node.operands])
-        if isinstance(node, Or):
+        if isinstance(node, nodes.Or):
             return sem.maximum([v(c, length, t) for c in node.operands])
-        if isinstance(node, Implies):
+        if isinstance(node, nodes.Implies):
             return sem.maximum([sem.negate(v(node.left, length, t)), v(node.right, length, t)])
-        if isinstance(node, Next):
+        if isinstance(node, nodes.Next):
             return v(node.child, length, t + 1) if t + 1 < length else sem.bottom
-        if isinstance(node, Eventually):
+        if isinstance(node, nodes.Eventually):
             return sem.maximum([v(node.child, length, k) for k in range(t, length)])
-        if isinstance(node, Always):
+        if isinstance(node, nodes.Always):
             return sem.minimum([v(node.child, length, k) for k in range(t, length)])
-        if isinstance(node, (Until, Then)):
-            inner = sem.minimum if isinstance(node, Until) else sem.maximum
+        if isinstance(node, (nodes.Until, nodes.Then)):
+            inner = sem.minimum if isinstance(node, nodes.Until) else sem.maximum
             terms = []
             for k in range(t, length):  # t' = k
                 # φ on the segment s_j … s_{k-1}: the trace truncated to length k, at j
@@ -334,32 +316,32 @@ def _bracket(node: Formula, horizon: int) -> tuple[float, float]:
     def log(n: int) -> float:
         return math.log(max(n, 1))
 
-    if isinstance(node, (Constant, Predicate)):
+    if isinstance(node, (nodes.Constant, nodes.Predicate)):
         return 0.0, 0.0
-    if isinstance(node, Not):
+    if isinstance(node, nodes.Not):
         below, above = _bracket(node.child, horizon)
         return above, below
-    if isinstance(node, Next):
+    if isinstance(node, nodes.Next):
         return _bracket(node.child, horizon)
-    if isinstance(node, And):
+    if isinstance(node, nodes.And):
         below, above = _worst([_bracket(c, horizon) for c in node.operands])
         return below + log(len(node.operands)), above
-    if isinstance(node, Or):
+    if isinstance(node, nodes.Or):
         below, above = _worst([_bracket(c, horizon) for c in node.operands])
         return below, above + log(len(node.operands))
-    if isinstance(node, Implies):
+    if isinstance(node, nodes.Implies):
         left_below, left_above = _bracket(node.left, horizon)
         below, above = _worst([(left_above, left_below), _bracket(node.right, horizon)])
         return below, above + log(2)
-    if isinstance(node, Eventually):
+    if isinstance(node, nodes.Eventually):
         below, above = _bracket(node.child, horizon)
         return below, above + log(horizon)
-    if isinstance(node, Always):
+    if isinstance(node, nodes.Always):
         below, above = _bracket(node.child, horizon)
         return below + log(horizon), above
-    if isinstance(node, (Until, Then)):
+    if isinstance(node, (nodes.Until, nodes.Then)):
         below, above = _bracket(node.left, horizon)
-        if isinstance(node, Until):
+        if isinstance(node, nodes.Until):
             inner = (below + log(horizon - 1), above)
         else:
             inner = (below, above + log(horizon - 1))

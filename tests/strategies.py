@@ -14,26 +14,8 @@ import math
 import numpy as np
 from hypothesis import strategies as st
 
-from tl_gym.tltl.ast import (
-    Always,
-    And,
-    BinOp,
-    Call,
-    Constant,
-    Eventually,
-    Expr,
-    Formula,
-    Implies,
-    Neg,
-    Next,
-    Not,
-    Num,
-    Or,
-    Predicate,
-    Then,
-    Until,
-    Var,
-)
+from tl_gym.tltl import ast as nodes
+from tl_gym.tltl.ast import Expr, Formula
 
 SIGNALS = ("x", "y", "z")
 # Names that look like keywords or operators but are plain identifiers.
@@ -68,17 +50,17 @@ def expressions(draw: st.DrawFn, names: tuple[str, ...] = SIGNALS, depth: int = 
     numbers = any_numbers() if numbers is None else numbers
     if depth == 0 or draw(st.integers(0, 2)) == 0:
         if draw(st.booleans()):
-            return Var(draw(st.sampled_from(names)))
-        return Num(draw(numbers))
+            return nodes.Var(draw(st.sampled_from(names)))
+        return nodes.Num(draw(numbers))
     sub = expressions(names, depth - 1, numbers)
     kind = draw(st.sampled_from(("neg", "binop", "call1", "calln")))
     if kind == "neg":
-        return Neg(draw(sub))
+        return nodes.Neg(draw(sub))
     if kind == "binop":
-        return BinOp(draw(st.sampled_from("+-*/^")), draw(sub), draw(sub))
+        return nodes.BinOp(draw(st.sampled_from("+-*/^")), draw(sub), draw(sub))
     if kind == "call1":
-        return Call(draw(st.sampled_from(("abs", "sqrt", "exp", "log"))), (draw(sub),))
-    return Call(draw(st.sampled_from(("min", "max"))), tuple(draw(st.lists(sub, min_size=1, max_size=3))))
+        return nodes.Call(draw(st.sampled_from(("abs", "sqrt", "exp", "log"))), (draw(sub),))
+    return nodes.Call(draw(st.sampled_from(("min", "max"))), tuple(draw(st.lists(sub, min_size=1, max_size=3))))
 
 
 @st.composite
@@ -86,31 +68,31 @@ def safe_expressions(draw: st.DrawFn, names: tuple[str, ...] = SIGNALS, depth: i
     """Expressions finite on finite signals with |value| ≤ ~10 (every operator and function)."""
     if depth == 0 or draw(st.integers(0, 2)) == 0:
         if draw(st.integers(0, 2)):
-            return Var(draw(st.sampled_from(names)))
-        return Num(draw(small_numbers()))
+            return nodes.Var(draw(st.sampled_from(names)))
+        return nodes.Num(draw(small_numbers()))
     sub = safe_expressions(names, depth - 1)
     a = draw(sub)
     kind = draw(st.sampled_from(("neg", "add", "sub", "mul", "div", "pow", "abs", "sqrt", "exp", "log", "min", "max")))
-    one = Num(1.0)
+    one = nodes.Num(1.0)
     if kind == "neg":
-        return Neg(a)
+        return nodes.Neg(a)
     if kind in ("add", "sub", "mul"):
-        return BinOp({"add": "+", "sub": "-", "mul": "*"}[kind], a, draw(sub))
+        return nodes.BinOp({"add": "+", "sub": "-", "mul": "*"}[kind], a, draw(sub))
     if kind == "div":  # a / (1 + |b|)
-        return BinOp("/", a, BinOp("+", one, Call("abs", (draw(sub),))))
+        return nodes.BinOp("/", a, nodes.BinOp("+", one, nodes.Call("abs", (draw(sub),))))
     if kind == "pow":  # a^2, or |a|^0.5
         if draw(st.booleans()):
-            return BinOp("^", a, Num(2.0))
-        return BinOp("^", Call("abs", (a,)), Num(0.5))
+            return nodes.BinOp("^", a, nodes.Num(2.0))
+        return nodes.BinOp("^", nodes.Call("abs", (a,)), nodes.Num(0.5))
     if kind == "abs":
-        return Call("abs", (a,))
+        return nodes.Call("abs", (a,))
     if kind == "sqrt":
-        return Call("sqrt", (Call("abs", (a,)),))
+        return nodes.Call("sqrt", (nodes.Call("abs", (a,)),))
     if kind == "exp":  # exp(min(a, 5)) stays moderate
-        return Call("exp", (Call("min", (a, Num(5.0))),))
+        return nodes.Call("exp", (nodes.Call("min", (a, nodes.Num(5.0))),))
     if kind == "log":
-        return Call("log", (BinOp("+", one, Call("abs", (a,))),))
-    return Call(kind, (a, *draw(st.lists(sub, min_size=0, max_size=2))))
+        return nodes.Call("log", (nodes.BinOp("+", one, nodes.Call("abs", (a,))),))
+    return nodes.Call(kind, (a, *draw(st.lists(sub, min_size=0, max_size=2))))
 
 
 @st.composite
@@ -118,37 +100,37 @@ def smooth_expressions(draw: st.DrawFn, names: tuple[str, ...] = SIGNALS, depth:
     """Differentiable expressions (no abs, min, max, sqrt), for finite-difference checks."""
     if depth == 0 or draw(st.integers(0, 2)) == 0:
         if draw(st.integers(0, 2)):
-            return Var(draw(st.sampled_from(names)))
-        return Num(draw(st.floats(-3, 3, allow_nan=False)))
+            return nodes.Var(draw(st.sampled_from(names)))
+        return nodes.Num(draw(st.floats(-3, 3, allow_nan=False)))
     sub = smooth_expressions(names, depth - 1)
     a = draw(sub)
     kind = draw(st.sampled_from(("neg", "+", "-", "*", "square", "exp")))
     if kind == "neg":
-        return Neg(a)
+        return nodes.Neg(a)
     if kind == "square":
-        return BinOp("^", a, Num(2.0))
+        return nodes.BinOp("^", a, nodes.Num(2.0))
     if kind == "exp":
-        return Call("exp", (BinOp("/", a, Num(4.0)),))
-    return BinOp(kind, a, draw(sub))
+        return nodes.Call("exp", (nodes.BinOp("/", a, nodes.Num(4.0)),))
+    return nodes.BinOp(kind, a, draw(sub))
 
 
 # --------------------------------------------------------------------------- formulas
 
-UNARY = (Not, Next, Eventually, Always)
-BINARY = (Implies, Until, Then)
-NARY = (And, Or)
+UNARY = (nodes.Not, nodes.Next, nodes.Eventually, nodes.Always)
+BINARY = (nodes.Implies, nodes.Until, nodes.Then)
+NARY = (nodes.And, nodes.Or)
 ALL_OPERATORS = UNARY + BINARY + NARY
 
 
 @st.composite
 def predicates(draw: st.DrawFn, names: tuple[str, ...] = SIGNALS,
-               exprs: st.SearchStrategy[Expr] | None = None) -> Predicate:
+               exprs: st.SearchStrategy[Expr] | None = None) -> nodes.Predicate:
     """``lhs op rhs``; usually a signal against a number, sometimes arithmetic on both sides."""
     exprs = safe_expressions(names) if exprs is None else exprs
     op = draw(st.sampled_from(COMPARISONS))
     if draw(st.integers(0, 2)) == 0:
-        return Predicate(draw(exprs), op, draw(exprs))
-    return Predicate(Var(draw(st.sampled_from(names))), op, Num(draw(small_numbers())))
+        return nodes.Predicate(draw(exprs), op, draw(exprs))
+    return nodes.Predicate(nodes.Var(draw(st.sampled_from(names))), op, nodes.Num(draw(small_numbers())))
 
 
 @st.composite
@@ -169,7 +151,7 @@ def formulas(
     if leaves is None:
         leaves = predicates(names)
         if constants:
-            leaves = st.one_of(leaves, leaves, leaves, st.builds(Constant, st.booleans()))
+            leaves = st.one_of(leaves, leaves, leaves, st.builds(nodes.Constant, st.booleans()))
     if max_depth == 0 or (min_depth <= 0 and draw(st.integers(0, 3)) == 0):
         return draw(leaves)
 

@@ -13,107 +13,91 @@ Example:
 
 from __future__ import annotations
 
-from tl_gym.tltl.ast import (
-    Always,
-    And,
-    Call,
-    Constant,
-    Eventually,
-    Expr,
-    ExprLike,
-    Formula,
-    Implies,
-    Next,
-    Not,
-    Or,
-    Then,
-    Until,
-    Var,
-    as_expr,
-)
+from tl_gym.tltl import ast as nodes
+from tl_gym.tltl.ast import Expr, ExprLike, Formula, as_expr
 
-TRUE = Constant(True)
-FALSE = Constant(False)
+TRUE = nodes.Constant(True)
+FALSE = nodes.Constant(False)
 
 
-def signal(name: str) -> Var:
+def signal(name: str) -> nodes.Var:
     """A signal of the trace, by name; compare it to build predicates (``signal("x") < 3``)."""
-    return Var(name)
+    return nodes.Var(name)
 
 
-def signals(names: str) -> tuple[Var, ...]:
+def signals(names: str) -> tuple[nodes.Var, ...]:
     """Several signals from a space-separated string: ``x, y = signals("x y")``."""
-    return tuple(Var(n) for n in names.split())
+    return tuple(nodes.Var(n) for n in names.split())
 
 
 def F(phi: Formula) -> Formula:
     """Eventually φ."""
-    return Eventually(phi)
+    return nodes.Eventually(phi)
 
 
 def G(phi: Formula) -> Formula:
     """Always φ."""
-    return Always(phi)
+    return nodes.Always(phi)
 
 
 def X(phi: Formula) -> Formula:
     """Next φ (−ρ_max at the last state)."""
-    return Next(phi)
+    return nodes.Next(phi)
 
 
 def U(phi: Formula, psi: Formula) -> Formula:
     """φ until ψ."""
-    return Until(phi, psi)
+    return nodes.Until(phi, psi)
 
 
 def T(phi: Formula, psi: Formula) -> Formula:
     """φ then ψ."""
-    return Then(phi, psi)
+    return nodes.Then(phi, psi)
 
 
 def implies(phi: Formula, psi: Formula) -> Formula:
     """φ → ψ (also written ``phi >> psi``)."""
-    return Implies(phi, psi)
+    return nodes.Implies(phi, psi)
 
 
 def all_of(*phis: Formula) -> Formula:
     """Conjunction of two or more formulas (one n-ary node)."""
-    return And(phis)
+    return nodes.And(phis)
 
 
 def any_of(*phis: Formula) -> Formula:
     """Disjunction of two or more formulas (one n-ary node)."""
-    return Or(phis)
+    return nodes.Or(phis)
 
 
 def not_(phi: Formula) -> Formula:
     """¬φ (also written ``~phi``)."""
-    return Not(phi)
+    return nodes.Not(phi)
 
 
 def sqrt(e: ExprLike) -> Expr:
     """Square root inside a predicate."""
-    return Call("sqrt", (as_expr(e),))
+    return nodes.Call("sqrt", (as_expr(e),))
 
 
 def exp(e: ExprLike) -> Expr:
     """Exponential inside a predicate."""
-    return Call("exp", (as_expr(e),))
+    return nodes.Call("exp", (as_expr(e),))
 
 
 def log(e: ExprLike) -> Expr:
     """Natural logarithm inside a predicate."""
-    return Call("log", (as_expr(e),))
+    return nodes.Call("log", (as_expr(e),))
 
 
 def minimum(*es: ExprLike) -> Expr:
     """Exact minimum of expressions inside a predicate (``min`` in the text syntax)."""
-    return Call("min", tuple(as_expr(e) for e in es))
+    return nodes.Call("min", tuple(as_expr(e) for e in es))
 
 
 def maximum(*es: ExprLike) -> Expr:
     """Exact maximum of expressions inside a predicate (``max`` in the text syntax)."""
-    return Call("max", tuple(as_expr(e) for e in es))
+    return nodes.Call("max", tuple(as_expr(e) for e in es))
 
 
 __all__ = [

@@ -36,25 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from tl_gym.tltl.ast import (
-    Always,
-    And,
-    BinOp,
-    Call,
-    Constant,
-    Eventually,
-    Formula,
-    Implies,
-    Neg,
-    Next,
-    Not,
-    Num,
-    Or,
-    Predicate,
-    Then,
-    Until,
-    Var,
-)
+from tl_gym.tltl import ast as nodes
+from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.expressions import postorder
 from tl_gym.tltl.operators import SIGN
 from tl_gym.tltl.plan import Plan, cached, compile_plan
@@ -140,7 +123,7 @@ def _build(formula: Formula) -> Kernel | bool:
     names = formula.signals
     if not names or len(plan.steps) > MAX_STEPS or any(step.segments for step in plan.steps):
         return False
-    size = sum(len(postorder(side)) for s in plan.steps if isinstance(s.node, Predicate)
+    size = sum(len(postorder(side)) for s in plan.steps if isinstance(s.node, nodes.Predicate)
                for side in (s.node.lhs, s.node.rhs))
     if size > MAX_EXPRESSION_NODES or any(len(s.inputs) > 64 for s in plan.steps):
         return False
@@ -154,14 +137,14 @@ def _build(formula: Formula) -> Kernel | bool:
 def _monotone(plan: Plan, k: int) -> tuple[Any, str, float, bool] | None:
     """``(e, f, c, grows)`` when step k is F / G at position 0 of ``f(e) ⋈ c`` (f increasing), read by it alone."""
     step = plan.steps[k]
-    if not (step.first and isinstance(step.node, (Eventually, Always))):
+    if not (step.first and isinstance(step.node, (nodes.Eventually, nodes.Always))):
         return None
     child = plan.steps[step.inputs[0]]
     node = child.node
-    if child.readers != 1 or not isinstance(node, Predicate):
+    if child.readers != 1 or not isinstance(node, nodes.Predicate):
         return None
     for call, number, grows in ((node.lhs, node.rhs, SIGN[node.op] > 0), (node.rhs, node.lhs, SIGN[node.op] < 0)):
-        if isinstance(call, Call) and call.func in ("sqrt", "exp", "log") and isinstance(number, Num):
+        if isinstance(call, nodes.Call) and call.func in ("sqrt", "exp", "log") and isinstance(number, nodes.Num):
             return call.args[0], call.func, number.value, grows
     return None
 
@@ -193,7 +176,7 @@ def _source(plan: Plan, names: tuple[str, ...]) -> str:
             expr, func, number, grows = monotone
             inner = _expression(expr, column, body, k, "m")
             checked.append(inner)
-            largest = grows == isinstance(node, Eventually)
+            largest = grows == isinstance(node, nodes.Eventually)
             # the extreme used, and the ends that may leave f's domain: the low end for sqrt and log
             # (the high end is then finite), the high end for exp (it may overflow)
             ends = {"hi" if largest else "lo", "lo" if func in ("sqrt", "log") else "hi"}
@@ -203,9 +186,9 @@ def _source(plan: Plan, names: tuple[str, ...]) -> str:
                 after += [f"f{end}{k} = np.{func}({end}{k})", f"if not (f{end}{k} - f{end}{k} == 0.0):", "    return i"]
             extreme = f"fhi{k}" if largest else f"flo{k}"
             after.append(f"v{k} = {extreme} - {number!r}" if grows else f"v{k} = {number!r} - {extreme}")
-        elif isinstance(node, Constant):
+        elif isinstance(node, nodes.Constant):
             code.append(f"v{k} = {'top' if node.value else '-top'}")
-        elif isinstance(node, Predicate):
+        elif isinstance(node, nodes.Predicate):
             if step.first:
                 code += [f"a{j} = s{j}[i, 0]" for j in range(len(names))]
             lhs, rhs = _expression(node.lhs, column, code, k, "l"), _expression(node.rhs, column, code, k, "r")
@@ -214,24 +197,24 @@ def _source(plan: Plan, names: tuple[str, ...]) -> str:
                 code.append(f"check += v{k}")
             else:
                 checked.append(f"v{k}")
-        elif isinstance(node, Not):
+        elif isinstance(node, nodes.Not):
             code.append(f"v{k} = -{v[0]}")
-        elif isinstance(node, (And, Or)):
-            code.append(f"v{k} = {'min' if isinstance(node, And) else 'max'}({', '.join(v)})")
-        elif isinstance(node, Implies):
+        elif isinstance(node, (nodes.And, nodes.Or)):
+            code.append(f"v{k} = {'min' if isinstance(node, nodes.And) else 'max'}({', '.join(v)})")
+        elif isinstance(node, nodes.Implies):
             code.append(f"v{k} = max(-{v[0]}, {v[1]})")
         else:  # temporal: a running value updated in the loop, read in the loop or after it
-            if isinstance(node, Next):
+            if isinstance(node, nodes.Next):
                 init.append(f"n{k} = -top")
                 body += [f"x{k} = n{k}", f"n{k} = {v[0]}"]
-            elif isinstance(node, (Eventually, Always)):
-                pick, empty = ("max", "-INF") if isinstance(node, Eventually) else ("min", "INF")
+            elif isinstance(node, (nodes.Eventually, nodes.Always)):
+                pick, empty = ("max", "-INF") if isinstance(node, nodes.Eventually) else ("min", "INF")
                 init.append(f"x{k} = {empty}")
                 body.append(f"x{k} = {pick}(x{k}, {v[0]})")
-            elif isinstance(node, Until):
+            elif isinstance(node, nodes.Until):
                 init.append(f"x{k} = -INF")
                 body.append(f"x{k} = max({v[1]}, min({v[0]}, x{k}))")
-            elif isinstance(node, Then):
+            elif isinstance(node, nodes.Then):
                 init += [f"x{k} = -INF", f"l{k} = -INF"]
                 body += [f"x{k} = max(x{k}, min({v[0]}, l{k}))", f"l{k} = max(l{k}, {v[1]})"]
             else:
@@ -240,8 +223,10 @@ def _source(plan: Plan, names: tuple[str, ...]) -> str:
     body.append(f"check += {' + '.join(checked)}")
     # time is scanned backwards for the recurrences (X, U, T, F and G at every position); forwards when it is
     # only reduced (the hardware reads forwards a little faster)
-    backwards = any(not step.first or isinstance(step.node, (Next, Until, Then)) for step in plan.steps
-                    if step.node.is_temporal and not isinstance(step.node, (Not, And, Or, Implies)))
+    recurrences = (nodes.Next, nodes.Until, nodes.Then)
+    connectives = (nodes.Not, nodes.And, nodes.Or, nodes.Implies)
+    backwards = any(not step.first or isinstance(step.node, recurrences) for step in plan.steps
+                    if step.node.is_temporal and not isinstance(step.node, connectives))
     lines = [
         "import numpy as np",
         "from numba import njit",
@@ -274,23 +259,23 @@ def _expression(expr: Any, column: dict[str, str], body: list[str], step: int, s
     """Append the lines computing ``expr`` (one temporary per operation, no nesting); return its name."""
     stack: list[str] = []
     for k, e in enumerate(postorder(expr)):
-        if isinstance(e, Var):
+        if isinstance(e, nodes.Var):
             stack.append(column[e.name])
             continue
-        if isinstance(e, Num):
+        if isinstance(e, nodes.Num):
             stack.append(repr(float(e.value)) if math.isfinite(e.value) else ("INF" if e.value > 0 else "-INF"))
             continue
         name = f"e{step}{side}{k}"
-        if isinstance(e, Neg):
+        if isinstance(e, nodes.Neg):
             body.append(f"{name} = -{stack.pop()}")
-        elif isinstance(e, BinOp):
+        elif isinstance(e, nodes.BinOp):
             b, a = stack.pop(), stack.pop()
             if e.op == "^":
-                code = f"{a} * {a}" if isinstance(e.right, Num) and e.right.value == 2.0 else f"{a} ** {b}"
+                code = f"{a} * {a}" if isinstance(e.right, nodes.Num) and e.right.value == 2.0 else f"{a} ** {b}"
             else:
                 code = f"{a} {e.op} {b}"
             body.append(f"{name} = {code}")
-        elif isinstance(e, Call):
+        elif isinstance(e, nodes.Call):
             args = stack[len(stack) - len(e.args):]
             del stack[len(stack) - len(e.args):]
             code = args[0]

@@ -55,28 +55,9 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from tl_gym.errors import TraceError, UnknownSignalError
+from tl_gym.tltl import ast as nodes
 from tl_gym.tltl import operators
-from tl_gym.tltl.ast import (
-    Always,
-    And,
-    BinOp,
-    Call,
-    Constant,
-    Eventually,
-    Expr,
-    Formula,
-    Implies,
-    Neg,
-    Next,
-    Not,
-    Num,
-    Or,
-    Predicate,
-    Then,
-    Until,
-    Var,
-    height,
-)
+from tl_gym.tltl.ast import Expr, Formula, height
 from tl_gym.tltl.expressions import can_be_non_finite, evaluate_expression, postorder
 from tl_gym.tltl.trace import check_rho_max
 
@@ -101,7 +82,7 @@ def _compile_expr(expr: Expr) -> _Scalar:
 
 def _expression_loop(expr: Expr) -> _Scalar:
     """``expr`` on one state by the array evaluator's loop over its nodes in post-order (any depth)."""
-    names = tuple(dict.fromkeys(e.name for e in postorder(expr) if isinstance(e, Var)))
+    names = tuple(dict.fromkeys(e.name for e in postorder(expr) if isinstance(e, nodes.Var)))
 
     def value(s: State) -> float:
         with np.errstate(all="ignore"):
@@ -112,16 +93,16 @@ def _expression_loop(expr: Expr) -> _Scalar:
 
 def _expression_closure(expr: Expr) -> _Scalar:
     """A closure computing ``expr`` on one state (recursion bounded by `_CLOSURE_DEPTH`)."""
-    if isinstance(expr, Var):
+    if isinstance(expr, nodes.Var):
         name = expr.name
         return lambda s: s[name]
-    if isinstance(expr, Num):
+    if isinstance(expr, nodes.Num):
         value = expr.value
         return lambda s: value
-    if isinstance(expr, Neg):
+    if isinstance(expr, nodes.Neg):
         inner = _expression_closure(expr.operand)
         return lambda s: -inner(s)
-    if isinstance(expr, BinOp):
+    if isinstance(expr, nodes.BinOp):
         a, b = _expression_closure(expr.left), _expression_closure(expr.right)
         ops: dict[str, _Scalar] = {
             "+": lambda s: a(s) + b(s),
@@ -131,7 +112,7 @@ def _expression_closure(expr: Expr) -> _Scalar:
             "^": lambda s: math.pow(a(s), b(s)),
         }
         return ops[expr.op]
-    if isinstance(expr, Call):
+    if isinstance(expr, nodes.Call):
         args = [_expression_closure(arg) for arg in expr.args]
         if expr.func in ("min", "max"):
             reduce_ = min if expr.func == "min" else max
@@ -142,7 +123,7 @@ def _expression_closure(expr: Expr) -> _Scalar:
     raise TypeError(f"no evaluation rule for expression node {type(expr).__name__}")
 
 
-def _compile_predicate(node: Predicate) -> _Scalar:
+def _compile_predicate(node: nodes.Predicate) -> _Scalar:
     lhs, rhs = _compile_expr(node.lhs), _compile_expr(node.rhs)
     op = node.op
     checked = can_be_non_finite(node.lhs) or can_be_non_finite(node.rhs)
@@ -163,7 +144,8 @@ def _compile_predicate(node: Predicate) -> _Scalar:
 def compile_state_formula(formula: Formula, rho_max: float) -> _Scalar:
     """Robustness of a temporal-free formula on one state, as a function of that state."""
     if formula.is_temporal:
-        temporal = next(n for n in formula.walk() if isinstance(n, (Next, Eventually, Always, Until, Then)))
+        temporal_nodes = (nodes.Next, nodes.Eventually, nodes.Always, nodes.Until, nodes.Then)
+        temporal = next(n for n in formula.walk() if isinstance(n, temporal_nodes))
         raise TypeError(f"{type(temporal).__name__} is temporal; compile_state_formula takes temporal-free formulas")
     if formula.depth > _CLOSURE_DEPTH:
         window = _engine_window_formula(formula, rho_max)
@@ -190,12 +172,12 @@ def _engine_window_formula(formula: Formula, rho_max: float) -> _WindowFn:
 
 def _state_closure(formula: Formula, rho_max: float) -> _Scalar:
     """Nested closures for a temporal-free formula (recursion bounded by `_CLOSURE_DEPTH`)."""
-    if isinstance(formula, Constant):
+    if isinstance(formula, nodes.Constant):
         value = float(rho_max) if formula.value else -float(rho_max)
         return lambda s: value
-    if isinstance(formula, Predicate):
+    if isinstance(formula, nodes.Predicate):
         return _compile_predicate(formula)
-    if isinstance(formula, (Not, And, Or, Implies)):
+    if isinstance(formula, (nodes.Not, nodes.And, nodes.Or, nodes.Implies)):
         parts = [_state_closure(c, rho_max) for c in formula.children]
         combine = operators.CONNECTIVES[type(formula)]
         return lambda s: combine([p(s) for p in parts])
@@ -235,11 +217,11 @@ def _window_closure(formula: Formula, rho_max: float) -> _WindowFn:
     if not formula.is_temporal:
         fn = _state_closure(formula, rho_max)
         return lambda w, i: fn(w[i])
-    if isinstance(formula, Next):
+    if isinstance(formula, nodes.Next):
         inner = _window_closure(formula.child, rho_max)
         bottom = -float(rho_max)
         return lambda w, i: inner(w, i + 1) if i + 1 < len(w) else bottom
-    if isinstance(formula, (Not, And, Or, Implies)):
+    if isinstance(formula, (nodes.Not, nodes.And, nodes.Or, nodes.Implies)):
         parts = [_window_closure(c, rho_max) for c in formula.children]
         combine = operators.CONNECTIVES[type(formula)]
         return lambda w, i: combine([p(w, i) for p in parts])
@@ -591,7 +573,7 @@ def _then_chain(formula: Formula) -> list[Formula] | None:
     """The operands of ``φ1 T (φ2 T …)`` when all are temporal-free, else None."""
     operands: list[Formula] = []
     node = formula
-    while isinstance(node, Then):
+    while isinstance(node, nodes.Then):
         if node.left.is_temporal:
             return None
         operands.append(node.left)
@@ -605,15 +587,15 @@ def _never_again_parts(child: Formula) -> tuple[Formula, Formula] | None:
     """``(A, B)`` when ``child`` is ``A | X G B`` or ``L -> X G B`` (A = !L), B temporal-free."""
 
     def is_next_always(f: Formula) -> bool:
-        return isinstance(f, Next) and isinstance(f.child, Always) and not f.child.child.is_temporal
+        return isinstance(f, nodes.Next) and isinstance(f.child, nodes.Always) and not f.child.child.is_temporal
 
-    if isinstance(child, Implies) and is_next_always(child.right) and lookahead(child.left) is not None:
-        return Not(child.left), child.right.child.child  # type: ignore[attr-defined]
-    if isinstance(child, Or):
+    if isinstance(child, nodes.Implies) and is_next_always(child.right) and lookahead(child.left) is not None:
+        return nodes.Not(child.left), child.right.child.child  # type: ignore[attr-defined]
+    if isinstance(child, nodes.Or):
         tails = [c for c in child.operands if is_next_always(c)]
         rest = [c for c in child.operands if not is_next_always(c)]
         if len(tails) == 1 and rest and all(lookahead(c) is not None for c in rest):
-            a = rest[0] if len(rest) == 1 else Or(tuple(rest))
+            a = rest[0] if len(rest) == 1 else nodes.Or(tuple(rest))
             return a, tails[0].child.child  # type: ignore[attr-defined]
     return None
 
@@ -630,7 +612,7 @@ def _compile_incremental(formula: Formula, rho_max: float, names: tuple[str, ...
     stack: list[tuple[Formula, bool]] = [(formula, False)]
     while stack:
         node, expanded = stack.pop()
-        combination = isinstance(node, (Not, And, Or, Implies)) and lookaheads[id(node)] is None
+        combination = isinstance(node, (nodes.Not, nodes.And, nodes.Or, nodes.Implies)) and lookaheads[id(node)] is None
         if combination and not expanded:
             stack.append((node, True))
             stack.extend((child, False) for child in reversed(node.children))
@@ -656,10 +638,10 @@ def _lookaheads(formula: Formula) -> dict[int, int | None]:
             continue
         if not node.is_temporal:
             done[id(node)] = 0
-        elif isinstance(node, (Next, Not, And, Or, Implies)):
+        elif isinstance(node, (nodes.Next, nodes.Not, nodes.And, nodes.Or, nodes.Implies)):
             depths = [done[id(c)] for c in node.children]
             done[id(node)] = None if any(d is None for d in depths) else (
-                max(depths) + (1 if isinstance(node, Next) else 0)  # type: ignore[type-var]
+                max(depths) + (1 if isinstance(node, nodes.Next) else 0)  # type: ignore[type-var]
             )
         else:
             done[id(node)] = None
@@ -670,14 +652,15 @@ def _compile_part(formula: Formula, rho_max: float, names: tuple[str, ...], dept
     """The incremental monitor of a formula that is not a Boolean connective over temporal parts."""
     if depth is not None:
         return _AtStart(compile_window_formula(formula, rho_max), depth, names)
-    if isinstance(formula, (Eventually, Always)):
+    if isinstance(formula, (nodes.Eventually, nodes.Always)):
         inner = formula.child
-        if isinstance(inner, (Eventually, Always)) and type(inner) is not type(formula):
+        if isinstance(inner, (nodes.Eventually, nodes.Always)) and type(inner) is not type(formula):
             return _AtEnd(_at_last_state(inner.child, rho_max, names))  # F G φ, G F φ
         depth = lookahead(inner)
         if depth is not None:
-            return _Extremum(compile_window_formula(inner, rho_max), depth, isinstance(formula, Eventually), names)
-        parts = _never_again_parts(inner) if isinstance(formula, Always) else None
+            window = compile_window_formula(inner, rho_max)
+            return _Extremum(window, depth, isinstance(formula, nodes.Eventually), names)
+        parts = _never_again_parts(inner) if isinstance(formula, nodes.Always) else None
         if parts is not None:
             a, b = parts
             return _NeverAgain(
@@ -685,11 +668,11 @@ def _compile_part(formula: Formula, rho_max: float, names: tuple[str, ...], dept
                 names,
             )
         return None
-    if isinstance(formula, Until):
+    if isinstance(formula, nodes.Until):
         if formula.left.is_temporal or formula.right.is_temporal:
             return None
         return _Until(compile_state_formula(formula.left, rho_max), compile_state_formula(formula.right, rho_max))
-    if isinstance(formula, Then):
+    if isinstance(formula, nodes.Then):
         chain = _then_chain(formula)
         if chain is None:
             return None
@@ -730,7 +713,8 @@ def outside_fragment(formula: Formula) -> Formula | None:
         node = stack.pop()
         if verdicts[id(node)]:
             continue
-        if isinstance(node, (Not, And, Or, Implies)) and not all(verdicts[id(c)] for c in node.children):
+        connective = isinstance(node, (nodes.Not, nodes.And, nodes.Or, nodes.Implies))
+        if connective and not all(verdicts[id(c)] for c in node.children):
             stack.extend(reversed(node.children))
             continue
         return node

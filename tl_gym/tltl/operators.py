@@ -29,21 +29,9 @@ from typing import Any
 
 import numpy as np
 
+from tl_gym.tltl import ast as nodes
 from tl_gym.tltl import lse
-from tl_gym.tltl.ast import (
-    Always,
-    And,
-    Constant,
-    Eventually,
-    Formula,
-    Implies,
-    Next,
-    Not,
-    Or,
-    Predicate,
-    Then,
-    Until,
-)
+from tl_gym.tltl.ast import Formula
 
 INF = 1e300  # stands for +∞ in β-scaled units
 Backward = Callable[[np.ndarray], Sequence[Any]]
@@ -190,14 +178,14 @@ def exact_then(alg: Lattice, phi: np.ndarray, psi: np.ndarray) -> np.ndarray:
     return suffix(alg.maximum, alg.minimum(phi, later))
 
 
-def exact_on_segments(alg: Lattice, node: Until | Then, left_on_prefix: Callable[[int], np.ndarray],
+def exact_on_segments(alg: Lattice, node: nodes.Until | nodes.Then, left_on_prefix: Callable[[int], np.ndarray],
                       psi: np.ndarray) -> np.ndarray:
     """U / T whose left operand φ is temporal: φ is judged on each segment s_{t''..t'-1}.
 
     ``left_on_prefix(k)`` gives φ at every position of the truncated trace s_0 … s_{k-1}.
     O(N·T²) time, O(N·T) memory.
     """
-    inner, inner_empty = (alg.minimum, alg.empty_min) if isinstance(node, Until) else (alg.maximum, alg.empty_max)
+    inner, inner_empty = (alg.minimum, alg.empty_min) if isinstance(node, nodes.Until) else (alg.maximum, alg.empty_max)
     n, length = psi.shape
     out = np.full((n, length), alg.empty_max, dtype=alg.dtype)
     for t_prime in range(length):
@@ -211,8 +199,9 @@ def exact_on_segments(alg: Lattice, node: Until | Then, left_on_prefix: Callable
 
 
 EXACT: dict[type, Callable[..., np.ndarray]] = {
-    Not: exact_not, And: exact_and, Or: exact_or, Implies: exact_implies, Next: exact_next,
-    Eventually: exact_eventually, Always: exact_always, Until: exact_until, Then: exact_then,
+    nodes.Not: exact_not, nodes.And: exact_and, nodes.Or: exact_or, nodes.Implies: exact_implies,
+    nodes.Next: exact_next, nodes.Eventually: exact_eventually, nodes.Always: exact_always,
+    nodes.Until: exact_until, nodes.Then: exact_then,
 }
 
 
@@ -395,27 +384,27 @@ def _quadratic_from_matrix(matrix: np.ndarray, right: np.ndarray, sign: float, g
 def bracket(node: Formula, parts: list[tuple[float, float]], horizon: int) -> tuple[float, float]:
     """A node's bracket from its operands' brackets ``parts``, for traces of length ``horizon``."""
     log_t = math.log(horizon)
-    if isinstance(node, (Constant, Predicate)):
+    if isinstance(node, (nodes.Constant, nodes.Predicate)):
         return 0.0, 0.0
-    if isinstance(node, Not):
+    if isinstance(node, nodes.Not):
         return parts[0][1], parts[0][0]
-    if isinstance(node, Next):
+    if isinstance(node, nodes.Next):
         return parts[0]
-    if isinstance(node, (And, Or, Implies)):
-        if isinstance(node, Implies):
+    if isinstance(node, (nodes.And, nodes.Or, nodes.Implies)):
+        if isinstance(node, nodes.Implies):
             parts[0] = parts[0][::-1]  # max(-φ, ψ): φ's error is negated
         below, above = max(p[0] for p in parts), max(p[1] for p in parts)
         grow = math.log(len(parts))
-        return (below + grow, above) if isinstance(node, And) else (below, above + grow)
-    if isinstance(node, Eventually):
+        return (below + grow, above) if isinstance(node, nodes.And) else (below, above + grow)
+    if isinstance(node, nodes.Eventually):
         return parts[0][0], parts[0][1] + log_t
-    if isinstance(node, Always):
+    if isinstance(node, nodes.Always):
         return parts[0][0] + log_t, parts[0][1]
-    if isinstance(node, (Until, Then)):
+    if isinstance(node, (nodes.Until, nodes.Then)):
         (left_below, left_above), (right_below, right_above) = parts
         inner_terms = math.log(max(horizon - 1, 1))
         # the inner smin (U) or smax (T) over t'', then smin with ψ (two terms), then smax over t'
-        inner = (left_below + inner_terms, left_above) if isinstance(node, Until) else (
+        inner = (left_below + inner_terms, left_above) if isinstance(node, nodes.Until) else (
             left_below, left_above + inner_terms)
         return max(right_below, inner[0]) + math.log(2), max(right_above, inner[1]) + log_t
     raise TypeError(f"no bracket rule for formula node {type(node).__name__}")
@@ -426,10 +415,10 @@ def bracket(node: Formula, parts: list[tuple[float, float]], horizon: int) -> tu
 
 
 CONNECTIVES: dict[type, Callable[[Sequence[float]], float]] = {  # the exact rules at one position, on floats
-    Not: lambda v: -v[0],
-    And: min,
-    Or: max,
-    Implies: lambda v: max(-v[0], v[1]),
+    nodes.Not: lambda v: -v[0],
+    nodes.And: min,
+    nodes.Or: max,
+    nodes.Implies: lambda v: max(-v[0], v[1]),
 }
 
 

@@ -13,29 +13,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from tl_gym.errors import SpecError
-from tl_gym.tltl.ast import (
-    COMPARISONS,
-    FUNCTIONS,
-    RESERVED,
-    Always,
-    And,
-    BinOp,
-    Call,
-    Constant,
-    Eventually,
-    Expr,
-    Formula,
-    Implies,
-    Neg,
-    Next,
-    Not,
-    Num,
-    Or,
-    Predicate,
-    Then,
-    Until,
-    Var,
-)
+from tl_gym.tltl import ast as nodes
+from tl_gym.tltl.ast import COMPARISONS, FUNCTIONS, RESERVED, Expr, Formula
 from tl_gym.tltl.iterative import drive
 
 # Keywords spelled out, mapped to their symbol.
@@ -171,7 +150,7 @@ class _Parser:
             raise self.error("empty formula")
         formula = drive(self.implies())
         if self.tok.kind != "end":
-            if self.tok.text in COMPARISONS and isinstance(self.last_primary, Predicate):
+            if self.tok.text in COMPARISONS and isinstance(self.last_primary, nodes.Predicate):
                 raise self.error("comparisons do not chain; join them with '&'")
             raise self.error(f"unexpected {self.describe(self.tok)} after a complete formula")
         return formula
@@ -183,27 +162,27 @@ class _Parser:
             chain.append((yield self.disjunction()))
         formula = chain.pop()
         while chain:
-            formula = Implies(chain.pop(), formula)
+            formula = nodes.Implies(chain.pop(), formula)
         return formula
 
     def disjunction(self) -> _Production:
         operands = [(yield self.conjunction())]
         while self.accept("|"):
             operands.append((yield self.conjunction()))
-        return operands[0] if len(operands) == 1 else Or(tuple(operands))
+        return operands[0] if len(operands) == 1 else nodes.Or(tuple(operands))
 
     def conjunction(self) -> _Production:
         operands = [(yield self.binary_temporal())]
         while self.accept("&"):
             operands.append((yield self.binary_temporal()))
-        return operands[0] if len(operands) == 1 else And(tuple(operands))
+        return operands[0] if len(operands) == 1 else nodes.And(tuple(operands))
 
     def binary_temporal(self) -> _Production:
         # right-associative: a U b T c is a U (b T c)
         operands = [(yield self.unary())]
         kinds: list[type[Formula]] = []
         while (token := self.accept("U", "T")) is not None:
-            kinds.append(Until if token.text == "U" else Then)
+            kinds.append(nodes.Until if token.text == "U" else nodes.Then)
             operands.append((yield self.unary()))
         formula = operands.pop()
         while kinds:
@@ -213,7 +192,7 @@ class _Parser:
     def unary(self) -> _Production:
         prefixes: list[type[Formula]] = []
         while (token := self.accept("!", "F", "G", "X")) is not None:
-            prefixes.append({"!": Not, "F": Eventually, "G": Always, "X": Next}[token.text])
+            prefixes.append({"!": nodes.Not, "F": nodes.Eventually, "G": nodes.Always, "X": nodes.Next}[token.text])
         formula = yield self.primary()
         while prefixes:
             formula = prefixes.pop()(formula)  # type: ignore[call-arg]
@@ -223,7 +202,7 @@ class _Parser:
         token = self.tok
         if token.kind == "ident" and token.text in ("true", "false"):
             self.pos += 1
-            self.last_primary = Constant(token.text == "true")
+            self.last_primary = nodes.Constant(token.text == "true")
             return self.last_primary
         if token.kind == "op" and token.text == "(" and self.pos in self.formula_groups:
             self.pos += 1  # a parenthesised formula (an arithmetic group starts a predicate, below)
@@ -245,7 +224,7 @@ class _Parser:
                 f"found {self.describe(token)}"
             )
         self.pos += 1
-        self.last_primary = Predicate(lhs, token.text, (yield self.expression()))
+        self.last_primary = nodes.Predicate(lhs, token.text, (yield self.expression()))
         return self.last_primary
 
     # arithmetic -------------------------------------------------------------------------
@@ -259,23 +238,23 @@ class _Parser:
             return None
         if token.kind == "num" and float(token.raw) != float("inf"):
             self.pos += 1
-            return Num(float(token.raw))
+            return nodes.Num(float(token.raw))
         if token.kind == "ident" and token.text not in RESERVED:
             self.pos += 1
-            return Var(token.text)
+            return nodes.Var(token.text)
         return None
 
     def expression(self) -> _Production:
         left = self.plain(("*", "/", "^", "(")) or (yield self.term())
         while (token := self.accept("+", "-")) is not None:
             right = self.plain(("*", "/", "^", "(")) or (yield self.term())
-            left = BinOp(token.text, left, right)
+            left = nodes.BinOp(token.text, left, right)
         return left
 
     def term(self) -> _Production:
         left = self.plain(("^", "(")) or (yield self.factor())
         while (token := self.accept("*", "/")) is not None:
-            left = BinOp(token.text, left, self.plain(("^", "(")) or (yield self.factor()))
+            left = nodes.BinOp(token.text, left, self.plain(("^", "(")) or (yield self.factor()))
         return left
 
     def factor(self) -> _Production:
@@ -286,19 +265,19 @@ class _Parser:
                 # A negative literal is one number, so `-3` prints and parses back alike.
                 value = float(self.tok.raw)
                 self.pos += 1
-                expr: Expr = Num(-value)
+                expr: Expr = nodes.Num(-value)
                 break
             negations += 1
         else:
             expr = yield self.power()
         for _ in range(negations):
-            expr = Neg(expr)
+            expr = nodes.Neg(expr)
         return expr
 
     def power(self) -> _Production:
         base = yield self.atom()
         if self.accept("^"):
-            return BinOp("^", base, (yield self.factor()))
+            return nodes.BinOp("^", base, (yield self.factor()))
         return base
 
     def atom(self) -> _Production:
@@ -308,7 +287,7 @@ class _Parser:
             value = float(token.raw)
             if value == float("inf"):
                 raise self.error(f"number {token.raw} is too large", token)
-            return Num(value)
+            return nodes.Num(value)
         if token.kind == "ident":
             self.pos += 1
             if token.text in FUNCTIONS:
@@ -318,7 +297,7 @@ class _Parser:
             if self.tok.kind == "op" and self.tok.text == "(":
                 known = " ".join(FUNCTIONS)
                 raise self.error(f"unknown function {token.raw!r} (functions: {known})", token)
-            return Var(token.text)
+            return nodes.Var(token.text)
         if self.accept("("):
             inner = yield self.expression()
             self.expect(")", f"')' to close the '(' at column {token.column}")
@@ -336,7 +315,7 @@ class _Parser:
         arity = FUNCTIONS[name.text]
         if arity > 0 and len(args) != arity:
             raise self.error(f"{name.raw}() takes {arity} argument, got {len(args)}", name)
-        return Call(name.text, tuple(args))
+        return nodes.Call(name.text, tuple(args))
 
 
 def parse(text: str) -> Formula:

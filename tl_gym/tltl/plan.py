@@ -20,18 +20,8 @@ from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
 from typing import Any
 
-from tl_gym.tltl.ast import (
-    Always,
-    And,
-    Eventually,
-    Formula,
-    Implies,
-    Next,
-    Not,
-    Or,
-    Then,
-    Until,
-)
+from tl_gym.tltl import ast as nodes
+from tl_gym.tltl.ast import Formula
 
 
 @dataclass
@@ -65,11 +55,11 @@ def operands(node: Formula, first: bool, segments: bool = True) -> list[tuple[Fo
     reads its operands at every position. With ``segments``, the temporal left operand of U / T
     is not listed: it is judged on every truncated segment, by its own plan.
     """
-    if isinstance(node, (Not, And, Or, Implies)):
+    if isinstance(node, (nodes.Not, nodes.And, nodes.Or, nodes.Implies)):
         return [(child, first) for child in node.children]
-    if isinstance(node, (Next, Eventually, Always)):
+    if isinstance(node, (nodes.Next, nodes.Eventually, nodes.Always)):
         return [(node.child, False)]
-    if isinstance(node, (Until, Then)):
+    if isinstance(node, (nodes.Until, nodes.Then)):
         if segments and node.left.is_temporal:
             return [(node.right, False)]
         return [(node.left, False), (node.right, False)]
@@ -99,7 +89,7 @@ def compile_plan(formula: Formula, first: bool, at_zero: bool = True, segments: 
             continue
         node = key[0]
         step = Step(node, key[1], tuple(index[k] for k in needed))
-        step.segments = segments and isinstance(node, (Until, Then)) and node.left.is_temporal
+        step.segments = segments and isinstance(node, (nodes.Until, nodes.Then)) and node.left.is_temporal
         for i in step.inputs:
             steps[i].readers += 1
         index[key] = len(steps)

@@ -49,24 +49,10 @@ from typing import Any
 import numpy as np
 
 from tl_gym.errors import TraceError
+from tl_gym.tltl import ast as nodes
 from tl_gym.tltl import lse
 from tl_gym.tltl import operators as ops
-from tl_gym.tltl.ast import (
-    Always,
-    And,
-    Constant,
-    Eventually,
-    Formula,
-    Implies,
-    Next,
-    Not,
-    Num,
-    Or,
-    Predicate,
-    Then,
-    Until,
-    Var,
-)
+from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.expressions import evaluate_with_gradient, margin_bound
 from tl_gym.tltl.plan import Plan, Step, cached, chosen, compile_plan
 from tl_gym.tltl.trace import Trace, check_rho_max, chunks, is_torch, prepare
@@ -177,7 +163,7 @@ class _Group:
             out = self.scaled_signals[name] = self.signals[name] * self.beta
         return out
 
-    def check_range(self, node: Predicate, margin: np.ndarray) -> None:
+    def check_range(self, node: nodes.Predicate, margin: np.ndarray) -> None:
         """Refuse finite predicate values too large for β units (±`_INF` stands for ±∞ there)."""
         with np.errstate(over="ignore"):
             too_large = np.abs(margin) * self.beta >= _INF / 2
@@ -188,12 +174,12 @@ class _Group:
                 f"too large to smooth (|β · value| must stay below {_INF / 2:.0e}; β = {self.beta:g})"
             )
 
-    def bad_value(self, node: Predicate, row: int, position: int) -> TraceError:
+    def bad_value(self, node: nodes.Predicate, row: int, position: int) -> TraceError:
         """The error for a NaN or infinite predicate value, naming the trajectory in the caller's batch."""
         return TraceError(f"predicate {str(node)!r} is NaN or infinite at trajectory {self.first_row + row}, "
                           f"position {position}")
 
-    def margin_bound(self, node: Predicate) -> float:
+    def margin_bound(self, node: nodes.Predicate) -> float:
         """A bound on |margin| of the predicate over the whole batch (inf: unknown, maybe undefined)."""
         return margin_bound(node.lhs, node.rhs, tuple(self.magnitudes.items()))
 
@@ -212,7 +198,7 @@ def _constant(group: _Group, step: Step, _: list) -> _Result:
 
 def _predicate(group: _Group, step: Step, _: list) -> _Result:
     """Any predicate: its arithmetic and its vector-Jacobian product (`evaluate_with_gradient`)."""
-    node: Predicate = step.node  # type: ignore[assignment]
+    node: nodes.Predicate = step.node  # type: ignore[assignment]
     rows = 1 if step.first else group.length
     signals = {k: v[:rows] for k, v in group.signals.items()} if step.first else group.signals
     lhs, lhs_grad = evaluate_with_gradient(node.lhs, signals)
@@ -247,13 +233,13 @@ def _predicate(group: _Group, step: Step, _: list) -> _Result:
 
 
 @functools.lru_cache(maxsize=1024)
-def _linear_slopes(node: Predicate) -> dict[str, float] | None:
+def _linear_slopes(node: nodes.Predicate) -> dict[str, float] | None:
     """Each signal's slope in the margin of a predicate whose sides are signals or numbers; else None."""
-    if not all(isinstance(side, (Var, Num)) for side in (node.lhs, node.rhs)):
+    if not all(isinstance(side, (nodes.Var, nodes.Num)) for side in (node.lhs, node.rhs)):
         return None
     slopes: dict[str, float] = {}
     for side, slope in ((node.lhs, ops.SIGN[node.op]), (node.rhs, -ops.SIGN[node.op])):
-        if isinstance(side, Var):
+        if isinstance(side, nodes.Var):
             slopes[side.name] = slopes.get(side.name, 0.0) + slope
     return {name: slope for name, slope in slopes.items() if slope}
 
@@ -263,17 +249,20 @@ def _linear_predicate(group: _Group, step: Step, _: list) -> _Result:
 
     On row 0 only when that is all that is asked; one or two passes per signal backward.
     """
-    node: Predicate = step.node  # type: ignore[assignment]
+    node: nodes.Predicate = step.node  # type: ignore[assignment]
     slopes: dict[str, float] = _linear_slopes(node)  # type: ignore[assignment]
     rows = 1 if step.first else group.length
     bound = group.margin_bound(node)
     low, high = (node.lhs, node.rhs) if ops.SIGN[node.op] < 0 else (node.rhs, node.lhs)  # z = β·(high − low)
-    if rows == group.length and bound * group.beta < _INF / 2 and (isinstance(low, Var) or isinstance(high, Var)):
+    on_signal = isinstance(low, nodes.Var) or isinstance(high, nodes.Var)
+    if rows == group.length and bound * group.beta < _INF / 2 and on_signal:
         # one pass: β·signal is shared by every linear predicate on the signal
-        high_z, low_z = (group.scaled(e.name) if isinstance(e, Var) else e.value * group.beta for e in (high, low))
+        high_z, low_z = (
+            group.scaled(e.name) if isinstance(e, nodes.Var) else e.value * group.beta for e in (high, low)
+        )
         z = np.subtract(high_z, low_z)
     else:
-        high_v, low_v = (group.signals[e.name][:rows] if isinstance(e, Var) else e.value for e in (high, low))
+        high_v, low_v = (group.signals[e.name][:rows] if isinstance(e, nodes.Var) else e.value for e in (high, low))
         with np.errstate(all="ignore"):
             margin = np.subtract(high_v, low_v)
         if not bound < 1e307 and not np.isfinite(margin).all():  # the signals are finite: only overflow is left
@@ -302,29 +291,30 @@ def _rule(group: _Group, step: Step, values: list) -> _Result:
     """The operator's rule of `tl_gym.tltl.operators`, at every position."""
     node = step.node
     spare = _spare(group, step)
-    if isinstance(node, Not):
+    if isinstance(node, nodes.Not):
         value, back = ops.smooth_not(values[0])
-    elif isinstance(node, And):
+    elif isinstance(node, nodes.And):
         value, back = ops.smooth_and(*values, spare=spare)
-    elif isinstance(node, Or):
+    elif isinstance(node, nodes.Or):
         value, back = ops.smooth_or(*values, spare=spare)
-    elif isinstance(node, Implies):
+    elif isinstance(node, nodes.Implies):
         value, back = ops.smooth_implies(*values)
-    elif isinstance(node, Next):
+    elif isinstance(node, nodes.Next):
         value, back = ops.smooth_next(values[0], group.top)
-    elif isinstance(node, (Eventually, Always)):
-        value, back = ops.smooth_over_time(values[0], 1.0 if isinstance(node, Eventually) else -1.0)
-    elif isinstance(node, Then) and group.form == "linear":
+    elif isinstance(node, (nodes.Eventually, nodes.Always)):
+        value, back = ops.smooth_over_time(values[0], 1.0 if isinstance(node, nodes.Eventually) else -1.0)
+    elif isinstance(node, nodes.Then) and group.form == "linear":
         value, back = ops.smooth_then_linear(*values)
     else:
-        value, back = ops.smooth_binary(*values, -1.0 if isinstance(node, Until) else 1.0, _MAX_QUADRATIC_ELEMENTS)
+        sign = -1.0 if isinstance(node, nodes.Until) else 1.0
+        value, back = ops.smooth_binary(*values, sign, _MAX_QUADRATIC_ELEMENTS)
     return value, back, 1.0
 
 
 def _on_segments(group: _Group, step: Step, values: list) -> _Result:
     """U / T with a temporal left operand, judged on each truncated segment s_{t''..t'-1}: O(N·T²)."""
-    node: Until | Then = step.node  # type: ignore[assignment]
-    sign = -1.0 if isinstance(node, Until) else 1.0
+    node: nodes.Until | nodes.Then = step.node  # type: ignore[assignment]
+    sign = -1.0 if isinstance(node, nodes.Until) else 1.0
     left_plan = plan_for(node.left, False, group.form)
     subs = [group.prefix(t_prime) for t_prime in range(1, group.length)]
     matrix = np.full((group.length, group.length, group.n), -_INF)  # [t'', t', n]
@@ -358,7 +348,7 @@ def _next_at_zero(group: _Group, step: Step, values: list) -> _Result:
 
 def _over_time_at_zero(group: _Group, step: Step, values: list) -> _Result:
     """F / G at position 0: one reduction over time (of the child's extreme and total, with ``parts``)."""
-    sign = 1.0 if isinstance(step.node, Eventually) else -1.0
+    sign = 1.0 if isinstance(step.node, nodes.Eventually) else -1.0
     if step.options.get("parts"):  # the child is extreme ∓ log(total): divide the weights by the total instead
         extreme, child_total = values[0]
         reduced, exps, total = lse.reduce_forward(extreme, 0, sign, spare=True, divisor=child_total)
@@ -373,7 +363,7 @@ def _over_time_at_zero(group: _Group, step: Step, values: list) -> _Result:
 
 def _binary_at_zero(group: _Group, step: Step, values: list) -> _Result:
     """U / T at position 0: inner(0, t') is a reduction over the prefix [0, t'): linear time."""
-    sign = -1.0 if isinstance(step.node, Until) else 1.0
+    sign = -1.0 if isinstance(step.node, nodes.Until) else 1.0
     left, right = sign * values[0], values[1]
     prefix = lse.prefix_forward(left)
     inner = sign * np.concatenate([group.full(-_INF, 1), prefix[:-1]])
@@ -390,8 +380,8 @@ def _binary_at_zero(group: _Group, step: Step, values: list) -> _Result:
     return reduced[None], backward, 1.0
 
 
-_AT_ZERO = {Next: _next_at_zero, Eventually: _over_time_at_zero, Always: _over_time_at_zero,
-            Until: _binary_at_zero, Then: _binary_at_zero}
+_AT_ZERO = {nodes.Next: _next_at_zero, nodes.Eventually: _over_time_at_zero, nodes.Always: _over_time_at_zero,
+            nodes.Until: _binary_at_zero, nodes.Then: _binary_at_zero}
 
 
 # --------------------------------------------------------------------------- rewrite: & / | of linear predicates
@@ -403,14 +393,14 @@ def _nary_linear(group: _Group, step: Step, values: list) -> _Result:
     A linear predicate's gradient is its weight times slope·β per signal. With ``parts`` (its reader is
     F over & or G over |), the value is the operands' elementwise extreme and softmax total.
     """
-    node: And | Or = step.node  # type: ignore[assignment]
-    sign = -1.0 if isinstance(node, And) else 1.0
+    node: nodes.And | nodes.Or = step.node  # type: ignore[assignment]
+    sign = -1.0 if isinstance(node, nodes.And) else 1.0
     parts = step.options.get("parts", False)
     out, exps, total = lse.reduce_operands(values, sign, _spare(group, step), value=not parts)
     by_signal: dict[str, list[tuple[np.ndarray, float]]] = {}
     others: list[int] = []
     for k, (operand, e) in enumerate(zip(node.operands, exps)):
-        slopes = _linear_slopes(operand) if isinstance(operand, Predicate) else None
+        slopes = _linear_slopes(operand) if isinstance(operand, nodes.Predicate) else None
         if slopes is None:
             others.append(k)
             continue
@@ -460,7 +450,7 @@ def _combine(first: np.ndarray, first_slope: float, rest: list[tuple[np.ndarray,
 
 _DIRECT = (_nary_linear, _on_segments)  # rules whose backward also writes signal gradients itself
 
-_READS_OWN_VALUE = (Implies,)  # rules whose backward reads the value they returned (plus T in linear form)
+_READS_OWN_VALUE = (nodes.Implies,)  # rules whose backward reads the value they returned (plus T in linear form)
 
 
 REWRITES = frozenset({"at_zero", "linear", "parts", "spare"})
@@ -478,9 +468,9 @@ def plan_for(formula: Formula, first: bool, form: str, rewrite: bool | frozenset
         steps = plan.steps
         for step in steps:
             node = step.node
-            if isinstance(node, Constant):
+            if isinstance(node, nodes.Constant):
                 step.run = _constant
-            elif isinstance(node, Predicate):
+            elif isinstance(node, nodes.Predicate):
                 linear = "linear" in rewrites and _linear_slopes(node) is not None
                 step.run = _linear_predicate if linear else _predicate
             elif step.segments:
@@ -489,8 +479,8 @@ def plan_for(formula: Formula, first: bool, form: str, rewrite: bool | frozenset
                 step.run = _AT_ZERO[type(node)]
             elif type(node) in ops.EXACT:
                 step.run = _rule
-                if "linear" in rewrites and isinstance(node, (And, Or)) and any(
-                        isinstance(c, Predicate) and _linear_slopes(c) is not None for c in node.operands):
+                if "linear" in rewrites and isinstance(node, (nodes.And, nodes.Or)) and any(
+                        isinstance(c, nodes.Predicate) and _linear_slopes(c) is not None for c in node.operands):
                     step.run = _nary_linear
             else:
                 raise TypeError(f"no smoothing rule for formula node {type(node).__name__}")
@@ -500,9 +490,9 @@ def plan_for(formula: Formula, first: bool, form: str, rewrite: bool | frozenset
             if "spare" in rewrites:
                 step.options["spare"] = spare
             node = step.node
-            if "parts" in rewrites and step.first and isinstance(node, (Eventually, Always)) and spare[0]:
+            if "parts" in rewrites and step.first and isinstance(node, (nodes.Eventually, nodes.Always)) and spare[0]:
                 child = steps[step.inputs[0]]
-                if isinstance(child.node, And if isinstance(node, Eventually) else Or):
+                if isinstance(child.node, nodes.And if isinstance(node, nodes.Eventually) else nodes.Or):
                     child.run, child.options["parts"], step.options["parts"] = _nary_linear, True, True
         return plan
 
@@ -511,14 +501,15 @@ def plan_for(formula: Formula, first: bool, form: str, rewrite: bool | frozenset
 
 def _reads_own_value(step: Step, form: str) -> bool:
     return isinstance(step.node, _READS_OWN_VALUE) or (
-        isinstance(step.node, Then) and form == "linear" and not step.first and not step.segments)
+        isinstance(step.node, nodes.Then) and form == "linear" and not step.first and not step.segments)
 
 
 @functools.lru_cache(maxsize=64)
 def _reductions_only(formula: Formula) -> bool:
     """Whether every temporal operator is an F or G of a temporal-free formula (as in the paper's φ1)."""
     return not any(
-        isinstance(node, (Next, Until, Then)) or (isinstance(node, (Eventually, Always)) and node.child.is_temporal)
+        isinstance(node, (nodes.Next, nodes.Until, nodes.Then))
+        or (isinstance(node, (nodes.Eventually, nodes.Always)) and node.child.is_temporal)
         for node in formula.walk()
     )
 
