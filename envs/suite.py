@@ -30,6 +30,7 @@ Example:
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 import math
 import numbers
@@ -321,8 +322,12 @@ def make_parking(
         raise DependencyNotInstalled(
             f"TLParking-v0 needs highway-env, an optional extra of tl_gym: {HIGHWAY_HINT}"
         ) from error
+    from tl_gym.envs.fast_parking import NumpyParkingEnv
+
     _check_steps("horizon", horizon)
-    base = gym.make("parking-v0", config=dict(config or {}), render_mode=render_mode)
+    # parking-v0's own wrappers and checks, on its subclass that reads the goal observation without pandas
+    spec = dataclasses.replace(gym.spec("parking-v0"), entry_point=NumpyParkingEnv)
+    base = gym.make(spec, config=dict(config or {}), render_mode=render_mode)
     cfg = base.unwrapped.config
     observation = cfg["observation"]
     if observation.get("type") != "KinematicsGoal" or tuple(observation.get("features", ())) != PARKING_FEATURES:

@@ -246,6 +246,29 @@ def test_parking_controller_parks_and_full_throttle_speeds():
     assert fast["robustness"] < 0 and fast["trace"]["speed"].max() > 5.0
 
 
+@pytest.mark.parametrize("seed", [3, 8])
+def test_parking_numpy_observation_equals_highway_envs(seed):
+    """TLParking-v0's parking-v0 subclass (no pandas) steps exactly as highway-env's own parking-v0."""
+    pytest.importorskip("highway_env")
+    from tl_gym.envs.fast_parking import NumpyParkingEnv
+
+    ours, theirs = NumpyParkingEnv(), gym.make("parking-v0").unwrapped
+    assert type(theirs.observation_type).__name__ == "KinematicsGoalObservation"
+    obs_ours, _ = ours.reset(seed=seed)
+    obs_theirs, _ = theirs.reset(seed=seed)
+    parker, actions = Parker(), np.random.default_rng(seed).uniform(-1, 1, size=(10, 2)).astype(np.float32)
+    for step in range(80):  # random actions, then the parking controller until it parks
+        for key in ("observation", "achieved_goal", "desired_goal"):
+            np.testing.assert_array_equal(obs_ours[key], obs_theirs[key], err_msg=f"{key} at step {step}")
+        action = actions[step] if step < len(actions) else parker(obs_ours)
+        obs_ours, r_ours, term_ours, trunc_ours, info_ours = ours.step(action)
+        obs_theirs, r_theirs, term_theirs, trunc_theirs, info_theirs = theirs.step(action)
+        assert (r_ours, term_ours, trunc_ours, info_ours["is_success"]) == (
+            r_theirs, term_theirs, trunc_theirs, info_theirs["is_success"])
+        if term_ours or trunc_ours:
+            break
+
+
 def test_parking_without_highway_env_names_the_extra(monkeypatch):
     monkeypatch.setitem(sys.modules, "highway_env", None)  # `import highway_env` raises ImportError
     with pytest.raises(DependencyNotInstalled, match=r'pip install "tl_gym\[highway\]"'):

@@ -1,0 +1,52 @@
+"""highway-env's parking-v0 with its goal observation read by numpy: the same values, several times faster.
+
+parking-v0 builds its ``KinematicsGoal`` observation through a one-row pandas DataFrame, and reads
+it four times a step (the observation, the reward, the termination and the info's ``is_success``):
+profiled on this machine, that is about 80 % of a step. `NumpyParkingEnv` is parking-v0 with the
+same observation read straight from the vehicle's ``to_dict()``; the values are equal to the last
+bit (tests/test_suite.py compares whole episodes). `TLParking-v0` runs on it.
+
+This module imports highway-env: import it only after checking that the extra is installed.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from typing import Any
+
+import numpy as np
+from highway_env.envs.common.observation import KinematicsGoalObservation
+from highway_env.envs.parking_env import ParkingEnv
+
+
+class NumpyKinematicsGoalObservation(KinematicsGoalObservation):
+    """`KinematicsGoalObservation` without pandas: ``observation``, ``achieved_goal``, ``desired_goal``."""
+
+    def observe(self) -> dict[str, np.ndarray]:
+        """The observer's features and its goal's, divided by the scales, as highway-env computes them."""
+        vehicle = self.observer_vehicle
+        if not vehicle:
+            return super().observe()
+        state = self._features(vehicle.to_dict())
+        goal = self._features(vehicle.goal.to_dict())
+        return OrderedDict(
+            [
+                ("observation", state / self.scales),
+                ("achieved_goal", state / self.scales),
+                ("desired_goal", goal / self.scales),
+            ]
+        )
+
+    def _features(self, values: dict[str, Any]) -> np.ndarray:
+        return np.array([values[name] for name in self.features], dtype=np.float64)
+
+
+class NumpyParkingEnv(ParkingEnv):
+    """parking-v0 whose ``KinematicsGoal`` observations (its own and the reward's) skip pandas."""
+
+    def define_spaces(self) -> None:
+        """highway-env's spaces, then the numpy reader in place of each ``KinematicsGoalObservation``."""
+        super().define_spaces()
+        if type(self.observation_type) is KinematicsGoalObservation:
+            self.observation_type = NumpyKinematicsGoalObservation(self, **self.config["observation"])
+        self.observation_type_parking = NumpyKinematicsGoalObservation(self, **self.PARKING_OBS["observation"])
