@@ -425,10 +425,9 @@ class _NeverAgain(_Node):
     """``G(A | X G B)`` (so also ``G(¬L -> X G B)``): A with lookahead d, B temporal-free.
 
     At prefix length n the value is min over k of max(A_k, M_k) with M_k the min of
-    B over (k, n) (−ρ_max for k = n − 1, the last state). A new state lowers every
-    M_k by the same ``c = B(s_t)``, and ``min_k max(A_k, min(M_k, c))`` equals
-    ``min(min_k max(A_k, M_k), max(min_k A_k, c))``: two running values carry the
-    final positions, and the last ``max(d, 1)`` positions are judged directly.
+    B over (k, n) (−ρ_max for k = n − 1, the last state): two running values carry the
+    final positions (`operators.online_never_again`), and the last ``max(d, 1)`` positions
+    are judged directly.
     """
 
     def __init__(self, a: _WindowFn, depth: int, b: _Scalar, rho_max: float, names: tuple[str, ...]):
@@ -451,12 +450,10 @@ class _NeverAgain(_Node):
         self.window.states.append(s)
         self.b_values.append(c)
         self.count += 1
-        if self.min_a < math.inf:
-            self.final = min(self.final, max(self.min_a, c))
-        if self.count > self.depth:  # position t − depth becomes final
-            a_value = self.a(list(self.window.states), 0)
-            self.final = min(self.final, max(a_value, min(list(self.b_values)[1:])))
-            self.min_a = min(self.min_a, a_value)
+        settled = None
+        if self.count > self.depth:  # position t − depth becomes final: its A and the min of B after it
+            settled = self.a(list(self.window.states), 0), min(list(self.b_values)[1:])
+        self.final, self.min_a = operators.online_never_again(self.final, self.min_a, c, settled)
         return self.value()
 
     def value(self) -> float:

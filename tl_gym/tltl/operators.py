@@ -422,30 +422,47 @@ CONNECTIVES: dict[type, Callable[[Sequence[float]], float]] = {  # the exact rul
 }
 
 
-def online_extremum(best: float, new: float, largest: bool) -> float:
-    """F (largest) / G: the running max / min of φ over the positions seen."""
-    return (new if new > best else best) if largest else (new if new < best else best)
+def online_extremum(best: Any, new: Any, largest: bool, maximum: Callable = max, minimum: Callable = min) -> Any:
+    """F (largest) / G: the running max / min of φ over the positions seen.
+
+    The online rules take floats, or arrays of n traces updated together with ``maximum=np.maximum,
+    minimum=np.minimum`` (`tl_gym.tltl.online_batch`).
+    """
+    return maximum(best, new) if largest else minimum(best, new)
 
 
-def online_until(left_so_far: float, best: float, phi: float, psi: float) -> tuple[float, float]:
+def online_until(left_so_far: Any, best: Any, phi: Any, psi: Any, maximum: Callable = max,
+                 minimum: Callable = min) -> tuple[Any, Any]:
     """φ U ψ, temporal-free operands: ``(min of φ over the earlier positions, best so far)``.
 
     The new position t' brings the term min(ψ(t'), min_{t'' < t'} φ(t'')).
     """
-    candidate = min(psi, left_so_far)
-    return min(left_so_far, phi), (candidate if candidate > best else best)
+    return minimum(left_so_far, phi), maximum(best, minimum(psi, left_so_far))
 
 
-def online_then_chain(best: list[float], value: Callable[[int], float]) -> None:
+def online_then_chain(best: list, value: Callable[[int], Any], maximum: Callable = max,
+                      minimum: Callable = min) -> None:
     """φ1 T (φ2 T (… T φm)), temporal-free operands = max over s1 < … < sm of min(φ1(s1), …, φm(sm)).
 
     ``best[i]`` is that max for the first i+1 operands, updated in place, the last first, each from
-    the previous one's value before this state; ``value(i)`` is φ_{i+1} at the new state (asked only
-    when it can matter).
+    the previous one's value before this state; ``value(i)`` is φ_{i+1} at the new state.
     """
     for i in range(len(best) - 1, 0, -1):
-        if best[i - 1] > -math.inf:
-            candidate = min(best[i - 1], value(i))
-            if candidate > best[i]:
-                best[i] = candidate
-    best[0] = max(best[0], value(0))
+        best[i] = maximum(best[i], minimum(best[i - 1], value(i)))
+    best[0] = maximum(best[0], value(0))
+
+
+def online_never_again(final: Any, min_a: Any, b_new: Any, settled: tuple[Any, Any] | None,
+                       maximum: Callable = max, minimum: Callable = min) -> tuple[Any, Any]:
+    """G(A | X G B), B temporal-free: ``(final, min_a)`` after a state whose B is ``b_new``.
+
+    ``final`` is min over the final positions k of max(A_k, M_k), M_k the min of B after k, and
+    ``min_a`` the min of their A_k. The new state lowers every M_k to min(M_k, c), c = ``b_new``, and
+    min_k max(A_k, min(M_k, c)) = min(min_k max(A_k, M_k), max(min_k A_k, c)). ``settled`` is
+    ``(A_k, M_k)`` of the position k that this state made final, if any.
+    """
+    final = minimum(final, maximum(min_a, b_new))
+    if settled is not None:
+        final = minimum(final, maximum(*settled))
+        min_a = minimum(min_a, settled[0])
+    return final, min_a
