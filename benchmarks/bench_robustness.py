@@ -1,14 +1,9 @@
 """Speed of tl_gym's robustness against hand-written numpy and numba and peer libraries (issues 3, 10, 17).
 
-Trajectories per second, on the paper's φ1 and φ2 (both no-revisit readings) and seeded random paths, of
-tl_gym (exact, also with the numba backend if installed; smoothed with the gradient of the sum, torch float64),
-of hand-written numpy and numba functions (`benchmarks.handwritten`) and of every peer that imports
-(`benchmarks.peers`), in one process. A library's values are first checked against tl_gym's (1e-6 relative);
-one that disagrees is reported, not timed. Per-trajectory libraries are timed on a prefix (``--budget``).
-The table goes to stdout and, with the machine and the targets, to ``docs/results/speed.md``::
-
-    .venv-bench/bin/python -m benchmarks.bench_robustness           # full grid (about half an hour)
-    .venv-bench/bin/python -m benchmarks.bench_robustness --quick   # tiny grid, seconds
+Trajectories per second on the paper's φ1 and φ2 of tl_gym (exact, also with the numba backend if installed;
+smoothed with the gradient of the sum), of `benchmarks.handwritten` and of every peer of `benchmarks.peers` that
+imports, in one process; a library's values are checked against tl_gym's before it is timed. The table and the
+targets go to stdout and ``docs/results/speed.md``; docs/speed.md says how to run and read it.
 """
 
 from __future__ import annotations
@@ -21,7 +16,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 
@@ -49,11 +44,9 @@ RESULTS = Path("docs/results/speed.md")
 def trajectories(n: int, length: int, seed: int, tasks: Iterable[Task] = ()) -> tuple[np.ndarray, np.ndarray]:
     """``n`` seeded random smooth paths of ``length`` steps in the arena, as ``(x, y)`` of shape ``(n, length)``.
 
-    Half are random walks of the velocity (double cumulative sums of Gaussian
-    noise, scaled so a path spans about half the arena whatever its length); the
-    other half run through three goal centres of ``tasks`` in random order (a
-    quarter of those in φ2's order), plus a smaller such walk, so that goals are
-    visited, left and revisited and every clause of φ2 is exercised.
+    Half are random walks of the velocity, scaled to span about half the arena; the other half run through three
+    goal centres of ``tasks`` (a quarter in φ2's order) plus a smaller walk, so goals are entered, left and
+    re-entered and every clause of φ2 is exercised.
     """
     rng = np.random.default_rng(seed)
     scale = ARENA * math.sqrt(3) / 2 / length**1.5
@@ -81,12 +74,7 @@ def trajectories(n: int, length: int, seed: int, tasks: Iterable[Task] = ()) -> 
 
 
 def tl_gym_evaluators(task: Task, beta: float) -> list[Evaluator]:
-    """tl_gym's exact (numpy) and smoothed-with-gradient (torch float64) evaluators.
-
-    The smoothed one is the paper's nesting (``form="nested"``, the default); φ2,
-    whose ``T`` nests under ``T``, also gets ``form="linear"``, the O(T) smoothing
-    with the same limit that TLPS uses.
-    """
+    """tl_gym's exact evaluators and its smoothed-with-gradient ones (torch float64; φ2 also in the linear form)."""
     import torch
 
     formula = task.formula
@@ -155,7 +143,6 @@ class Row:
     timed_on: int = 0  # trajectories the time was taken on
     note: str = ""
     ratio: float | None = None  # tl_gym's throughput / this library's (same mode)
-    extra: dict = field(default_factory=dict)
 
 
 def _time(
@@ -163,9 +150,8 @@ def _time(
 ) -> tuple[float, np.ndarray]:
     """Best wall time of ``run`` over a few repeats, and its values.
 
-    Unless ``warm``, the first call is a warm-up (imports, allocator) that only
-    gives the values; it counts when it alone is so slow that repeating is
-    unaffordable, except when ``must_warm`` (a JIT compiles on the first call).
+    Unless ``warm``, a first call warms up (imports, allocator); it is the time when it alone is too slow to
+    repeat, unless ``must_warm`` (a JIT compiles on the first call).
     """
     values = None
     if not warm or must_warm:
@@ -211,10 +197,9 @@ class Settings:
 def measure(
     evaluator: Evaluator, row: Row, x: np.ndarray, y: np.ndarray, reference: np.ndarray | None, settings: Settings
 ) -> np.ndarray | None:
-    """Check ``evaluator`` against ``reference`` (on the trajectories both cover) and time it.
+    """Check ``evaluator`` against ``reference`` and time it; fill ``row``.
 
-    Fills ``row`` and returns the values it computed (on ``row.timed_on`` trajectories),
-    or None when it was skipped, crashed or disagreed.
+    Returns the values (on ``row.timed_on`` trajectories), or None when it was skipped, crashed or disagreed.
     """
     n, length = x.shape
     if evaluator.max_length is not None and length > evaluator.max_length:
@@ -339,20 +324,16 @@ def machine() -> str:
     )
 
 
-def _find(rows: list[Row], task: str, n: int, length: int, library: str, mode: str) -> Row | None:
-    return next(
-        (r for r in rows if (r.task, r.n, r.length, r.library, r.mode) == (task, n, length, library, mode)), None
-    )
+def _find(rows: list[Row], task: str, n: int, length: int, library: str, mode: str = "exact") -> Row | None:
+    return next((r for r in rows if (r.task, r.n, r.length, r.library, r.mode) == (task, n, length, library, mode)),
+                None)
 
 
 def interleaved(task: Task, x: np.ndarray, y: np.ndarray, beta: float, rounds: int) -> tuple[float, float, float]:
     """Best times of tl_gym's exact and smoothed (with gradient) φ1 and of the hand-written smoothed φ1.
 
-    The three calls are alternated ``rounds`` times.
-
-    The ratio of two separately timed rows swings with this VM's drift (the same call takes
-    13 ms in one process and 21 ms in the next); alternating the calls in one loop lets
-    all of them see the same machine.
+    The calls alternate ``rounds`` times in one loop, so all see the same machine: two rows timed apart swing
+    with this VM's drift (the same call took 13 ms in one process and 21 ms in the next).
     """
     by_mode = {e.mode: e for e in tl_gym_evaluators(task, beta)}
     calls = (by_mode["exact"].run, by_mode["smooth+grad"].run, lambda x, y: handwritten.smooth_phi1(task, x, y, beta))
@@ -371,90 +352,64 @@ def _met(ok: bool) -> str:
 
 
 def targets(rows: list[Row], alternated: tuple[int, float, float, float] | None = None) -> list[str]:
-    """The issue's speed targets, each with the measured numbers and whether it is met.
+    """The issues' speed targets (docs/speed.md), each with the measured numbers at T = 200 and whether it is met.
 
-    ``alternated``: (N, exact s, smoothed s, hand-written smoothed s) of `interleaved` for φ1 at T = 200,
-    if measured.
+    ``alternated``: (N, exact s, smoothed s, hand-written smoothed s) of `interleaved` for φ1, if measured.
     """
-    lines = []
-
-    def rate(task: str, n: int, length: int, library: str, mode: str) -> float | None:
-        r = _find(rows, task, n, length, library, mode)
-        return None if r is None else r.per_second
-
     n_big = max((r.n for r in rows if r.length == 200), default=0)
+
+    def rate(task: str, library: str, mode: str = "exact", n: int = n_big) -> float | None:
+        row = _find(rows, task, n, 200, library, mode)
+        return None if row is None else row.per_second
+
+    lines = []
     for task in ("phi1", "phi2"):
-        ours, hand = rate(task, n_big, 200, TL_GYM, "exact"), rate(task, n_big, 200, HANDWRITTEN, "exact")
+        ours, hand, peer = rate(task, TL_GYM), rate(task, HANDWRITTEN), rate(task, "rtamt")
+        smooth, hand_smooth = rate(task, TL_GYM, "smooth+grad"), rate(task, HANDWRITTEN, "smooth+grad")
+        linear, stlcg = rate(task, TL_GYM, SMOOTH_LINEAR), rate(task, "stlcg++", "smooth+grad")
         if ours and hand:
-            slow = hand / ours
-            lines.append(
-                f"- exact {task}, N = {n_big:,}, T = 200: tl_gym {n_big / ours:.3g} s, hand-written numpy "
-                f"{n_big / hand:.3g} s: **{slow:.2f}×** the hand-written time (target ≤ 1.5×: "
-                f"{_met(slow <= 1.5)})."
-            )
-        peer = rate(task, n_big, 200, "rtamt", "exact")
+            lines.append(f"- exact {task}, N = {n_big:,}, T = 200: tl_gym {n_big / ours:.3g} s, hand-written numpy "
+                         f"{n_big / hand:.3g} s: **{hand / ours:.2f}×** the hand-written time (target ≤ 1.5×: "
+                         f"{_met(hand / ours <= 1.5)}).")
         if ours and peer:
-            lines.append(
-                f"- exact {task}, T = 200: tl_gym {ours:,.0f} traj/s vs rtamt {peer:,.1f} traj/s: "
-                f"**{ours / peer:,.0f}×** (target ≥ 1,000×: {_met(ours / peer >= 1000)})."
-            )
-        smooth = rate(task, n_big, 200, TL_GYM, "smooth+grad")
+            lines.append(f"- exact {task}, T = 200: tl_gym {ours:,.0f} traj/s vs rtamt {peer:,.1f} traj/s: "
+                         f"**{ours / peer:,.0f}×** (target ≥ 1,000×: {_met(ours / peer >= 1000)}).")
         if ours and smooth:
-            slow = ours / smooth
             if task != "phi1":
                 verdict = " (reported)"
             elif alternated:  # two rows timed apart swing ±30 % on a shared VM: the alternated timing decides
                 verdict = " (rows timed apart; the verdict is the alternated timing below)"
             else:
-                verdict = f" (target ≤ 5×: {_met(slow <= 5)})"
-            lines.append(
-                f"- smoothed {task} with gradient, N = {n_big:,}, T = 200: {smooth:,.0f} traj/s, "
-                f"**{slow:.2f}×** the exact time{verdict}."
-            )
-        hand_smooth = rate(task, n_big, 200, HANDWRITTEN, "smooth+grad")
+                verdict = f" (target ≤ 5×: {_met(ours / smooth <= 5)})"
+            lines.append(f"- smoothed {task} with gradient, N = {n_big:,}, T = 200: {smooth:,.0f} traj/s, "
+                         f"**{ours / smooth:.2f}×** the exact time{verdict}.")
         if ours and smooth and hand_smooth:
-            lines.append(
-                f"- hand-written numpy smoothed {task} with gradient: **{ours / hand_smooth:.2f}×** the exact time "
-                f"(the floor under the target); tl_gym takes {hand_smooth / smooth:.2f}× its time."
-            )
+            lines.append(f"- hand-written numpy smoothed {task} with gradient: **{ours / hand_smooth:.2f}×** the exact "
+                         f"time (the floor under the target); tl_gym takes {hand_smooth / smooth:.2f}× its time.")
         if task == "phi1" and alternated:
             n_alt, exact_s, smooth_s, hand_s = alternated
-            lines.append(
-                f"- the same, the calls alternated in one loop (N = {n_alt:,}, best of each): exact "
-                f"{exact_s * 1e3:.1f} ms, smoothed with gradient {smooth_s * 1e3:.1f} ms: "
-                f"**{smooth_s / exact_s:.2f}×** (target ≤ 5×: {_met(smooth_s / exact_s <= 5)}); hand-written "
-                f"smoothed with gradient {hand_s * 1e3:.1f} ms ({hand_s / exact_s:.2f}× exact)."
-            )
-        linear = rate(task, n_big, 200, TL_GYM, SMOOTH_LINEAR)
+            lines.append(f"- the same, the calls alternated in one loop (N = {n_alt:,}, best of each): exact "
+                         f"{exact_s * 1e3:.1f} ms, smoothed with gradient {smooth_s * 1e3:.1f} ms: "
+                         f"**{smooth_s / exact_s:.2f}×** (target ≤ 5×: {_met(smooth_s / exact_s <= 5)}); hand-written "
+                         f"smoothed with gradient {hand_s * 1e3:.1f} ms ({hand_s / exact_s:.2f}× exact).")
         if ours and linear:
-            lines.append(
-                f"- smoothed {task} with gradient, linear form (TLPS's), N = {n_big:,}, T = 200: {linear:,.0f} "
-                f"traj/s, **{ours / linear:.2f}×** the exact time (reported)."
-            )
-        stlcg = rate(task, n_big, 200, "stlcg++", "smooth+grad")
+            lines.append(f"- smoothed {task} with gradient, linear form (TLPS's), N = {n_big:,}, T = 200: "
+                         f"{linear:,.0f} traj/s, **{ours / linear:.2f}×** the exact time (reported).")
         if smooth and stlcg:
-            lines.append(
-                f"- smoothed {task} with gradient vs stlcg++: {smooth:,.0f} vs {stlcg:,.1f} traj/s: "
-                f"**{smooth / stlcg:,.0f}×** (target ≥ 100×: {_met(smooth / stlcg >= 100)})."
-            )
-    lines.extend(issue17(rate, n_big))
-    lines.extend(linearity(rows))
-    return lines
-
-
-def issue17(rate: Callable[..., float | None], n_big: int) -> list[str]:
-    """Issue 17's targets from the rows of one run (None where a row is missing)."""
-    checks = [(f"exact {t}, N = {n_big:,}: {TL_GYM_NUMBA} vs {FUSED}", 0.5, rate(t, n_big, 200, TL_GYM_NUMBA, "exact"),
-               rate(t, n_big, 200, FUSED, "exact")) for t in ("phi1", "phi2")]
-    for lib in (TL_GYM, TL_GYM_NUMBA):
-        checks += [(f"exact {t}, N = 40: {lib} vs hand-written numpy", 1.0, rate(t, 40, 200, lib, "exact"),
-                    rate(t, 40, 200, HANDWRITTEN, "exact")) for t in ("phi1", "phi2")]
+            lines.append(f"- smoothed {task} with gradient vs stlcg++: {smooth:,.0f} vs {stlcg:,.1f} traj/s: "
+                         f"**{smooth / stlcg:,.0f}×** (target ≥ 100×: {_met(smooth / stlcg >= 100)}).")
+    # issue 17: (what, target throughput ratio, ours, theirs)
+    checks = [(f"exact {t}, N = {n_big:,}: {TL_GYM_NUMBA} vs {FUSED}", 0.5, rate(t, TL_GYM_NUMBA), rate(t, FUSED))
+              for t in ("phi1", "phi2")]
+    checks += [(f"exact {t}, N = 40: {lib} vs hand-written numpy", 1.0, rate(t, lib, n=40),
+                rate(t, HANDWRITTEN, n=40)) for lib in (TL_GYM, TL_GYM_NUMBA) for t in ("phi1", "phi2")]
     checks += [("smoothed phi2 (linear form) + gradient, N = 40: tl_gym vs hand-written exact numpy phi2", 0.2,
-                rate("phi2", 40, 200, TL_GYM, SMOOTH_LINEAR), rate("phi2", 40, 200, HANDWRITTEN, "exact")),
+                rate("phi2", TL_GYM, SMOOTH_LINEAR, n=40), rate("phi2", HANDWRITTEN, n=40)),
                (f"smoothed phi1 + gradient, N = {n_big:,}: tl_gym vs hand-written numpy", 1.0,
-                rate("phi1", n_big, 200, TL_GYM, "smooth+grad"), rate("phi1", n_big, 200, HANDWRITTEN, "smooth+grad"))]
-    return [f"- {what}: throughput **{ours / theirs:.2f}×** theirs (issue 17 target ≥ {bar:g}×: "
-            f"{_met(ours / theirs >= bar)})." for what, bar, ours, theirs in checks if ours and theirs]
+                rate("phi1", TL_GYM, "smooth+grad"), rate("phi1", HANDWRITTEN, "smooth+grad"))]
+    lines += [f"- {what}: throughput **{ours / theirs:.2f}×** theirs (issue 17 target ≥ {bar:g}×: "
+              f"{_met(ours / theirs >= bar)})." for what, bar, ours, theirs in checks if ours and theirs]
+    return lines + linearity(rows)
 
 
 def linearity(rows: list[Row]) -> list[str]:
@@ -494,22 +449,14 @@ def write_results(rows: list[Row], path: Path, command: str, skipped: list[str],
     """Write the table, the targets and the machine to ``path`` (markdown)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     parts = [
-        "# Robustness speed: tl_gym vs hand-written numpy and peer libraries",
-        "",
+        "# Robustness speed: tl_gym vs hand-written numpy and peer libraries", "",
         f"Written by `{command}` on {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}.",
-        f"Machine: {machine()}.",
-        "",
+        f"Machine: {machine()}.", "",
         "`traj/s`: trajectories per second (best of a few repeats); `tl_gym ×`: tl_gym's throughput in the same",
-        "mode divided by this row's (above 1: tl_gym is faster). How to read it: `docs/speed.md`.",
-        "",
-        "## Targets (issue 3)",
-        "",
-        *(targets(rows, alternated) or ["- (the grid run does not include the targets' sizes)"]),
-        "",
-        "## Table",
-        "",
-        table(rows),
-        "",
+        "mode divided by this row's (above 1: tl_gym is faster). How to read it: `docs/speed.md`.", "",
+        "## Targets (issue 3)", "",
+        *(targets(rows, alternated) or ["- (the grid run does not include the targets' sizes)"]), "",
+        "## Table", "", table(rows), "",
     ]
     if skipped:
         parts += ["## Skipped sizes", "", *(f"- {s}" for s in skipped), ""]

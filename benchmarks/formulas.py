@@ -1,20 +1,7 @@
 """The paper's task formulas φ1 (Eq. 16) and φ2 (Eq. 19) over signals ``x, y``, with their geometry.
 
-Every evaluator of the speed benchmark (tl_gym, the hand-written numpy functions,
-each peer library) builds its formula from one `Task`, so all of them judge the
-same goals and obstacle: those of TLCarNav-v0 (`tl_gym.envs.tasks`), whose formula
-is also the one tl_gym evaluates here.
-
-Example:
-    >>> task = benchmark_task("phi1")
-    >>> task.formula.signals
-    ('x', 'y')
-    >>> import numpy as np
-    >>> x, y = np.array([10.0, 250.0]), np.array([10.0, 250.0])  # ends inside the goal
-    >>> float(task.formula.robustness({"x": x, "y": y}))
-    10.0
-    >>> task.formula == tl_gym_task_formula(1)
-    True
+Every evaluator of the speed benchmark builds its formula from one `Task`, so all judge the goals and obstacle
+of TLCarNav-v0 (`tl_gym.envs.tasks`), whose formula is the one tl_gym evaluates here.
 """
 
 from __future__ import annotations
@@ -34,13 +21,7 @@ TASKS = ("phi1", "phi2", "phi2-strict")
 
 @dataclass(frozen=True)
 class Task:
-    """One benchmark formula: φ1, φ2 (default no-revisit) or φ2 with the paper's strict no-revisit.
-
-    Attributes:
-        key: ``"phi1"``, ``"phi2"`` or ``"phi2-strict"``.
-        goals: the goal (φ1) or the three goals in visiting order (φ2), the env's own `Goal` regions.
-        obstacle: the env's `Obstacle`, to avoid at every step.
-    """
+    """One benchmark formula: φ1, φ2 or strict φ2 (``key``), its goals in visiting order and the obstacle."""
 
     key: str
     goals: tuple[Goal, ...]
@@ -58,11 +39,7 @@ class Task:
 
 
 def benchmark_task(key: str) -> Task:
-    """The benchmark task ``key`` (one of `TASKS`) on the shared arena layout.
-
-    Raises:
-        ValueError: ``key`` is not one of `TASKS`.
-    """
+    """The benchmark task ``key`` (one of `TASKS`, else ValueError) on the env's layout."""
     if key not in TASKS:
         raise ValueError(f"unknown task {key!r}; expected one of {', '.join(TASKS)}")
     layout = make_layout(1 if key == "phi1" else 2)

@@ -1,23 +1,8 @@
-"""Hand-written vectorised numpy robustness of φ1 and φ2: the practical speed limit.
+"""Hand-written robustness of φ1 and φ2, the practical speed limit the benchmark times tl_gym against.
 
-Each function is what a careful user would write for one formula, knowing it is
-judged only at position 0: every temporal operator becomes one reduction or one
-prefix/suffix scan along time over the whole ``(N, T)`` batch, with no formula tree
-and no per-node bookkeeping. The benchmark checks these values against tl_gym's
-and times the engine against them (the issue's target: within 1.5×).
-`smooth_phi1` does the same for φ1's smoothed robustness and its gradient: the
-floor under the issue's "smoothed with gradient within 5× of exact" target.
-
-Semantics are tl_gym's (the paper's): F/G over [t, T), ``X`` at the last state is
-−∞, ``φ U ψ`` and ``φ T ψ`` non-strict with temporal-free operands.
-
-Example:
-    >>> import numpy as np
-    >>> from benchmarks.formulas import benchmark_task
-    >>> task = benchmark_task("phi1")
-    >>> x = np.array([[10.0, 250.0]]); y = np.array([[10.0, 250.0]])
-    >>> phi1(task, x, y)
-    array([10.])
+What a careful user would write for one formula judged at position 0 only: every temporal operator one
+reduction or prefix/suffix scan along time over the ``(N, T)`` batch (numpy), or one running value in a
+fused loop (numba); `smooth_phi1` is φ1's smoothed value and gradient. Semantics are tl_gym's.
 """
 
 from __future__ import annotations
@@ -112,11 +97,9 @@ def _weights(z: np.ndarray, sign: float) -> tuple[np.ndarray, np.ndarray, np.nda
 
 def smooth_phi1(task: Task, x: np.ndarray, y: np.ndarray, beta: float,
                 rows: int = 655) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Smoothed robustness of φ1 (every max/min a log-sum-exp of sharpness β) and its gradient.
+    """Smoothed robustness of φ1 (log-sum-exp of sharpness β) ``(N,)`` and the gradients of its sum wrt x and y.
 
-    Returns the values ``(N,)`` and the gradients of their sum wrt ``x`` and ``y``, ``(N, T)``
-    each. Works through ``rows`` trajectories at a time (about 2¹⁷ values at T = 200, as the
-    engine does) and overwrites every temporary it can.
+    Works through ``rows`` trajectories at a time (about 2¹⁷ values at T = 200, as the engine does), in place.
     """
     box, circle = task.goals[0], task.obstacle
     n = x.shape[0]

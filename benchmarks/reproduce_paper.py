@@ -1,24 +1,8 @@
 """Reproduce the paper's Figures 2 and 3 and the ablations, and write them under ``docs/results/``.
 
-Runs two sweeps (`benchmarks.runner`; finished runs are skipped, so an interrupted
-reproduction resumes), then writes from their results on disk:
-
-- ``paper_task1.md``, ``paper_task2.md``: one table per task (every agent) and the paper's
-  claims set against the measured numbers;
-- ``fig3_learning_curves.png``: mean exact robustness and success rate per iteration, 95% bands;
-- ``fig2_trajectories_task1.png``, ``fig2_trajectories_task2.png``: sampled trajectories of the
-  default TLPS (first seed) at the recorded iterations, mean ± 2σ over the layout;
-- ``ablations.md``, ``ablations_learning_curves.png``.
-
-Usage::
-
-    python -m benchmarks.reproduce_paper                      # 5 seeds, 50 iterations (hours on 2 cores)
-    python -m benchmarks.reproduce_paper --variant session    # the reduced grid the docs show
-    python -m benchmarks.reproduce_paper --quick              # CI smoke test; writes to runs/results-quick
-    python -m benchmarks.reproduce_paper --seeds 3 --iterations 30 --workers 2
-    python -m benchmarks.reproduce_paper --no-run             # only rewrite the pages from results on disk
-
-It takes the runner's sweep options too (``--workers``, ``--ray``, ``--only``; `benchmarks.runner`).
+Runs the sweeps of ``configs/paper.toml`` and ``configs/ablations.toml`` (finished runs are skipped, so an
+interrupted reproduction resumes), then writes the pages and figures that docs/benchmarks.md lists from the
+results on disk (``--quick``: to ``runs/results-quick``).
 """
 
 from __future__ import annotations
@@ -77,15 +61,19 @@ def provenance(sweep: Sweep, config: Path, out_dir: Path, command: str, runs: Se
     finished = {run.spec.run_id for run in runs}
     missing = sum(run.run_id not in finished for run in sweep.runs)
     variant = sweep.name.partition("-")[2]
-    versions: dict[str, int] = {}
-    for run in runs:
-        key = run.summary.get("code", "not recorded")
-        versions[key] = versions.get(key, 0) + 1
-    code = "; ".join(f"{key}: {count} run(s)" for key, count in versions.items())
-    lines = [
-        f"**Reduced grid** (config variant `{variant}`): fewer seeds and, where noted, smaller budgets than "
-        "the full benchmark (`python -m benchmarks.reproduce_paper`); see the table below for what ran.\n"
-        if variant else "",
+    versions = results.group_by(runs, lambda run: run.summary.get("code", "not recorded"))
+    code = "; ".join(f"{key}: {len(members)} run(s)" for key, members in versions.items())
+    rows = []
+    for label, members in results.group_by(runs, lambda run: run.spec.label).items():
+        spec = members[0].spec
+        hyper = ", ".join(f"{k}={v}" for k, v in spec.hyperparameters.items()) or "defaults"
+        env = ", ".join(f"{k}={v}" for k, v in spec.env_kwargs.items() if k != "task") or "–"
+        seeds = ", ".join(str(s) for s in sorted({run.spec.seed for run in members}))
+        rows.append([label, f"`{spec.agent}`", hyper, env, seeds, spec.iterations])
+    reduced = (f"**Reduced grid** (config variant `{variant}`): fewer seeds and, where noted, smaller budgets than "
+               "the full benchmark (`python -m benchmarks.reproduce_paper`); see the table below for what ran.\n")
+    return "\n".join([
+        reduced if variant else "",
         f"Produced by `{command}` from `{_relative(config)}` (sweep `{sweep.name}`, "
         f"results in `{out_dir}`), tl_gym at commit `{git('rev-parse', '--short', 'HEAD') or 'unknown'}`, on "
         f"{os.cpu_count()} CPU cores ({platform.machine()}, Python {platform.python_version()}), "
@@ -93,19 +81,8 @@ def provenance(sweep: Sweep, config: Path, out_dir: Path, command: str, runs: Se
         f"Code of the runs: {code}. {len(runs)} finished runs"
         + (f"; {missing} run(s) of the grid not finished yet." if missing else "."),
         "",
-        "| curve | agent | hyperparameters | env kwargs | seeds | iterations |",
-        "|---|---|---|---|---|---|",
-    ]
-    labels: dict[str, list[results.RunResult]] = {}
-    for run in runs:
-        labels.setdefault(run.spec.label, []).append(run)
-    for label, members in labels.items():
-        spec = members[0].spec
-        hyper = ", ".join(f"{k}={v}" for k, v in spec.hyperparameters.items()) or "defaults"
-        env = ", ".join(f"{k}={v}" for k, v in spec.env_kwargs.items() if k != "task") or "–"
-        seeds = ", ".join(str(s) for s in sorted({run.spec.seed for run in members}))
-        lines.append(f"| {label} | `{spec.agent}` | {hyper} | {env} | {seeds} | {spec.iterations} |")
-    return "\n".join(lines)
+        results.table(["curve", "agent", "hyperparameters", "env kwargs", "seeds", "iterations"], rows),
+    ])
 
 
 HOW_TO_READ = (
@@ -197,7 +174,7 @@ def claims(task: Any, rows: Sequence[results.GroupSummary]) -> str:
             f"- *TLPS is ahead of REPS on task 2.* Success ≥ 80% first reached: TLPS "
             f"{results.first_text(tlps.first_success)}, REPS {results.first_text(reps.first_success)}; final success "
             f"{tlps.final_success:.0%} vs {reps.final_success:.0%}; eval success "
-            f"{_percent(tlps.eval_success)} vs {_percent(reps.eval_success)}. On these runs: **{ahead}**."
+            f"{results.percent(tlps.eval_success)} vs {results.percent(reps.eval_success)}. On these runs: **{ahead}**."
         )
     return "\n".join(lines) if lines else "No TLPS β = 9 curve in these results."
 
@@ -239,10 +216,6 @@ def _beta(label: str) -> float | None:
         return float(label.removeprefix("TLPS β=")) if label.startswith("TLPS β=") else None
     except ValueError:
         return None
-
-
-def _percent(value: float | None) -> str:
-    return "–" if value is None else f"{value:.0%}"
 
 
 def _relative(path: Path) -> str:

@@ -1,23 +1,7 @@
-"""Aggregate a sweep's finished runs: learning curves with 95% bands, and markdown tables.
+"""Aggregate a sweep's finished runs into curves with 95% bands and markdown tables (docs/benchmarks.md).
 
-Reads ``OUT/sweep.json`` (the runs of the sweep's config) and, for each run with a
-``done.json``, its ``history.csv`` and summary; runs of other configs or unfinished runs
-in the same directory are ignored. Seeds of one (task, label) are one curve.
-
-Usage::
-
-    python -m benchmarks.results runs/sweeps/paper                # print the tables
-    python -m benchmarks.results DIR --per-seed DIR               # write tables.md, summary.csv and curves
-
-Example:
-    >>> import numpy as np
-    >>> mean, low, high = mean_band(np.array([[0.0, 1.0], [2.0, 3.0]]))
-    >>> mean.tolist(), bool(low[0] < 1.0 < high[0])
-    ([1.0, 2.0], True)
-    >>> first_iteration(np.array([1, 2, 3]), np.array([-1.0, 0.5, 2.0]), 0.0)
-    2
-    >>> median_first([4, None, 8]), first_text([4, None, 8]), first_text([None])
-    (6.0, '6 (2/3)', 'never (0/1)')
+Only the runs that ``OUT/sweep.json`` lists and that have a ``done.json`` count; the seeds of one
+(task, label) are one curve.
 """
 
 from __future__ import annotations
@@ -27,7 +11,7 @@ import csv
 import dataclasses
 import json
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -63,11 +47,7 @@ class RunResult:
 
 
 def load_runs(out_dir: str | Path) -> list[RunResult]:
-    """The finished runs of the sweep in ``out_dir``, in config order.
-
-    Raises:
-        FileNotFoundError: ``out_dir`` holds no ``sweep.json`` (no sweep ran there).
-    """
+    """The finished runs of the sweep in ``out_dir``, in config order (FileNotFoundError: no sweep.json)."""
     out_dir = Path(out_dir)
     manifest_path = out_dir / "sweep.json"
     if not manifest_path.is_file():
@@ -100,24 +80,21 @@ def read_history(path: str | Path) -> dict[str, np.ndarray]:
     return columns
 
 
-def group_runs(runs: Iterable[RunResult]) -> dict[tuple[Any, str], list[RunResult]]:
-    """Runs keyed by (task, label), in first-seen order; each value holds the seeds of one curve."""
-    groups: dict[tuple[Any, str], list[RunResult]] = {}
-    for run in runs:
-        groups.setdefault((run.task, run.spec.label), []).append(run)
+def group_by(items: Iterable[Any], key: Callable[[Any], Any]) -> dict[Any, list[Any]]:
+    """``items`` in lists by ``key(item)``, in first-seen order."""
+    groups: dict[Any, list[Any]] = {}
+    for item in items:
+        groups.setdefault(key(item), []).append(item)
     return groups
 
 
+def group_runs(runs: Iterable[RunResult]) -> dict[tuple[Any, str], list[RunResult]]:
+    """Runs keyed by (task, label), in first-seen order; each value holds the seeds of one curve."""
+    return group_by(runs, lambda run: (run.task, run.spec.label))
+
+
 def mean_band(values: np.ndarray, confidence: float = 0.95) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Mean over seeds (axis 0) with a Student-t confidence band; the band is the mean for one seed.
-
-    Args:
-        values: ``(seeds, iterations)``.
-        confidence: coverage of the band.
-
-    Returns:
-        ``(mean, low, high)``, each ``(iterations,)``.
-    """
+    """``(mean, low, high)`` over seeds (axis 0 of ``values``) with a Student-t band; for one seed, the mean."""
     values = np.asarray(values, dtype=float)
     mean = values.mean(axis=0)
     n = values.shape[0]
@@ -130,11 +107,7 @@ def mean_band(values: np.ndarray, confidence: float = 0.95) -> tuple[np.ndarray,
 
 
 def stack(runs: Sequence[RunResult], key: str) -> tuple[np.ndarray, np.ndarray]:
-    """History column ``key`` of every run as ``(seeds, iterations)``, cut to the shortest run.
-
-    Returns:
-        ``(iterations, values)``.
-    """
+    """``(iterations, values)``: history column ``key`` of every run as ``(seeds, iterations)``, cut to the shortest."""
     length = min(len(run.history[key]) for run in runs)
     values = np.stack([run.history[key][:length] for run in runs])
     return runs[0].history["iteration"][:length], values
@@ -181,7 +154,7 @@ def summarise(task: Any, label: str, runs: Sequence[RunResult]) -> GroupSummary:
         first_success=[first_iteration(iterations, row, SUCCESS_TARGET, strict=False) for row in success],
         env_steps=float(np.mean([run.summary["env_steps"] for run in runs])),
         wall_time=float(np.mean([run.summary["train_wall_time"] for run in runs])),
-        note="; ".join(sorted({run.spec.note for run in runs if run.spec.note})),
+        note=notes(runs),
     )
 
 
@@ -191,29 +164,44 @@ def median_first(firsts: Sequence[float | None]) -> float | None:
     return float(np.median(reached)) if reached else None
 
 
-def first_text(firsts: Sequence[int | None]) -> str:
-    """Median first iteration over the seeds that got there, and how many did."""
+def first_text(firsts: Sequence[float | None], number: str = "g") -> str:
+    """Median first iteration (or env steps, ...) over the seeds that got there, and how many did."""
     median = median_first(firsts)
     reached = sum(f is not None for f in firsts)
-    return f"never (0/{len(firsts)})" if median is None else f"{median:g} ({reached}/{len(firsts)})"
+    return f"never (0/{len(firsts)})" if median is None else f"{median:{number}} ({reached}/{len(firsts)})"
+
+
+def notes(runs: Iterable[RunResult]) -> str:
+    """The runs' distinct notes, sorted, in one text."""
+    return "; ".join(sorted({run.spec.note for run in runs if run.spec.note}))
+
+
+def table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
+    """A markdown table: the header's cells, a rule, then one line per row."""
+
+    def line(cells: Sequence[Any]) -> str:
+        return "| " + " | ".join(map(str, cells)) + " |"
+
+    return "\n".join([line(header), "|" + "---|" * len(header), *map(line, rows)])
+
+
+def percent(value: float | None) -> str:
+    """``value`` as a whole percentage, "–" when there is none (None or NaN)."""
+    return "–" if value is None or math.isnan(value) else f"{value:.0%}"
 
 
 def markdown_table(rows: Sequence[GroupSummary]) -> str:
     """The per-task results table (markdown), one line per agent."""
-    header = ("| agent | seeds | iterations | final mean ρ (±95%) | final success | eval success "
-              "| first it. mean ρ > 0 | first it. success ≥ 80% | env steps | wall time (s) | note |")
-    lines = [header, "|" + "---|" * (header.count("|") - 1)]
+    header = ["agent", "seeds", "iterations", "final mean ρ (±95%)", "final success", "eval success",
+              "first it. mean ρ > 0", "first it. success ≥ 80%", "env steps", "wall time (s)", "note"]
+    lines = []
     for row in rows:
         rho, half = row.final_robustness
-        evaluation = "–" if row.eval_success is None else f"{row.eval_success:.0%}"
         final = "–" if math.isnan(rho) else f"{rho:.3g} ± {half:.2g}"  # nan: no episode ended in the iteration
-        success = "–" if math.isnan(row.final_success) else f"{row.final_success:.0%}"
-        lines.append(
-            f"| {row.label} | {row.seeds} | {row.iterations} | {final} | {success} "
-            f"| {evaluation} | {first_text(row.first_positive)} | {first_text(row.first_success)} "
-            f"| {row.env_steps:,.0f} | {row.wall_time:.1f} | {row.note} |"
-        )
-    return "\n".join(lines)
+        lines.append([row.label, row.seeds, row.iterations, final, percent(row.final_success),
+                      percent(row.eval_success), first_text(row.first_positive), first_text(row.first_success),
+                      f"{row.env_steps:,.0f}", f"{row.wall_time:.1f}", row.note])
+    return table(header, lines)
 
 
 def summaries_by_task(runs: Iterable[RunResult]) -> dict[Any, list[GroupSummary]]:
@@ -231,21 +219,17 @@ def per_seed_table(rows: Sequence[Mapping[str, Any]], task: Any) -> str:
     counts a seed that never got there as infinite (shown "–"). Evaluation columns are the stochastic policy's.
     """
     key, what = ("first_rho_positive", "mean ρ > 0 at") if task == 1 else ("first_success_80", "80 % at")
-    lines = [f"| variant | seeds | {what} (per seed) | median | eval success | median eval success | eval mean ρ |",
-             "|---|---|---|---|---|---|---|"]
-    labels: dict[str, list[Mapping[str, Any]]] = {}
-    for row in rows:
-        if row["task"] == task:
-            labels.setdefault(row["variant"], []).append(row)
-    for label, members in labels.items():
+    lines = []
+    for label, members in group_by((row for row in rows if row["task"] == task), lambda row: row["variant"]).items():
         members = sorted(members, key=lambda row: row["seed"])
         firsts = [row[key] for row in members]
         median = float(np.median([math.inf if f is None else f for f in firsts]))
         success = [row["eval_success_stochastic"] for row in members]
-        lines.append(f"| {label} | {len(members)} | {', '.join('–' if f is None else str(f) for f in firsts)} | "
-                     f"{'–' if math.isinf(median) else f'{median:g}'} | {min(success):.1%}–{max(success):.1%} | "
-                     f"{np.median(success):.1%} | {np.mean([row['eval_rho_stochastic'] for row in members]):.2f} |")
-    return "\n".join(lines)
+        lines.append([label, len(members), ", ".join("–" if f is None else str(f) for f in firsts),
+                      "–" if math.isinf(median) else f"{median:g}", f"{min(success):.1%}–{max(success):.1%}",
+                      f"{np.median(success):.1%}", f"{np.mean([row['eval_rho_stochastic'] for row in members]):.2f}"])
+    header = ["variant", "seeds", f"{what} (per seed)", "median", "eval success", "median eval success", "eval mean ρ"]
+    return table(header, lines)
 
 
 def per_seed_rows(runs: Sequence[RunResult]) -> list[dict[str, Any]]:

@@ -1,25 +1,9 @@
 """The experiment runner: a TOML config expands into runs (task × agent × hyperparameters × seed).
 
-Usage::
-
-    python -m benchmarks.runner benchmarks/configs/paper.toml                   # all CPUs of this machine
-    python -m benchmarks.runner benchmarks/configs/paper.toml --quick --workers 1
-    python -m benchmarks.runner benchmarks/configs/research.toml --only "spread_*" --out DIR
-    python -m benchmarks.runner benchmarks/configs/paper.toml --ray auto        # on a Ray cluster
-
-Every run gets a folder ``OUT/runs/<run_id>`` (`RunSpec.run_id`): ``spec.json`` first, ``history.csv``
-rewritten atomically after each iteration, ``trajectories.npz`` (sampled signal traces, optional), and
-``done.json`` (the summary) last, atomically. ``done.json`` is the only mark of a finished run: a rerun
-skips finished runs and restarts the others from scratch, so killing a sweep loses at most the runs in
-flight. ``OUT/sweep.json`` lists the config's runs for `benchmarks.results`. Runs go to a local process
-pool (one torch thread each) or, with ``--ray``, to Ray tasks that return their files to the driver.
-``docs/benchmarks.md`` describes the config keys and the files.
-
-Example:
-    >>> spec = RunSpec(env="TLCarNav-v0", env_kwargs={"task": 1}, agent="tlps", label="TLPS",
-    ...                hyperparameters={"beta": 9.0}, seed=0, iterations=50)
-    >>> spec.run_id  # doctest: +ELLIPSIS
-    'task1__tlps__seed0__...'
+Every run gets a folder ``OUT/runs/<run_id>``; its ``done.json``, written last and atomically, is the only mark
+of a finished run, so a rerun skips it and restarts the others from scratch. ``OUT/sweep.json`` lists the
+config's runs for `benchmarks.results`. The command line, the config keys and the run files are in
+``docs/benchmarks.md``.
 """
 
 from __future__ import annotations
@@ -68,23 +52,9 @@ class ConfigError(ValueError):
 
 @dataclasses.dataclass(frozen=True)
 class RunSpec:
-    """Everything that defines one training run; plain JSON values only.
+    """Everything that defines one training run, in plain JSON values (the config keys of docs/benchmarks.md).
 
-    Attributes:
-        env: Gymnasium env id.
-        env_kwargs: env constructor arguments (the car's ``task``, ``start_std``...).
-        agent: a name of `tl_gym.agents.registry` (``"tlps"``, ``"ppo"``, ``"package.module:Name"``).
-        label: the curve this run belongs to (seeds of one label are aggregated).
-        hyperparameters: the agent's keyword arguments.
-        seed: the agent's seed.
-        iterations: number of policy updates.
-        evaluate_episodes: fresh episodes of the final evaluation (0: none).
-        evaluate_every: also evaluate ``evaluate_episodes`` fresh episodes (deterministic policy) every
-            this many iterations and after the last, into the history columns ``eval_success_rate``
-            and ``eval_mean_robustness`` (0: never).
-        trajectory_iterations: iterations after which sampled traces are recorded (0 = before training).
-        trajectory_episodes: episodes per recorded iteration.
-        note: free text carried to the tables (e.g. a reduced budget).
+    ``agent`` is a name of `tl_gym.agents.registry`; the seeds of one ``label`` make one curve.
     """
 
     env: str
@@ -131,11 +101,7 @@ class Sweep:
 
 
 def load_config(path: str | Path, variant: str | None = None, overrides: Mapping[str, Any] | None = None) -> Sweep:
-    """Read a TOML config and expand it into runs (see `expand_config`).
-
-    Raises:
-        ConfigError: the file cannot be read, or `expand_config` rejects it.
-    """
+    """Read a TOML config and expand it into runs (`expand_config`); `ConfigError` if it cannot be read."""
     try:
         data = tomllib.loads(Path(path).read_text())
     except (OSError, tomllib.TOMLDecodeError) as exc:
@@ -147,16 +113,8 @@ def expand_config(data: Mapping[str, Any], variant: str | None = None, source: s
                   overrides: Mapping[str, Any] | None = None) -> Sweep:
     """Expand a parsed config into its runs, checking every field first.
 
-    Args:
-        data: the config (``docs/benchmarks.md`` describes the keys).
-        variant: apply ``[variants.<variant>]`` (top level) and each agent's ``variants.<variant>``
-            (its hyperparameters merged, ``skip = true`` drops the agent); the name gets ``-<variant>``.
-        source: the file name the errors give.
-        overrides: top-level keys set after the variant (e.g. ``{"seeds": 3}``).
-
-    Raises:
-        ConfigError: unknown keys, bad types or values, an unknown agent name, a label the
-            hyperparameters cannot fill, or two runs with one spec; the message names the culprit.
+    ``variant`` applies ``[variants.<variant>]`` and each agent's ``variants.<variant>``; ``overrides`` are
+    top-level keys set after it (e.g. ``{"seeds": 3}``). A `ConfigError` names ``source`` and the culprit.
     """
     try:
         return _expand(data, variant, overrides or {})
@@ -343,12 +301,10 @@ def execute_run(spec: RunSpec | Mapping[str, Any], run_dir: str | Path) -> dict[
 
 
 def sample_traces(agent: Any, spec: RunSpec, iteration: int) -> dict[str, np.ndarray]:
-    """``trajectory_episodes`` episodes of the stochastic policy on a fresh vector env, one at a time each.
+    """``trajectory_episodes`` episodes of the stochastic policy on the agent's own env view.
 
-    Returns:
-        ``it<iteration>_<signal>`` -> ``(episodes, T+1)`` float32 (NaN-padded) and
-        ``it<iteration>_robustness`` -> ``(episodes,)``; the traces are the formula's signals as
-        the reward wrapper recorded them, so they are what the robustness was computed on.
+    Returns ``it<iteration>_<signal>`` -> ``(episodes, T+1)`` float32 (NaN-padded), the signals the robustness
+    was computed on, and ``it<iteration>_robustness`` -> ``(episodes,)``.
     """
     from tl_gym.agents.evaluation import collect_episodes
     from tl_gym.agents.sampling import make_vector_env
@@ -428,11 +384,7 @@ def run_files(spec: Mapping[str, Any]) -> dict[str, bytes]:
 
 
 def install_files(files: Mapping[str, bytes], run_dir: str | Path) -> None:
-    """Write a finished run's files (from `run_files`) into ``run_dir``, ``done.json`` last.
-
-    Raises:
-        ValueError: ``files`` has no ``done.json`` (not a finished run).
-    """
+    """Write a finished run's files (from `run_files`) into ``run_dir``, ``done.json`` last (ValueError if none)."""
     if DONE not in files:
         raise ValueError(f"not a finished run: no {DONE} among {sorted(files)}")
     run_dir = Path(run_dir)
@@ -466,18 +418,11 @@ class SweepReport:
 
 def run_sweep(sweep: Sweep, out_dir: str | Path, workers: int | None = None, ray_address: str | None = None,
               only: Sequence[str] = ()) -> SweepReport:
-    """Run every unfinished run of ``sweep`` into ``out_dir/runs/<run_id>``.
+    """Run every unfinished run of ``sweep`` into ``out_dir/runs/<run_id>``, and list them in ``sweep.json``.
 
-    Args:
-        sweep: from `load_config`.
-        out_dir: results folder (created); ``out_dir/sweep.json`` lists the sweep's runs.
-        workers: local processes (default: the CPU count); 0 runs them here, one after the other.
-        ray_address: run on Ray instead (``"auto"``, ``"ray://host:10001"``, ``"local"`` to start one
-            here); a Ray already initialised in this process is used as is.
-        only: run only the runs whose label matches one of these shell patterns (``"TLPS*"``).
-
-    Returns:
-        A `SweepReport`; a failed run leaves no ``done.json`` and is retried by the next sweep.
+    ``workers`` local processes (default: the CPU count; 0: here, one after the other), or Ray tasks at
+    ``ray_address`` (a Ray already initialised here is used as is); ``only``: shell patterns of the labels
+    to run. A failed run leaves no ``done.json`` and is retried by the next sweep.
     """
     out_dir = Path(out_dir)
     (out_dir / "runs").mkdir(parents=True, exist_ok=True)

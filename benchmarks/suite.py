@@ -1,20 +1,9 @@
 """The TL task suite benchmark: every suite task × {TLPS, REPS, PPO, SAC}, SB3 also on the plain terminal reward.
 
-One sweep config per task in ``benchmarks/configs/suite/`` (env, budget, agents), run by the
-runner (`benchmarks.runner`); every run evaluates its policy on fresh episodes along the
-way (``evaluate_every``), so the curves are success on fresh episodes against env steps.
-Then this script writes ``docs/results/suite.md`` (one table per task, and the headline:
-which agent solves it, at how many env steps) and ``docs/results/suite_<task>.png``.
-
-Usage::
-
-    python -m benchmarks.suite                        # every task, the configs' full grid
-    python -m benchmarks.suite --variant session      # what fits a working session on 2 cores
-    python -m benchmarks.suite --quick                # CI smoke run (tiny), results in runs/ only
-    python -m benchmarks.suite --tasks car1 pendulum  # some tasks
-    python -m benchmarks.suite --report-only          # redraw from finished runs
-
-It takes the runner's sweep options too (``--workers``, ``--ray``, ``--only``; `benchmarks.runner`).
+One runner config per task in ``benchmarks/configs/suite/``; every run evaluates its policy on fresh episodes
+along the way (``evaluate_every``). This script runs them, then writes ``docs/results/suite.md`` (which agent
+solves each task, at how many env steps, and one table per task) and ``docs/results/suite_<task>.png``
+(``--quick``: under ``--out``). ``--tasks car1 pendulum`` picks tasks, ``--report-only`` only redraws.
 """
 
 from __future__ import annotations
@@ -29,7 +18,7 @@ from matplotlib import colormaps
 from matplotlib.figure import Figure
 
 from benchmarks.figures import plot_band
-from benchmarks.results import RunResult, group_runs, load_runs, median_first
+from benchmarks.results import RunResult, first_text, group_runs, load_runs, median_first, notes, table
 from benchmarks.runner import add_sweep_options, load_config, run_with_options, variant_of
 
 HERE = Path(__file__).resolve().parent
@@ -94,10 +83,9 @@ def task_table(runs: Sequence[RunResult]) -> tuple[str, list[tuple[str, float, f
 
     The tuples are ``(label, median final success, median env steps to solve, seeds that solved, seeds)``.
     """
-    header = ("| agent | seeds | budget (env steps) | final success, fresh episodes: median (min–max) "
-              "| env steps to ≥ 90 %: median (seeds) | final mean ρ | note |")
-    lines = [header, "|" + "---|" * (header.count("|") - 1)]
-    rows = []
+    header = ["agent", "seeds", "budget (env steps)", "final success, fresh episodes: median (min–max)",
+              "env steps to ≥ 90 %: median (seeds)", "final mean ρ", "note"]
+    lines, rows = [], []
     for (_, label), members in group_runs(runs).items():
         steps, success = eval_curve(members)
         _, rho = eval_curve(members, "eval_mean_robustness")
@@ -105,13 +93,12 @@ def task_table(runs: Sequence[RunResult]) -> tuple[str, list[tuple[str, float, f
             continue
         final = success[:, -1]
         solves = [steps_to_solve(steps, row) for row in success]
-        median_steps, reached = median_first(solves), sum(s is not None for s in solves)
-        solve_text = f"{median_steps:,.0f} ({reached}/{len(solves)})" if reached else f"never (0/{len(solves)})"
-        note = "; ".join(sorted({run.spec.note for run in members if run.spec.note}))
-        lines.append(f"| {label} | {len(members)} | {steps[-1]:,.0f} | {np.median(final):.0%} "
-                     f"({final.min():.0%}–{final.max():.0%}) | {solve_text} | {np.median(rho[:, -1]):.3g} | {note} |")
-        rows.append((label, float(np.median(final)), median_steps, reached, len(solves)))
-    return "\n".join(lines), rows
+        lines.append([label, len(members), f"{steps[-1]:,.0f}",
+                      f"{np.median(final):.0%} ({final.min():.0%}–{final.max():.0%})", first_text(solves, ",.0f"),
+                      f"{np.median(rho[:, -1]):.3g}", notes(members)])
+        rows.append((label, float(np.median(final)), median_first(solves), sum(s is not None for s in solves),
+                     len(solves)))
+    return table(header, lines), rows
 
 
 def headline(task: str, rows: Sequence[tuple[str, float, float | None, int, int]]) -> str:
@@ -145,11 +132,11 @@ def write_report(results: dict[str, tuple[str, list[RunResult]]], command: str, 
             lines.append(f"| {title} | not run for this report | |")
             sections += ["", f"## {title}", "", "No finished run for this report."]
             continue
-        table, rows = task_table(runs)
+        task_markdown, rows = task_table(runs)
         lines.append(headline(title, rows))
         figure = f"suite_{stem}.png"
         plot_task(title, runs, out / figure)
-        sections += ["", f"## {title}", "", table]
+        sections += ["", f"## {title}", "", task_markdown]
         done = {run.spec.label for run in runs}
         missing = [label for label in (planned or {}).get(stem, []) if label not in done]
         if missing:

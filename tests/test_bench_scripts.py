@@ -120,3 +120,14 @@ def test_rtamt_translation_equals_tl_gym(key):
     x, y = bench.trajectories(6, 12, seed=4, tasks=[task])
     (exact, _) = load("rtamt").evaluators(task, 9.0)
     np.testing.assert_allclose(exact.run(x, y), task.formula.robustness({"x": x, "y": y}), rtol=1e-12)
+
+
+def test_task_formula_is_the_envs_and_handwritten_phi1_on_a_path_ending_in_the_goal():
+    """The examples the benchmark modules once carried as (unrun) doctests."""
+    from tl_gym.envs.tasks import task_formula
+
+    task = benchmark_task("phi1")
+    assert task.formula.signals == ("x", "y") and task.formula == task_formula(1)
+    x = y = np.array([[10.0, 250.0]])  # ends inside the goal
+    assert float(task.formula.robustness({"x": x[0], "y": y[0]})) == 10.0
+    np.testing.assert_array_equal(handwritten.phi1(task, x, y), [10.0])

@@ -302,3 +302,17 @@ def test_sweep_options_are_checked_and_failures_go_to_stderr(tmp_path, capsys):
     report = run_with_options(sweep, tmp_path, parser.parse_args(["--workers", "0", "--only", "ba*"]))
     assert len(report.failed) == 1 and not report.finished  # --only left "good" out
     assert "stand-in told to fail" in capsys.readouterr().err
+
+
+def test_aggregation_helpers_and_run_folder_names():
+    """The examples the runner and results modules once carried as (unrun) doctests."""
+    spec = RunSpec(env="TLCarNav-v0", env_kwargs={"task": 1}, agent="tlps", label="TLPS",
+                   hyperparameters={"beta": 9.0}, seed=0, iterations=50)
+    assert spec.run_id.startswith("task1__tlps__seed0__")
+    mean, low, high = results.mean_band(np.array([[0.0, 1.0], [2.0, 3.0]]))
+    assert mean.tolist() == [1.0, 2.0] and low[0] < 1.0 < high[0]
+    assert results.first_iteration(np.array([1, 2, 3]), np.array([-1.0, 0.5, 2.0]), 0.0) == 2
+    assert results.median_first([4, None, 8]) == 6.0
+    assert (results.first_text([4, None, 8]), results.first_text([None])) == ("6 (2/3)", "never (0/1)")
+    assert results.first_text([1500.0, 2500.0], ",.0f") == "2,000 (2/2)"
+    assert results.table(["a", "b"], [[1, ""]]) == "| a | b |\n|---|---|\n| 1 |  |"

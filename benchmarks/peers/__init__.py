@@ -1,14 +1,10 @@
-"""Adapters that evaluate the benchmark's task formulas with peer robustness libraries.
+"""Adapters that evaluate the benchmark's task formulas with peer robustness libraries (docs/speed.md).
 
-`load` gives each peer's adapter: its ``NAME`` and ``evaluators(task, beta)``, which
-imports the library (raising ImportError when it is not installed) and returns the
-`Evaluator` objects it can offer for that task: exact robustness, and smoothed
-robustness with its gradient where the library has one. A peer that cannot
-express a formula returns an `Unsupported` that says why, so the benchmark's
-table can show it. The libraries that parse formula text (rtamt, argus, STLRom)
-are in `benchmarks.peers.text`, the tensor ones (stlcg++, stljax) in
-`benchmarks.peers.tensor`. The peers are installed in their own virtualenv
-(``benchmarks/requirements-peers.txt``), never in the project's.
+`load` gives a peer's adapter; its ``evaluators(task, beta)`` imports the library (ImportError when it is not
+installed) and returns what it offers for that task: `Evaluator` objects for exact robustness and, where the
+library has one, smoothed robustness with its gradient, and an `Unsupported` note, which the table shows, for
+what it cannot express. The text-parsing peers are in `benchmarks.peers.text`, the tensor ones in
+`benchmarks.peers.tensor`; they live in their own virtualenv (``benchmarks/requirements-peers.txt``).
 """
 
 from __future__ import annotations
@@ -20,9 +16,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-#: The peers, by the name the benchmark's ``--peers`` takes.
-PEER_MODULES = ("rtamt", "argus", "stlrom", "stlcgpp", "stljax")
-_HOMES = {"rtamt": "text", "argus": "text", "stlrom": "text", "stlcgpp": "tensor", "stljax": "tensor"}
+#: Each peer's module and the name the table prints, by the name the benchmark's ``--peers`` takes.
+PEERS = {"rtamt": ("text", "rtamt"), "argus": ("text", "argus"), "stlrom": ("text", "stlrom"),
+         "stlcgpp": ("tensor", "stlcg++"), "stljax": ("tensor", "stljax")}
+PEER_MODULES = tuple(PEERS)
 
 Batch = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
@@ -31,19 +28,10 @@ Batch = Callable[[np.ndarray, np.ndarray], np.ndarray]
 class Evaluator:
     """One way a library evaluates one task.
 
-    Attributes:
-        library: the library's name as the table prints it.
-        mode: ``"exact"`` or ``"smooth+grad"`` (smoothed value and the gradient of its sum).
-        run: maps ``(x, y)`` signals of shape ``(N, T)`` to the ``(N,)`` robustness values; in
-            ``smooth+grad`` mode it also runs the backward pass.
-        expressed: the formula the library evaluates, when not literally the task's, and why.
-        per_trajectory: the library's cost is per trajectory (a loop, or a vmap in chunks), so
-            the benchmark times it on a prefix of the batch sized by a time budget; throughput
-            per trajectory is what is compared.
-        max_length: the longest T the library can take here, or None.
-        too_long: why longer trajectories are skipped.
-        compiles: the first call on a new batch shape compiles (JIT), so the benchmark
-            always makes one untimed call on the timed batch first, however slow.
+    ``run`` maps ``(x, y)`` signals ``(N, T)`` to the ``(N,)`` robustness values (in ``mode`` ``"smooth+grad"``
+    also running the backward pass of their sum); ``expressed`` says how the library writes the formula when not
+    literally. A ``per_trajectory`` library is timed on a prefix of the batch sized by a time budget; ``max_length``
+    is the longest T it takes here (``too_long`` says why); one that ``compiles`` (JIT) gets an untimed first call.
     """
 
     library: str
@@ -74,10 +62,10 @@ class Peer(NamedTuple):
 
 def load(name: str) -> Peer:
     """The adapter of peer ``name`` (one of `PEER_MODULES`)."""
-    if name not in PEER_MODULES:
+    if name not in PEERS:
         raise ValueError(f"unknown peer {name!r}; expected one of {', '.join(PEER_MODULES)}")
-    module = importlib.import_module(f"benchmarks.peers.{_HOMES[name]}")
-    return Peer(module.NAMES[name], getattr(module, f"{name}_evaluators"))
+    home, shown = PEERS[name]
+    return Peer(shown, getattr(importlib.import_module(f"benchmarks.peers.{home}"), f"{name}_evaluators"))
 
 
 def per_trajectory(run_one: Callable[[np.ndarray, np.ndarray], float]) -> Batch:

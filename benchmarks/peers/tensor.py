@@ -1,17 +1,9 @@
 """stlcg++ (``stlcgpp``, PyTorch) and its JAX twin stljax: exact and smoothed (log-sum-exp, with gradient) φ1.
 
-Both evaluate one trajectory ``[T, 2]`` per call, batched with ``vmap`` in chunks that bound
-memory: their unbounded ``Eventually``/``Always`` build a ``(2T, T)`` masked matrix per
-trajectory, so memory grows as T² and the adapters decline T above `MAX_LENGTH`. With
-``approx_method="logsumexp"`` and ``temperature=β`` every max/min is ``±log Σ exp(±β·)/β``,
-and a chain of ``And`` is one n-ary min, exactly as tl_gym smooths φ1, so values must agree
-to rounding. stljax is compiled with ``jax.jit`` on fixed-size chunks (float64 via
-``jax_enable_x64``); the first call on a chunk size compiles it, and the benchmark warms every
-evaluator up before timing.
-
-φ2 is not offered: neither has a next (so neither ``X`` nor ``T`` can be written), and their
-``Until`` includes φ at the witness position t' (closed [t, t']) where tl_gym's excludes it,
-which changes the smoothed value; its cost is also O(T³) memory per trajectory.
+Both evaluate one trajectory ``[T, 2]`` per call, batched with ``vmap`` in memory-bounded chunks: their unbounded
+F and G build a ``(2T, T)`` matrix per trajectory, so T above `MAX_LENGTH` is declined. Their log-sum-exp smoothing
+with ``temperature=β`` is tl_gym's for φ1, so values must agree to rounding. stljax is ``jax.jit``-compiled on
+fixed-size chunks (float64). φ2 is not offered: docs/speed.md says why.
 """
 
 from __future__ import annotations
@@ -24,7 +16,6 @@ import numpy as np
 from benchmarks.formulas import Task
 from benchmarks.peers import Evaluator, Unsupported
 
-NAMES = {"stlcgpp": "stlcg++", "stljax": "stljax"}
 MAX_LENGTH = 2_000  # the (2T, T) float64 matrix per trajectory is 64 MB here, 6.4 GB at T = 20,000
 _CHUNK_ELEMENTS = 1 << 25  # trajectories per vmap chunk × 2T²  (≈ 256 MB of float64)
 _NO_PHI2 = "no next (X, T); closed-interval Until smooths differently; O(T³) memory"

@@ -1,10 +1,8 @@
 """The peers that parse formula text: rtamt, argus and STLRom, exact robustness only.
 
-Each library's `Syntax` says how it writes the pieces of the tasks, and `specification`
-assembles them into one text: φ1 = ``F g ∧ G(d_o > r)``, and φ2 = ``g1 T (g2 T g3)``,
-``¬(g2 ∨ g3) U g1``, ``¬g3 U g2``, a no-revisit clause per goal and ``G(d_o > r)``.
-Where a library lacks an operator, the rewrite and its consequence are in its
-evaluators' docstring, and `Evaluator.expressed` carries them to the table.
+Each library's `Syntax` says how it writes the pieces of the tasks, and `specification` assembles them into one
+text. Where a library lacks an operator, docs/speed.md ("What each peer evaluates") gives the rewrite and its
+consequence, and `Evaluator.expressed` carries it to the table.
 """
 
 from __future__ import annotations
@@ -19,7 +17,6 @@ import numpy as np
 from benchmarks.formulas import Task
 from benchmarks.peers import Evaluator, Unsupported, per_trajectory
 
-NAMES = {"rtamt": "rtamt", "argus": "argus", "stlrom": "stlrom"}
 Text = Callable[..., str]
 
 
@@ -45,10 +42,10 @@ class Syntax:
 
 
 def specification(task: Task, s: Syntax) -> str:
-    """``task`` in the library's syntax ``s``.
+    """``task`` in the library's syntax ``s`` (ValueError: φ2's default no-revisit clause and no X).
 
-    Raises:
-        ValueError: φ2 with the default no-revisit clause, and ``s`` cannot write X.
+    φ1 = ``F g ∧ G(d_o > r)``; φ2 = ``g1 T (g2 T g3)``, ``¬(g2 ∨ g3) U g1``, ``¬g3 U g2``, a no-revisit clause
+    per goal and ``G(d_o > r)``.
     """
     g = [s.box(b) for b in task.goals]
     avoid = s.always(f"{s.distance(task.obstacle)} > {task.obstacle.radius:.1f}")
@@ -89,18 +86,10 @@ RTAMT = Syntax(
 
 
 def rtamt_evaluators(task: Task, beta: float) -> list[Evaluator | Unsupported]:
-    """Exact φ1 and φ2 with rtamt (discrete-time offline STL monitor, pure Python).
+    """Exact φ1 and φ2 with rtamt (discrete-time offline STL monitor, pure Python, one trajectory per call).
 
-    rtamt's unbounded ``eventually``/``always`` range over [t, T) and its ``until`` is
-    tl_gym's non-strict scan ``U(t) = max(ψ(t), min(φ(t), U(t+1)))``, so φ1 and the
-    until clauses of φ2 are written literally. Two rewrites, both exact:
-
-    * rtamt has no ``then``: ``φ T ψ = F(φ & X F ψ)`` for temporal-free φ (the first φ
-      before a later ψ), and ``g1 T (g2 T g3) = F(g1 & X F(g2 & X F g3))``;
-    * rtamt's ``next`` is weak (+∞ at the last sample) while tl_gym's is strong (−∞), so
-      tl_gym's ``X φ`` is written ``not(next(not φ))``.
-
-    rtamt evaluates one trajectory per call on Python lists.
+    Its F, G and U are tl_gym's; two exact rewrites: ``φ T ψ = F(φ & X F ψ)`` for temporal-free φ, and tl_gym's
+    strong ``X φ`` as ``not(next(not φ))`` (rtamt's next is weak: +∞ at the last sample).
     """
     import rtamt
 
@@ -126,20 +115,13 @@ ARGUS = Syntax(
 
 
 def argus_evaluators(task: Task, beta: float) -> list[Evaluator | Unsupported]:
-    """Exact φ1, and φ2 where its operators allow, with argus (``argus-temporal-logic``, Rust core).
+    """Exact φ1, and φ2-strict, with argus (``argus-temporal-logic``, Rust core).
 
-    Signals are piecewise constant (``interpolation_method="constant"``) on integer
-    times, which makes argus's dense-time ``F``/``G``/``U`` the discrete ones over
-    [t, T). Differences from the task's formula, all forced by argus 0.1.4:
-
-    * it has no ``sqrt``, so the obstacle distance ``d_o`` is computed with numpy and
-      passed as a third signal ``d`` (its cost is inside the timed call);
-    * its ``X`` fails an internal assertion on every trace we tried, and a bounded
-      ``F[a,b]``/``G[a,b]`` acts as ``F[a,]``/``G[a,]`` (``F[1,1.5] x > 0`` on x = 0, 3, 1, 5, 2
-      is 5 at t = 0), so ``X`` cannot be written at all. φ2-strict needs ``X`` only in
-      ``X G ¬g = G[1,] ¬g`` and ``T`` only as ``F(φ & F[1,] ψ)``; both hold the last sample
-      past the end where tl_gym's ``X`` is −∞, and the benchmark's equality check decides
-      whether that matters. φ2's default no-revisit clause needs ``X ¬g`` itself: not offered.
+    Piecewise-constant signals on integer times make its dense-time F, G and U tl_gym's. It has no ``sqrt`` (the
+    distance ``d_o`` is a third signal, computed inside the timed call), and in 0.1.4 its ``X`` fails an internal
+    assertion and a bounded ``F[a,b]`` acts as ``F[a,]`` (``F[1,1.5] x > 0`` on x = 0, 3, 1, 5, 2 is 5 at t = 0):
+    φ2-strict is written with ``G[1,]`` and ``F[1,]``, which hold the last sample where tl_gym's X is −∞ (the
+    equality check decides whether that matters), and φ2's default clause, which needs ``X ¬g``, is not offered.
     """
     import argus
 
@@ -180,15 +162,9 @@ def stlrom_syntax(length: int) -> Syntax:
 def stlrom_evaluators(task: Task, beta: float) -> list[Evaluator | Unsupported]:
     """Exact φ1 and an attempt at φ2 with STLRom (C++ online monitor, Breach's successor).
 
-    STLRom is dense-time. With ``PREVIOUS`` interpolation a signal holds each sample
-    until the next one, and one duplicate of the last sample at time T makes
-    ``ev_[0, T]``/``alw_[0, T]`` range over exactly the T samples, i.e. tl_gym's
-    F/G over [0, T); its ``until_`` then matches tl_gym's non-strict U. Its grammar
-    has no ``sqrt``, so the obstacle distance is computed with numpy and passed as a
-    third signal ``d`` (inside the timed call). It has no next operator: φ2 writes
-    ``X φ`` as ``ev_[1, 1.5] φ`` and ``φ T ψ`` as ``ev(φ and ev_[1, T] ψ)``, which see
-    the padded duplicate instead of −∞ after the last state; the benchmark's equality
-    check reports whether that changes φ2's value.
+    ``PREVIOUS`` interpolation and one duplicate of the last sample at time T make its dense-time ``ev_[0, T]``,
+    ``alw_[0, T]`` and ``until_`` tl_gym's F, G and U. ``d_o`` is a third signal (no ``sqrt``); without a next,
+    φ2's ``X φ`` is ``ev_[1, 1.5] φ``, which sees the duplicate where tl_gym has −∞ (the equality check decides).
     """
     import stlrom
 
