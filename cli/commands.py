@@ -38,7 +38,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from tl_gym.agents import Agent
-from tl_gym.agents.callbacks import as_callback, write_history
+from tl_gym.agents.callbacks import HistoryCSV, as_callback, write_history
 from tl_gym.agents.evaluation import as_vector_env, collect_episodes, predictor_controller
 from tl_gym.agents.registry import is_episodic, make_agent
 from tl_gym.agents.sampling import env_attribute, run_episodes
@@ -139,7 +139,9 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
             snapshots.append((row["iteration"], traces))
         return True
 
-    agent.learn(iterations, callback=as_callback(record), progress_bar=not args.quiet)
+    # history.csv grows after every iteration, so a long run can be watched (and survives a kill)
+    agent.learn(iterations, callback=as_callback([record, HistoryCSV(out / "history.csv")]),
+                progress_bar=not args.quiet)
     agent.save(out / AGENT_FILE)
     write_history(agent.history, out / "history.csv")
     write_plots(agent, run, snapshots, out)

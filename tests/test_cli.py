@@ -34,6 +34,28 @@ def test_train_writes_the_run_folder(car_run):
         assert (car_run / png).read_bytes()[:4] == b"\x89PNG"
 
 
+def test_train_writes_history_while_it_runs(tmp_path, monkeypatch):
+    """history.csv grows after each iteration: a run killed midway keeps its rows so far."""
+    import tl_gym.cli.commands as commands
+
+    seen = []  # lines in history.csv right after each iteration's write
+    monkeypatch.setattr(commands, "write_history", lambda rows, path: None)  # only the live writer remains
+    monkeypatch.setattr(commands.HistoryCSV, "on_iteration", _counting(commands.HistoryCSV.on_iteration, seen))
+    assert main(["train", "--env", "TLCarNav-v0", "--env-kwargs", '{"horizon": 10}', "--agent", "reps",
+                 "--iterations", "3", "--n-episodes", "4", "--out", str(tmp_path), "--quiet"]) == 0
+    assert seen == [2, 3, 4]  # header + 1, 2, 3 rows, each right after its iteration
+    with (tmp_path / "history.csv").open() as handle:
+        assert [int(r["iteration"]) for r in csv.DictReader(handle)] == [1, 2, 3]
+
+
+def _counting(on_iteration, seen):
+    def wrapped(self, agent, row):
+        result = on_iteration(self, agent, row)
+        seen.append(self.path.read_text().count("\n"))
+        return result
+    return wrapped
+
+
 def test_eval_prints_robustness_and_success(car_run, capsys):
     assert main(["eval", str(car_run), "--episodes", "5"]) == 0
     out = capsys.readouterr().out
