@@ -12,7 +12,6 @@ import argparse
 import math
 import os
 import platform
-import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterable
@@ -25,6 +24,7 @@ import numpy as np
 from benchmarks import handwritten, peers
 from benchmarks.formulas import ARENA, TASKS, Task, benchmark_task
 from benchmarks.peers import Evaluator, Unsupported
+from benchmarks.runner import git
 from tl_gym.tltl import fused
 
 RTOL = 1e-6  # relative tolerance of the value check (absolute below |ρ| = 1)
@@ -36,9 +36,6 @@ SMOOTH_LINEAR = "smooth+grad, linear form"
 NESTED_MAX_LENGTH = 2_000
 NESTED_TOO_LONG = "nested smoothing is O(T²) per trajectory; one at T = 20,000 ran > 14 min"
 RESULTS = Path("docs/results/speed.md")
-
-
-# --------------------------------------------------------------------------- trajectories
 
 
 def trajectories(n: int, length: int, seed: int, tasks: Iterable[Task] = ()) -> tuple[np.ndarray, np.ndarray]:
@@ -70,9 +67,6 @@ def trajectories(n: int, length: int, seed: int, tasks: Iterable[Task] = ()) -> 
     return x, y
 
 
-# --------------------------------------------------------------------------- evaluators
-
-
 def tl_gym_evaluators(task: Task, beta: float) -> list[Evaluator]:
     """tl_gym's exact evaluators and its smoothed-with-gradient ones (torch float64; φ2 also in the linear form)."""
     import torch
@@ -84,8 +78,7 @@ def tl_gym_evaluators(task: Task, beta: float) -> list[Evaluator]:
 
     def smooth(form: str) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
         def run(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-            xt = torch.from_numpy(x).requires_grad_(True)
-            yt = torch.from_numpy(y).requires_grad_(True)
+            xt, yt = (torch.from_numpy(v).requires_grad_(True) for v in (x, y))
             values = formula.smooth_robustness({"x": xt, "y": yt}, beta, form=form)
             values.sum().backward()
             return values.detach().numpy()
@@ -93,10 +86,8 @@ def tl_gym_evaluators(task: Task, beta: float) -> list[Evaluator]:
         return run
 
     nested = {} if task.key == "phi1" else {"max_length": NESTED_MAX_LENGTH, "too_long": NESTED_TOO_LONG}
-    out = [
-        Evaluator(TL_GYM, "exact", exact, per_trajectory=False),
-        Evaluator(TL_GYM, "smooth+grad", smooth("nested"), per_trajectory=False, **nested),
-    ]
+    out = [Evaluator(TL_GYM, "exact", exact, per_trajectory=False),
+           Evaluator(TL_GYM, "smooth+grad", smooth("nested"), per_trajectory=False, **nested)]
     if task.key != "phi1":
         out.append(Evaluator(TL_GYM, SMOOTH_LINEAR, smooth("linear"), per_trajectory=False))
     if fused.available():
@@ -127,9 +118,6 @@ def peer_evaluators(names: Iterable[str], task: Task, beta: float, log: Callable
     return out
 
 
-# --------------------------------------------------------------------------- measuring
-
-
 @dataclass
 class Row:
     """One line of the table."""
@@ -145,9 +133,8 @@ class Row:
     ratio: float | None = None  # tl_gym's throughput / this library's (same mode)
 
 
-def _time(
-    run: Callable[[], np.ndarray], repeats: int, budget: float, warm: bool, must_warm: bool = False
-) -> tuple[float, np.ndarray]:
+def _time(run: Callable[[], np.ndarray], repeats: int, budget: float, warm: bool,
+          must_warm: bool = False) -> tuple[float, np.ndarray]:
     """Best wall time of ``run`` over a few repeats, and its values.
 
     Unless ``warm``, a first call warms up (imports, allocator); it is the time when it alone is too slow to
@@ -184,20 +171,9 @@ def _mismatch(values: np.ndarray, reference: np.ndarray) -> str:
     return f"disagrees with tl_gym on {int(bad.sum())}/{bad.size} trajectories (max |Δ| = {worst:.3g})"
 
 
-@dataclass
-class Settings:
-    """How long to spend on each measurement."""
-
-    repeats: int = 3
-    budget: float = 1.0  # seconds of timed work per library and cell (per-trajectory libraries)
-    max_seconds: float = 20.0  # a batched library predicted slower than this is timed on a prefix
-    max_elements: float = 2e7  # N·T above which a cell is skipped (memory)
-
-
-def measure(
-    evaluator: Evaluator, row: Row, x: np.ndarray, y: np.ndarray, reference: np.ndarray | None, settings: Settings
-) -> np.ndarray | None:
-    """Check ``evaluator`` against ``reference`` and time it; fill ``row``.
+def measure(evaluator: Evaluator, row: Row, x: np.ndarray, y: np.ndarray, reference: np.ndarray | None,
+            settings: argparse.Namespace) -> np.ndarray | None:
+    """Check ``evaluator`` against ``reference`` and time it as the options ``settings`` say; fill ``row``.
 
     Returns the values (on ``row.timed_on`` trajectories), or None when it was skipped, crashed or disagreed.
     """
@@ -218,9 +194,8 @@ def measure(
         elif per_one * n > settings.max_seconds:
             k = int(min(n, max(1, settings.max_seconds // max(per_one, 1e-9))))
     try:
-        seconds, values = _time(
-            lambda: evaluator.run(x[:k], y[:k]), settings.repeats, settings.budget, k == probe, evaluator.compiles
-        )
+        seconds, values = _time(lambda: evaluator.run(x[:k], y[:k]), settings.repeats, settings.budget, k == probe,
+                                evaluator.compiles)
     except Exception as exc:  # a peer crashing on valid input is a result, not a benchmark failure
         row.note = f"error: {type(exc).__name__}: {exc}"[:120]
         return None
@@ -239,30 +214,23 @@ def measure(
     return values
 
 
-def run_cell(
-    task: Task, x: np.ndarray, y: np.ndarray, evaluators: list, settings: Settings, log: Callable[[str], None]
-) -> list[Row]:
+def run_cell(task: Task, x: np.ndarray, y: np.ndarray, evaluators: list, settings: argparse.Namespace,
+             log: Callable[[str], None]) -> list[Row]:
     """All libraries on one (task, N, T) batch; tl_gym first, as every other is checked against it."""
     n, length = x.shape
     rows: list[Row] = []
-    references: dict[str, np.ndarray | None] = {}
+    references: dict[str, np.ndarray] = {}  # tl_gym's values, by mode
     for ev in evaluators:
-        row = Row(task.key, n, length, ev.library, ev.mode)
+        rows.append(row := Row(task.key, n, length, ev.library, ev.mode))
         if isinstance(ev, Unsupported):
             row.note = f"not comparable: {ev.reason}"
-            rows.append(row)
-            continue
-        is_reference = ev.library == TL_GYM
-        reference = None if is_reference else references.get(ev.mode)
-        if not is_reference and reference is None:
+        elif ev.library != TL_GYM and ev.mode not in references:
             row.note = "not checked: tl_gym did not run at this size"
-            rows.append(row)
-            continue
-        values = measure(ev, row, x, y, reference, settings)
-        if is_reference and values is not None:
-            references[ev.mode] = values
-        rows.append(row)
-        log(_format_row(row))
+        else:
+            values = measure(ev, row, x, y, references.get(ev.mode), settings)
+            if ev.library == TL_GYM and values is not None:
+                references[ev.mode] = values
+            log(_format_row(row))
     base = {r.mode: r.per_second for r in rows if r.library == TL_GYM}
     for r in rows:
         if r.per_second and base.get(r.mode):
@@ -270,27 +238,17 @@ def run_cell(
     return rows
 
 
-# --------------------------------------------------------------------------- reporting
-
-
 def _format_rate(value: float | None) -> str:
-    if value is None:
-        return "—"
-    return f"{value:,.0f}" if value >= 100 else f"{value:,.3g}"
+    return "—" if value is None else f"{value:,.0f}" if value >= 100 else f"{value:,.3g}"
 
 
 def _format_row(r: Row) -> str:
     ratio = "" if r.ratio is None else f"{r.ratio:,.3g}"
-    return (
-        f"| {r.task} | {r.n:,} | {r.length:,} | {r.library} | {r.mode} | {_format_rate(r.per_second)} "
-        f"| {ratio} | {r.note} |"
-    )
+    return (f"| {r.task} | {r.n:,} | {r.length:,} | {r.library} | {r.mode} | {_format_rate(r.per_second)} "
+            f"| {ratio} | {r.note} |")
 
 
-HEADER = (
-    "| formula | N | T | library | mode | traj/s | tl_gym × | note |\n"
-    "|---|---:|---:|---|---|---:|---:|---|"
-)
+HEADER = "| formula | N | T | library | mode | traj/s | tl_gym × | note |\n|---|---:|---:|---|---|---:|---:|---|"
 
 
 def table(rows: list[Row]) -> str:
@@ -306,27 +264,21 @@ def machine() -> str:
             cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), cpu)
     except OSError:
         pass
-    versions = []
+    versions = [f"tl_gym commit {git('rev-parse', '--short', 'HEAD') or 'unknown'}"]
     for dist in ("tl_gym", "numpy", "torch", "rtamt", "argus-temporal-logic", "stlrom", "stlcgpp", "stljax", "jax"):
         try:
             versions.append(f"{dist} {metadata.version(dist)}")
         except metadata.PackageNotFoundError:
             pass
     load = ", ".join(f"{v:.1f}" for v in os.getloadavg())
-    try:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
-    except OSError:
-        commit = ""
-    versions.insert(0, f"tl_gym commit {commit or 'unknown'}")
-    return (
-        f"{cpu}, {os.cpu_count()} logical cores, {platform.system()} {platform.release()}, "
-        f"Python {platform.python_version()}; load average at the end {load}; " + ", ".join(versions)
-    )
+    return (f"{cpu}, {os.cpu_count()} logical cores, {platform.system()} {platform.release()}, "
+            f"Python {platform.python_version()}; load average at the end {load}; " + ", ".join(versions))
 
 
-def _find(rows: list[Row], task: str, n: int, length: int, library: str, mode: str = "exact") -> Row | None:
-    return next((r for r in rows if (r.task, r.n, r.length, r.library, r.mode) == (task, n, length, library, mode)),
-                None)
+def _rate(rows: list[Row], task: str, n: int, length: int, library: str, mode: str = "exact") -> float | None:
+    """The trajectories per second of that row (None: no such row, or it has no time)."""
+    key = (task, n, length, library, mode)
+    return next((r.per_second for r in rows if (r.task, r.n, r.length, r.library, r.mode) == key), None)
 
 
 def interleaved(task: Task, x: np.ndarray, y: np.ndarray, beta: float, rounds: int) -> tuple[float, float, float]:
@@ -359,8 +311,7 @@ def targets(rows: list[Row], alternated: tuple[int, float, float, float] | None 
     n_big = max((r.n for r in rows if r.length == 200), default=0)
 
     def rate(task: str, library: str, mode: str = "exact", n: int = n_big) -> float | None:
-        row = _find(rows, task, n, 200, library, mode)
-        return None if row is None else row.per_second
+        return _rate(rows, task, n, 200, library, mode)
 
     lines = []
     for task in ("phi1", "phi2"):
@@ -420,27 +371,21 @@ def linearity(rows: list[Row]) -> list[str]:
         return lines
     for mode in ("exact", "smooth+grad", SMOOTH_LINEAR):
         for task in sorted({r.task for r in rows}):
-            done = [r for r in rows if r.task == task and r.library == TL_GYM and r.mode == mode and r.per_second]
-            common = [n for n in sorted({r.n for r in done}) if all(_find(done, task, n, t, TL_GYM, mode)
-                                                                     for t in lengths)]
+            sizes = sorted({r.n for r in rows if (r.task, r.library, r.mode) == (task, TL_GYM, mode)})
+            common = [n for n in sizes if all(_rate(rows, task, n, t, TL_GYM, mode) for t in lengths)]
             if not common:
                 continue
             n = common[-1]
-            ns = [1e9 / (_find(done, task, n, t, TL_GYM, mode).per_second * t) for t in lengths]
-            growth = ns[-1] / ns[0]
-            steps = ", ".join(f"T = {t:,}: {v:.1f}" for t, v in zip(lengths, ns))
+            per_step = [1e9 / (_rate(rows, task, n, t, TL_GYM, mode) * t) for t in lengths]
+            growth = per_step[-1] / per_step[0]
             # Large arrays leave the caches: the hand-written numpy pays that too, so compare growths.
-            hand = [_find(rows, task, n, t, HANDWRITTEN, "exact") for t in lengths]
-            hand_growth = None
-            if mode == "exact" and all(h and h.per_second for h in hand):
-                hand_growth = (hand[0].per_second * lengths[0]) / (hand[-1].per_second * lengths[-1])
+            hand = [_rate(rows, task, n, t, HANDWRITTEN) for t in lengths]
+            hand_growth = hand[0] * lengths[0] / (hand[-1] * lengths[-1]) if mode == "exact" and all(hand) else None
             linear = growth <= 2.0 or (hand_growth is not None and growth <= 1.5 * hand_growth)
             versus = "" if hand_growth is None else f"; hand-written numpy ×{hand_growth:.2f}"
-            lines.append(
-                f"- {mode} {task}, N = {n:,}, ns per trajectory step: {steps} "
-                f"(×{growth:.2f} over ×{lengths[-1] // lengths[0]} in T{versus}: "
-                f"**{'linear' if linear else 'not linear'}**)."
-            )
+            steps = ", ".join(f"T = {t:,}: {v:.1f}" for t, v in zip(lengths, per_step))
+            lines.append(f"- {mode} {task}, N = {n:,}, ns per trajectory step: {steps} (×{growth:.2f} over "
+                         f"×{lengths[-1] // lengths[0]} in T{versus}: **{'linear' if linear else 'not linear'}**).")
     return lines
 
 
@@ -463,9 +408,6 @@ def write_results(rows: list[Row], path: Path, command: str, skipped: list[str],
     path.write_text("\n".join(parts))
 
 
-# --------------------------------------------------------------------------- main
-
-
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="tiny grid for CI (N = 1, 40; T = 200; seconds)")
@@ -473,31 +415,23 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--n", nargs="+", type=int, default=[1, 40, 1_000, 10_000], help="batch sizes")
     parser.add_argument("--t", nargs="+", type=int, default=[200, 2_000, 20_000], help="trajectory lengths")
     parser.add_argument("--peers", nargs="*", default=list(peers.PEER_MODULES), choices=peers.PEER_MODULES)
-    parser.add_argument("--no-handwritten", action="store_true", help="leave out the hand-written numpy functions")
     parser.add_argument("--beta", type=float, default=9.0, help="smoothing sharpness β (the paper's 9)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--budget", type=float, default=1.0, help="seconds per per-trajectory library and cell")
     parser.add_argument("--max-seconds", type=float, default=20.0, help="cap on one batched run (else a prefix)")
     parser.add_argument("--max-elements", type=float, default=2e7, help="skip cells with N·T above this")
-    parser.add_argument(
-        "--threads", type=int, default=1,
-        help="torch intra-op threads (1: on a loaded 2-core machine more threads spin-wait on every small op)",
-    )
+    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (1: on a loaded 2-core "
+                        "machine more threads spin-wait on every small op)")
     parser.add_argument("--alternate", type=int, default=20, metavar="ROUNDS",
                         help="also time exact and smoothed φ1 alternately, ROUNDS calls each (0: off)")
     parser.add_argument("--out", type=Path, default=RESULTS, help="markdown results file ('-' for none)")
     args = parser.parse_args(argv)
     if args.quick:  # seconds, not minutes: the smallest sizes, one timed repeat, small budgets
         args.n, args.t, args.repeats, args.budget, args.max_seconds = [1, 40], [200], 1, 0.05, 1.0
-    for name in ("n", "t"):
-        bad = [v for v in getattr(args, name) if v < 1]
-        if bad:
-            parser.error(f"--{name} values must be >= 1, got {bad}")
-    if args.beta <= 0:
-        parser.error(f"--beta must be > 0, got {args.beta}")
-    if args.threads < 1:
-        parser.error(f"--threads must be >= 1, got {args.threads}")
+    for name, value in (("n", min(args.n)), ("t", min(args.t)), ("beta", args.beta), ("threads", args.threads)):
+        if value <= 0:
+            parser.error(f"--{name} must be > 0, got {value}")
     return args
 
 
@@ -511,31 +445,27 @@ def main(argv: list[str] | None = None) -> list[Row]:
     import torch
 
     torch.set_num_threads(args.threads)
-    settings = Settings(args.repeats, args.budget, args.max_seconds, args.max_elements)
     tasks = [benchmark_task(k) for k in args.tasks]
     rows: list[Row] = []
     skipped: list[str] = []
     log(HEADER)
     for length in sorted(args.t):
-        sizes = sorted(n for n in args.n if n * length <= settings.max_elements)
-        skipped += [
-            f"N = {n:,}, T = {length:,}: N·T = {n * length:.0e} > {settings.max_elements:.0e} elements (memory)"
-            for n in sorted(args.n) if n * length > settings.max_elements
-        ]
+        sizes = sorted(n for n in args.n if n * length <= args.max_elements)
+        skipped += [f"N = {n:,}, T = {length:,}: N·T = {n * length:.0e} > {args.max_elements:.0e} elements (memory)"
+                    for n in sorted(args.n) if n * length > args.max_elements]
         if not sizes:
             continue
         x_all, y_all = trajectories(sizes[-1], length, args.seed + length, tasks)
         for task in tasks:
-            evaluators = tl_gym_evaluators(task, args.beta)
-            if not args.no_handwritten:
-                evaluators.extend(handwritten_evaluators(task, args.beta))
-            evaluators += peer_evaluators(args.peers, task, args.beta, log if length == min(args.t) else lambda _: None)
+            say = log if length == min(args.t) else lambda _: None  # which peers are missing: once
+            evaluators = [*tl_gym_evaluators(task, args.beta), *handwritten_evaluators(task, args.beta),
+                          *peer_evaluators(args.peers, task, args.beta, say)]
             for n in sizes:
-                rows += run_cell(task, x_all[:n], y_all[:n], evaluators, settings, log)
+                rows += run_cell(task, x_all[:n], y_all[:n], evaluators, args, log)
     alternated = None
     phi1 = next((t for t in tasks if t.key == "phi1"), None)
     if args.alternate and phi1 is not None and 200 in args.t:
-        n_alt = max(n for n in args.n if n * 200 <= settings.max_elements)
+        n_alt = max(n for n in args.n if n * 200 <= args.max_elements)
         x_alt, y_alt = trajectories(n_alt, 200, args.seed + 200, tasks)
         alternated = (n_alt, *interleaved(phi1, x_alt, y_alt, args.beta, args.alternate))
     print(table(rows))

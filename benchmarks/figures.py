@@ -1,10 +1,4 @@
-"""Figures of a sweep: learning curves with 95% bands (Figure 3), trajectories (Figure 2), per-seed panels.
-
-Learning curves aggregate seeds (`benchmarks.results.mean_band`), one column per task,
-mean exact robustness on top and success rate below. Trajectory plots reuse the agents'
-`tl_gym.agents.plotting.plot_trajectories` over the env's layout drawn by
-`tl_gym.envs.rendering.draw_layout`.
-"""
+"""Figures of a sweep: learning curves with 95% bands (Figure 3), trajectories (Figure 2), per-seed panels."""
 
 from __future__ import annotations
 
@@ -20,15 +14,9 @@ from benchmarks.results import RunResult, group_runs, mean_band, stack
 
 
 def plot_learning_curves(runs: Sequence[RunResult], path: str | Path | None = None, title: str | None = None) -> Figure:
-    """Mean exact robustness (top row) and success rate (bottom row) per iteration, one column per task.
+    """Mean exact robustness (top, of the sampled episodes as in the paper) and success rate per iteration.
 
-    Every curve is the mean over seeds with a 95% Student-t band; the exact robustness of the
-    sampled episodes is plotted (as in the paper), so agents and β values are comparable.
-
-    Args:
-        runs: finished runs (`benchmarks.results.load_runs`).
-        path: where to save the PNG (optional).
-        title: figure title.
+    One column per task, every curve a mean over seeds with its 95% band; saved to ``path`` if given.
     """
     groups = group_runs(runs)
     tasks = list(dict.fromkeys(task for task, _ in groups))
@@ -46,15 +34,12 @@ def plot_learning_curves(runs: Sequence[RunResult], path: str | Path | None = No
                 plot_band(ax, *stack(members, key), colors[label], f"{label} ({len(members)})",
                           rate=key == "success_rate")
         top.axhline(0.0, color="0.4", lw=0.8, ls="--")
-        top.set_title(f"task {task}" if task is not None else "")
-        top.set_ylabel("mean exact robustness")
-        bottom.set_ylabel("success rate (ρ > 0)")
-        bottom.set_ylim(-0.02, 1.02)
-        bottom.set_xlabel("iteration (8,000 env steps each)")
+        top.set(title=f"task {task}" if task is not None else "", ylabel="mean exact robustness")
+        bottom.set(ylabel="success rate (ρ > 0)", ylim=(-0.02, 1.02), xlabel="iteration (8,000 env steps each)")
         top.legend(fontsize="x-small", loc="lower right")
     if title:
         fig.suptitle(title)
-    return _saved(fig, path)
+    return saved(fig, path)
 
 
 def plot_band(ax: Any, x: np.ndarray, values: np.ndarray, color: Any, label: str, rate: bool = False,
@@ -71,11 +56,7 @@ def plot_band(ax: Any, x: np.ndarray, values: np.ndarray, color: Any, label: str
 
 
 def plot_trajectory_distribution(run: RunResult, path: str | Path | None = None, title: str | None = None) -> Figure:
-    """The sampled x-y paths of one run at its recorded iterations, mean ± 2σ, lighter = earlier.
-
-    Raises:
-        ValueError: the run recorded no trajectories (its config has no ``trajectory_iterations``).
-    """
+    """The sampled x-y paths of one run at its recorded iterations, mean ± 2σ, lighter = earlier (ValueError: none)."""
     from tl_gym.agents.plotting import plot_trajectories
     from tl_gym.envs.rendering import draw_layout
 
@@ -102,13 +83,12 @@ def plot_trajectory_distribution(run: RunResult, path: str | Path | None = None,
     for patch in ax.patches[before:]:
         patch.set_zorder(5)
     ax.set_aspect("equal", adjustable="box")  # the whole arena, whatever the paths' extent
-    ax.set_xlim(0.0, layout.arena[0])
-    ax.set_ylim(0.0, layout.arena[1])
+    ax.set(xlim=(0.0, layout.arena[0]), ylim=(0.0, layout.arena[1]))
     legend = ax.get_legend()
     for text, it in zip(legend.get_texts() if legend else (), iterations):
         success = float(np.mean(traces[f"it{it}_robustness"] > 0))
         text.set_text(f"iteration {it}" + (" (initial)" if it == 0 else "") + f": success {success:.0%}")
-    return _saved(fig, path)
+    return saved(fig, path)
 
 
 def env_layout(env: str, env_kwargs: dict[str, Any]) -> Any:
@@ -122,7 +102,8 @@ def env_layout(env: str, env_kwargs: dict[str, Any]) -> Any:
         instance.close()
 
 
-def _saved(fig: Figure, path: str | Path | None, dpi: int = 110) -> Figure:
+def saved(fig: Figure, path: str | Path | None, dpi: int = 110) -> Figure:
+    """``fig``, saved as ``path`` first when one is given."""
     if path is not None:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         fig.savefig(path, dpi=dpi)
@@ -130,11 +111,7 @@ def _saved(fig: Figure, path: str | Path | None, dpi: int = 110) -> Figure:
 
 
 def plot_seed_panels(runs: Sequence[RunResult], task: Any, out: str | Path) -> list[Path]:
-    """Per-seed curves of ``task`` (the research report); return the paths written.
-
-    ``task<k>_success.png`` and ``task<k>_robustness.png`` have one panel per label (thin: seeds,
-    thick: median); ``task<k>_medians.png`` has every label's median on one pair of axes.
-    """
+    """Per-seed curves of ``task`` for the research report (docs/benchmarks.md); return the paths written."""
     groups = {label: members for (t, label), members in group_runs(runs).items() if t == task}
     medians: dict[str, dict[str, np.ndarray]] = {}
     paths = []
@@ -159,7 +136,7 @@ def plot_seed_panels(runs: Sequence[RunResult], task: Any, out: str | Path) -> l
         fig.supylabel("success rate" if key == "success_rate" else "mean exact robustness")
         fig.suptitle(f"task {task}: thin = seeds, thick = median")
         paths.append(Path(out) / f"task{task}_{name}.png")
-        _saved(fig, paths[-1], dpi=80)
+        saved(fig, paths[-1], dpi=80)
     fig = Figure(figsize=(12, 4.5), layout="tight")
     axes = fig.subplots(1, 2)
     for i, (label, median) in enumerate(medians.items()):
@@ -167,13 +144,11 @@ def plot_seed_panels(runs: Sequence[RunResult], task: Any, out: str | Path) -> l
             # the first four labels (the baselines, by the config's order) drawn thick
             ax.plot(np.arange(1, len(median[key]) + 1), median[key], label=label, lw=2.5 if i < 4 else 1.0,
                     color=colormaps["tab10"](i % 10) if i < 4 else None)
-    axes[0].set_ylabel("median success rate")
-    axes[1].set_ylabel("median mean exact robustness")
+    axes[0].set(ylabel="median success rate", xlabel="iteration")
+    axes[1].set(ylabel="median mean exact robustness", xlabel="iteration")
     axes[1].set_yscale("symlog", linthresh=5.0)
     axes[1].legend(fontsize=7, ncol=2)
-    for ax in axes:
-        ax.set_xlabel("iteration")
     fig.suptitle(f"task {task}: medians over seeds")
     paths.append(Path(out) / f"task{task}_medians.png")
-    _saved(fig, paths[-1], dpi=80)
+    saved(fig, paths[-1], dpi=80)
     return paths

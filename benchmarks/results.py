@@ -56,14 +56,9 @@ def load_runs(out_dir: str | Path) -> list[RunResult]:
     results = []
     for run_id, spec in manifest["runs"].items():
         run_dir = out_dir / "runs" / run_id
-        if not (run_dir / DONE).is_file():
-            continue
-        results.append(RunResult(
-            spec=RunSpec.from_json(spec),
-            history=read_history(run_dir / HISTORY),
-            summary=json.loads((run_dir / DONE).read_text()),
-            path=run_dir,
-        ))
+        if (run_dir / DONE).is_file():
+            results.append(RunResult(RunSpec.from_json(spec), read_history(run_dir / HISTORY),
+                                     json.loads((run_dir / DONE).read_text()), run_dir))
     return results
 
 

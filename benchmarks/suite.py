@@ -17,7 +17,7 @@ import numpy as np
 from matplotlib import colormaps
 from matplotlib.figure import Figure
 
-from benchmarks.figures import plot_band
+from benchmarks.figures import plot_band, saved
 from benchmarks.results import RunResult, first_text, group_runs, load_runs, median_first, notes, table
 from benchmarks.runner import add_sweep_options, load_config, run_with_options, variant_of
 
@@ -58,24 +58,18 @@ def steps_to_solve(steps: np.ndarray, values: np.ndarray) -> float | None:
 
 def plot_task(name: str, runs: Sequence[RunResult], path: Path | None) -> Figure:
     """Success on fresh episodes against env steps, mean over seeds with a 95% band, one curve per agent."""
-    groups = group_runs(runs)
     fig = Figure(figsize=(6.4, 4.2), constrained_layout=True)
     ax = fig.subplots()
-    for i, ((_, label), members) in enumerate(groups.items()):
+    for i, ((_, label), members) in enumerate(group_runs(runs).items()):
         steps, values = eval_curve(members)
         if not steps.size:
             continue
         plot_band(ax, steps, values, colormaps["tab10"](i % 10), f"{label} ({len(members)} seeds)", rate=True,
                   markersize=3)
     ax.axhline(SOLVED, color="0.4", lw=0.8, ls="--")
-    ax.set_xlabel("env steps")
-    ax.set_ylabel("success on fresh episodes (ρ > 0)")
-    ax.set_ylim(-0.02, 1.02)
-    ax.set_title(name)
+    ax.set(xlabel="env steps", ylabel="success on fresh episodes (ρ > 0)", ylim=(-0.02, 1.02), title=name)
     ax.legend(fontsize=7, loc="best")
-    if path is not None:
-        fig.savefig(path, dpi=110)
-    return fig
+    return saved(fig, path)
 
 
 def task_table(runs: Sequence[RunResult]) -> tuple[str, list[tuple[str, float, float | None, int, int]]]:

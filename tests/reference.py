@@ -108,6 +108,15 @@ def check_defined(formula: Formula, trace: Mapping[str, Sequence[float]]) -> Non
                     raise UndefinedPredicate(f"{node} is undefined at position {t}")
 
 
+def is_defined(formula: Formula, trace: Mapping[str, Sequence[float]]) -> bool:
+    """Whether the reference can evaluate ``formula`` on ``trace`` (every predicate finite where it is read)."""
+    try:
+        robustness_over_time(formula, trace)
+    except UndefinedPredicate:
+        return False
+    return True
+
+
 def largest_margin(formula: Formula, trace: Mapping[str, Sequence[float]]) -> float:
     """The largest |margin| of any predicate at any position of a (T,) trace."""
     length = len(next(iter(trace.values())))

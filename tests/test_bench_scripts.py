@@ -65,7 +65,8 @@ def test_a_disagreeing_library_is_reported_not_timed():
     task = benchmark_task("phi1")
     x, y = bench.trajectories(5, 50, seed=1, tasks=[task])
     wrong = Evaluator("liar", "exact", lambda x, y: handwritten.robustness(task, x, y) + 1.0, per_trajectory=False)
-    rows = bench.run_cell(task, x, y, [*bench.tl_gym_evaluators(task, 9.0), wrong], bench.Settings(1, 0.01), print)
+    settings = bench.parse_args(["--repeats", "1", "--budget", "0.01"])
+    rows = bench.run_cell(task, x, y, [*bench.tl_gym_evaluators(task, 9.0), wrong], settings, print)
     liar = next(r for r in rows if r.library == "liar")
     assert liar.per_second is None and liar.ratio is None
     assert "disagrees with tl_gym on 5/5 trajectories" in liar.note

@@ -33,20 +33,12 @@ from tl_gym.tltl import ast
 INF = math.inf
 
 
-def _defined(formula, trace) -> bool:
-    try:
-        ref.robustness_over_time(formula, trace)
-    except ref.UndefinedPredicate:
-        return False
-    return True
-
-
 # --------------------------------------------------------------------------- soundness
 
 
 @given(S.formulas(min_depth=2), S.batched_traces())
 def test_robustness_sign_decides_satisfaction(formula, trace):
-    assume(_defined(formula, trace))
+    assume(ref.is_defined(formula, trace))
     rho = formula.robustness_over_time(trace)
     ok = ref.satisfied_over_time(formula, trace)  # (the engine's own is checked against it)
     assert np.array_equal(formula.satisfied(trace), ok[:, 0])
@@ -59,7 +51,7 @@ def test_robustness_sign_decides_satisfaction(formula, trace):
 
 @given(S.formulas(min_depth=2), S.batched_traces(max_length=6), S.betas(), st.sampled_from(["nested", "linear"]))
 def test_lemma1_bracket_holds(formula, trace, beta, form):
-    assume(_defined(formula, trace))
+    assume(ref.is_defined(formula, trace))
     length = next(iter(trace.values())).shape[-1]
     below, above = formula.smoothing_bracket(length, beta)
     rho = formula.robustness_over_time(trace)
@@ -82,7 +74,7 @@ def _then_under_temporal(formula, under: bool = False) -> bool:
 @given(S.formulas(min_depth=2), S.batched_traces(max_length=6), S.betas())
 def test_linear_form_changes_only_a_nested_then(formula, trace, beta):
     """``form="linear"`` only re-smooths a ``T`` nested under a temporal operator; elsewhere it is the same."""
-    assume(_defined(formula, trace) and not _then_under_temporal(formula))
+    assume(ref.is_defined(formula, trace) and not _then_under_temporal(formula))
     linear = formula.smooth_robustness(trace, beta, form="linear")
     nested = formula.smooth_robustness(trace, beta)
     np.testing.assert_allclose(linear, nested, rtol=1e-9, atol=1e-9)
@@ -121,7 +113,7 @@ def test_bracket_hand_worked(text, horizon, beta, expected):
 @settings(max_examples=min(settings().max_examples, 40))
 @given(S.formulas(min_depth=2, max_depth=4), S.traces(max_length=6))
 def test_smoothing_error_shrinks_as_beta_grows(formula, trace):
-    assume(_defined(formula, trace))
+    assume(ref.is_defined(formula, trace))
     rho = formula.robustness(trace)
     assume(math.isfinite(rho))
     length = len(trace["x"])
@@ -159,7 +151,7 @@ def _grouped(draw, operands, combine):
 @settings(max_examples=min(settings().max_examples, 30))
 @given(st.data(), st.lists(S.formulas(max_depth=2), min_size=3, max_size=5), S.traces(max_length=5), S.betas())
 def test_regrouping_never_changes_a_smoothed_value(data, operands, trace, beta):
-    assume(_defined(all_of(*operands), trace))
+    assume(ref.is_defined(all_of(*operands), trace))
     for nary, combine in ((all_of, lambda a, b: a & b), (any_of, lambda a, b: a | b)):
         flat = nary(*operands)
         for _ in range(2):
@@ -197,7 +189,7 @@ smooth_formulas = S.formulas(
        st.sampled_from([0.5, 1.0, 3.0]), st.sampled_from(["nested", "linear"]))
 def test_autograd_equals_finite_differences(formula, trace, beta, form):
     """float64 gradcheck of the value at position 0 and of the values at every position."""
-    assume(_defined(formula, trace))
+    assume(ref.is_defined(formula, trace))
     rho_max = 5.0  # keeps `true` and `X φ` at the end finite
     tensors = tuple(torch.tensor(trace[name], requires_grad=True) for name in S.SIGNALS)
 
@@ -241,7 +233,7 @@ def test_gradient_of_the_paper_example_by_hand():
 @settings(max_examples=min(settings().max_examples, 30))
 @given(S.formulas(min_depth=2, max_depth=4), S.batched_traces(), S.batched_traces(), S.betas())
 def test_evaluating_twice_gives_the_same_answer(formula, trace, other, beta):
-    assume(_defined(formula, trace) and _defined(formula, other))
+    assume(ref.is_defined(formula, trace) and ref.is_defined(formula, other))
 
     def everything(tr):
         return (

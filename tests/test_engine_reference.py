@@ -38,15 +38,6 @@ def assert_matches(got, expected, tol: float = 1e-9, what: str = "") -> None:
     assert (err <= tol * scale).all(), f"{what}: got {got}, expected {expected}"
 
 
-def _defined(formula, trace) -> bool:
-    """Whether every predicate is finite at every position of the trace."""
-    try:
-        ref.robustness_over_time(formula, trace)
-    except ref.UndefinedPredicate:
-        return False
-    return True
-
-
 def _row(trace: dict, i: int) -> dict:
     return {k: v[i] for k, v in trace.items()}
 
@@ -56,7 +47,7 @@ def _row(trace: dict, i: int) -> dict:
 
 @given(S.formulas(min_depth=4), S.batched_traces(), S.rho_maxes())
 def test_exact_matches_reference(formula, trace, rho_max):
-    assume(_defined(formula, trace))
+    assume(ref.is_defined(formula, trace))
     expected = ref.robustness_over_time(formula, trace, rho_max)
     assert_matches(formula.robustness_over_time(trace, rho_max), expected, what="over time, batched")
     assert_matches(formula.robustness(trace, rho_max), expected[:, 0], what="batched")
@@ -70,7 +61,7 @@ def test_exact_matches_reference(formula, trace, rho_max):
 
 @given(S.formulas(min_depth=4), S.batched_traces())
 def test_satisfied_matches_reference(formula, trace):
-    assume(_defined(formula, trace))
+    assume(ref.is_defined(formula, trace))
     expected = ref.satisfied(formula, trace)
     got = formula.satisfied(trace)
     assert got.dtype == np.bool_ and np.array_equal(got, expected)
@@ -104,13 +95,13 @@ def test_unsafe_arithmetic_is_refused_or_matches(formula, trace):
             if method is smooth[0] and "too large to smooth" in str(error):  # |β·ρ| beyond 5e299 at β = 1
                 assert ref.largest_margin(formula, trace) >= 5e299
                 continue
-            assert not _defined(formula, trace)
+            assert not ref.is_defined(formula, trace)
             continue
         assert_matches(got, reference(formula, trace, eager=False))
     try:
         got = formula.satisfied(trace)
     except TraceError:
-        assert not _defined(formula, trace)
+        assert not ref.is_defined(formula, trace)
     else:
         assert got == ref.satisfied(formula, trace, eager=False)
 
@@ -120,7 +111,7 @@ def test_unsafe_arithmetic_is_refused_or_matches(formula, trace):
 
 @given(S.formulas(min_depth=4), S.batched_traces(max_length=6), S.betas(), S.rho_maxes())
 def test_smooth_matches_reference(formula, trace, beta, rho_max):
-    assume(_defined(formula, trace))
+    assume(ref.is_defined(formula, trace))
     expected = ref.smooth_over_time(formula, trace, beta, rho_max)
     assert_matches(formula.smooth_robustness(trace, beta, rho_max), expected[:, 0], what="numpy batched")
     tensors = {k: torch.tensor(v) for k, v in trace.items()}
@@ -154,9 +145,9 @@ def test_smooth_values_and_gradients_are_never_nan(formula, trace, beta):
     (Predicates use differentiable arithmetic: a kink such as sqrt(abs(x)) at 0 has an
     undefined derivative whatever the smoothing.)
     """
-    assume(_defined(formula, trace))
+    assume(ref.is_defined(formula, trace))
     tensors = {k: torch.tensor(v * 100.0, requires_grad=True) for k, v in trace.items()}
-    assume(_defined(formula, {k: v * 100.0 for k, v in trace.items()}))
+    assume(ref.is_defined(formula, {k: v * 100.0 for k, v in trace.items()}))
     value = formula.smooth_robustness(tensors, beta)
     assert not torch.isnan(value)
     if value.requires_grad:

@@ -25,20 +25,21 @@ predicates = st.sampled_from([
 ])
 
 
-def _state_formulas() -> st.SearchStrategy[Formula]:
+def _connectives(leaves: st.SearchStrategy[Formula], max_leaves: int) -> st.SearchStrategy[Formula]:
+    """``leaves`` under negations, conjunctions, disjunctions and implications."""
     return st.recursive(
-        predicates | st.sampled_from([Constant(True), Constant(False)]),
+        leaves,
         lambda inner: st.one_of(
             inner.map(lambda f: ~f),
             st.tuples(inner, inner).map(lambda p: p[0] & p[1]),
             st.tuples(inner, inner).map(lambda p: p[0] | p[1]),
             st.tuples(inner, inner).map(lambda p: p[0] >> p[1]),
         ),
-        max_leaves=3,
+        max_leaves=max_leaves,
     )
 
 
-state_formulas = _state_formulas()
+state_formulas = _connectives(predicates | st.sampled_from([Constant(True), Constant(False)]), max_leaves=3)
 # Bounded lookahead: Boolean combinations of X^d over temporal-free formulas.
 windowed = st.recursive(
     state_formulas,
@@ -70,16 +71,7 @@ temporal_atoms = st.one_of(
     windowed.map(lambda f: F(G(f))), windowed.map(lambda f: G(F(f))), then_chains.map(lambda f: F(G(f))),
     st.tuples(state_formulas, state_formulas).map(lambda p: U(p[0], p[1])),
 )
-fragment = st.recursive(
-    temporal_atoms | state_formulas,
-    lambda inner: st.one_of(
-        inner.map(lambda f: ~f),
-        st.tuples(inner, inner).map(lambda p: p[0] & p[1]),
-        st.tuples(inner, inner).map(lambda p: p[0] | p[1]),
-        st.tuples(inner, inner).map(lambda p: p[0] >> p[1]),
-    ),
-    max_leaves=4,
-)
+fragment = _connectives(temporal_atoms | state_formulas, max_leaves=4)
 # Outside the fragment: a temporal operator over a temporal operand.
 unbounded = st.one_of(then_chains, never_again, windowed.map(F), windowed.map(G))
 nested = st.one_of(

@@ -27,10 +27,8 @@ def formula(task: Task, stl: Any, sqrt: Callable[[Any], Any]) -> Any:
     x = stl.Predicate("x", lambda s: s[..., 0])
     y = stl.Predicate("y", lambda s: s[..., 1])
     d = stl.Predicate("d_o", lambda s: sqrt((s[..., 0] - c.x) ** 2 + (s[..., 1] - c.y) ** 2))
-    box = stl.And(
-        stl.And(stl.And(stl.GreaterThan(x, b.x_low), stl.LessThan(x, b.x_high)), stl.GreaterThan(y, b.y_low)),
-        stl.LessThan(y, b.y_high),
-    )
+    box = stl.And(stl.And(stl.And(stl.GreaterThan(x, b.x_low), stl.LessThan(x, b.x_high)), stl.GreaterThan(y, b.y_low)),
+                  stl.LessThan(y, b.y_high))
     return stl.And(stl.Eventually(box), stl.Always(stl.GreaterThan(d, c.radius)))
 
 
@@ -66,8 +64,7 @@ def stlcgpp_evaluators(task: Task, beta: float) -> list[Evaluator | Unsupported]
             return robustness(torch.from_numpy(np.stack([x, y], axis=-1)), approx_method="true").numpy()
 
     def run_smooth(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        xt = torch.from_numpy(x).requires_grad_(True)
-        yt = torch.from_numpy(y).requires_grad_(True)
+        xt, yt = (torch.from_numpy(v).requires_grad_(True) for v in (x, y))
         values = robustness(torch.stack([xt, yt], dim=-1), approx_method="logsumexp", temperature=beta)
         values.sum().backward()
         return values.detach().numpy()
