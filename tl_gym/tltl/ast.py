@@ -375,7 +375,8 @@ class Formula:
 
         return exact.satisfied(self, trace)
 
-    def smooth_robustness(self, trace: Trace, beta: float, rho_max: float = math.inf, form: str = "nested") -> Any:
+    def smooth_robustness(self, trace: Trace, beta: float, rho_max: float = math.inf, form: str = "nested",
+                          backend: str = "auto") -> Any:
         """Log-sum-exp smoothed robustness with sharpness ``beta`` (paper, section V).
 
         Every max and min of the definition, the ones over time included, becomes
@@ -384,10 +385,13 @@ class Formula:
         float or an ``(N,)`` array (computed in float64). ``form="linear"`` trades the
         prescribed O(T²) nesting of a ``T`` under another temporal operator for an
         O(T) smoothing with the same limit and bracket (see `tl_gym.tltl.smooth`).
+        ``backend="auto"`` (the default) computes it with a kernel compiled once per machine
+        when numba is installed (``tl_gym[fast]``; `tl_gym.tltl.fused_smooth`, equal to the
+        numpy plan to rounding), else with the numpy plan; ``"numpy"`` forces the plan.
         """
         from tl_gym.tltl import smooth
 
-        return smooth.smooth_robustness(self, trace, beta, rho_max, form)
+        return smooth.smooth_robustness(self, trace, beta, rho_max, form, backend)
 
     def smooth_robustness_over_time(
         self, trace: Trace, beta: float, rho_max: float = math.inf, form: str = "nested"

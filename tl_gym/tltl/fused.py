@@ -23,6 +23,7 @@ once per machine (about a second), then loaded in milliseconds; `kernel_for` rep
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib.util
 import math
@@ -47,9 +48,19 @@ MAX_STEPS = 400  # larger formulas stay on the numpy plan
 MAX_EXPRESSION_NODES = 2000
 
 
+@functools.cache
 def available() -> bool:
     """Whether numba can be imported (``pip install tl_gym[fast]``)."""
     return importlib.util.find_spec("numba") is not None
+
+
+def wanted(backend: str) -> bool:
+    """Whether a compiled kernel should be tried: "auto" when numba is installed, "numba" (warning once if not)."""
+    if available():
+        return True
+    if backend == "numba":
+        _missing()
+    return False
 
 
 @dataclass(frozen=True)

@@ -50,7 +50,7 @@ import numpy as np
 
 from tl_gym.errors import TraceError
 from tl_gym.tltl import ast as nodes
-from tl_gym.tltl import lse
+from tl_gym.tltl import fused, fused_smooth, lse
 from tl_gym.tltl import operators as ops
 from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.expressions import evaluate_with_gradient, margin_bound
@@ -60,7 +60,8 @@ from tl_gym.tltl.trace import Trace, check_rho_max, chunks, is_torch, prepare
 _INF = ops.INF  # stands for +∞ in β-scaled units
 _MAX_QUADRATIC_ELEMENTS = 1 << 22  # cap on T²·N per chunk of a quadratic U/T
 FORMS = ("nested", "linear")
-_N_ARGS = 10  # non-tensor arguments of the autograd Function
+_N_ARGS = 11  # non-tensor arguments of the autograd Function
+BACKENDS = ("auto", "numpy", "numba")
 
 # A step's function: (group, step, operand values, spare flags) -> (value, backward, gradient factor)
 _Result = tuple[Any, Callable[[np.ndarray], Any], float]
@@ -544,15 +545,21 @@ def _evaluate(formula: Formula, signals: dict[str, np.ndarray], n: int, length: 
 
 def _at_position_zero(formula: Formula, signals: dict[str, np.ndarray], n: int, length: int, beta: float,
                       rho_max: float, form: str, magnitudes: dict[str, float],
-                      jacobian: bool) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+                      jacobian: bool, backend: str = "numpy") -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Smoothed values at position 0 in β units, shape ``(1, N)``, chunk by chunk of trajectories.
 
     ``signals`` are ``(N, T)``. With ``jacobian``, also each value's gradient wrt its own
     trajectory (``(N, T)`` per signal, in ρ units, zero where the value is ±∞). Trajectories
     are independent, so this Jacobian is all a vector-Jacobian product at position 0 needs:
     the backward pass is one multiplication, and the forward and backward work of a chunk
-    stays in cache instead of a tape of whole-batch arrays.
+    stays in cache instead of a tape of whole-batch arrays. ``backend`` other than "numpy":
+    the compiled kernel of `tl_gym.tltl.fused_smooth` answers where it covers the formula.
     """
+    if backend != "numpy" and fused.wanted(backend):
+        top = min(beta * rho_max, _INF) if math.isfinite(rho_max) else _INF
+        fast = fused_smooth.at_position_zero(formula, signals, beta, top, form, jacobian)
+        if fast is not None:
+            return fast
     z = np.empty((1, n))
     jac: dict[str, np.ndarray] = {}
     signals = {k: np.ascontiguousarray(v) for k, v in signals.items()}  # a no-op for the usual (N, T) arrays
@@ -578,32 +585,37 @@ def _at_position_zero(formula: Formula, signals: dict[str, np.ndarray], n: int, 
     return z, jac
 
 
-def _smooth(formula: Formula, trace: Trace, beta: float, rho_max: float, form: str, first_only: bool) -> Any:
+def _smooth(formula: Formula, trace: Trace, beta: float, rho_max: float, form: str, first_only: bool,
+            backend: str = "numpy") -> Any:
     """Shared entry: numpy in → numpy out; torch in → a differentiable torch tensor out."""
     _check(beta, rho_max, form)
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
     prepared = prepare(formula.signals, trace, torch_ok=True)
     names = tuple(prepared.signals)
     tensors = [prepared.signals[k] for k in names]
     if not names and any(is_torch(v) for v in trace.values()):  # torch in, torch out, even with no signal read
         import torch
 
-        return torch.as_tensor(_smooth_numpy(formula, prepared, beta, rho_max, form, first_only), dtype=torch.float64)
+        return torch.as_tensor(_smooth_numpy(formula, prepared, beta, rho_max, form, first_only, backend),
+                               dtype=torch.float64)
     if any(is_torch(t) for t in tensors):
         import torch
 
         tensors = [t if is_torch(t) else torch.as_tensor(t) for t in tensors]  # a numpy signal beside tensors
         wants_grad = torch.is_grad_enabled() and any(t.requires_grad for t in tensors)
         out = _autograd_function()(formula, names, float(beta), rho_max, form, first_only, prepared.n,
-                                   prepared.length, prepared.magnitudes, wants_grad, *tensors)
+                                   prepared.length, prepared.magnitudes, wants_grad, backend, *tensors)
         out = out[0] if first_only else out.T  # (N,) or (N, T)
         return out if prepared.batched else out[0]
-    return _smooth_numpy(formula, prepared, beta, rho_max, form, first_only)
+    return _smooth_numpy(formula, prepared, beta, rho_max, form, first_only, backend)
 
 
-def _smooth_numpy(formula: Formula, prepared: Any, beta: float, rho_max: float, form: str, first_only: bool) -> Any:
+def _smooth_numpy(formula: Formula, prepared: Any, beta: float, rho_max: float, form: str, first_only: bool,
+                  backend: str) -> Any:
     if first_only:
         z, _ = _at_position_zero(formula, prepared.signals, prepared.n, prepared.length, beta, rho_max, form,
-                                 prepared.magnitudes, jacobian=False)
+                                 prepared.magnitudes, jacobian=False, backend=backend)
     else:
         signals = {k: np.ascontiguousarray(v.T) for k, v in prepared.signals.items()}
         _, z = _evaluate(formula, signals, prepared.n, prepared.length, beta, rho_max, form, False,
@@ -628,12 +640,12 @@ def _autograd_function() -> Any:
         @staticmethod
         def forward(ctx: Any, formula: Formula, names: tuple[str, ...], beta: float, rho_max: float, form: str,
                     first_only: bool, n: int, length: int, magnitudes: dict[str, float], wants_grad: bool,
-                    *tensors: Any) -> Any:
+                    backend: str, *tensors: Any) -> Any:
             arrays = [t.detach().cpu().double().numpy() for t in tensors]
             if first_only:  # the gradient is computed now, chunk by chunk, as a per-trajectory Jacobian
                 def at_zero(arrays: list[np.ndarray], jacobian: bool) -> tuple[np.ndarray, dict[str, np.ndarray]]:
                     return _at_position_zero(formula, dict(zip(names, arrays)), n, length, beta, rho_max, form,
-                                             magnitudes, jacobian=jacobian)
+                                             magnitudes, jacobian=jacobian, backend=backend)
 
                 z, ctx.jac = at_zero(arrays, wants_grad)
                 ctx.at_zero = at_zero
@@ -692,7 +704,8 @@ def _hand_over(ctx: Any, scale: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def smooth_robustness(
-    formula: Formula, trace: Trace, beta: float, rho_max: float = math.inf, form: str = "nested"
+    formula: Formula, trace: Trace, beta: float, rho_max: float = math.inf, form: str = "nested",
+    backend: str = "auto",
 ) -> Any:
     """Smoothed robustness at position 0.
 
@@ -701,8 +714,11 @@ def smooth_robustness(
     ``form="linear"`` smooths ``φ T ψ`` nested under a temporal operator through the
     identity ρ(φ T ψ, t) = max_{s ≥ t} min(φ(s), max_{t' > s} ψ(t')) in O(T) instead of
     the prescribed O(T²) nesting (same limit as β → ∞, same Lemma 1 bracket).
+    ``backend``: "auto" runs the compiled kernel of `tl_gym.tltl.fused_smooth` when numba is
+    installed and the kernel covers the formula, else the numpy plan; "numpy" always the plan;
+    "numba" as "auto", warning once if numba is missing.
     """
-    return _smooth(formula, trace, beta, rho_max, form, first_only=True)
+    return _smooth(formula, trace, beta, rho_max, form, first_only=True, backend=backend)
 
 
 def smooth_over_time(

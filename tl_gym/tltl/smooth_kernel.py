@@ -1,0 +1,405 @@
+"""The numba kernel of `tl_gym.tltl.fused_smooth`: smoothed robustness at position 0 and its gradient.
+
+One function for every formula: it runs a program (`fused_smooth.encode`: the plan's steps, their
+operands and their predicates' arithmetic as integer arrays) for each trajectory, forward and,
+with ``grad``, backward. Compiled once per machine (numba's on-disk cache); imported only when
+numba is installed. The rules and their derivations are in `fused_smooth`'s docstring; here,
+``W`` holds for every step the weights its backward pass multiplies by.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from numba import njit
+
+from tl_gym.tltl.fused_smooth import (
+    ABS,
+    ADD,
+    BINARY_AT_ZERO,
+    CONST,
+    DIV,
+    EXP,
+    IMPLIES,
+    LOG,
+    MAX,
+    MIN,
+    MUL,
+    NARY,
+    NEG,
+    NEXT,
+    NOT,
+    NUM,
+    POW,
+    PRED,
+    REDUCE,
+    SQRT,
+    SQUARE,
+    SUB,
+    SUFFIX,
+    THEN_LINEAR,
+    VAR,
+)
+from tl_gym.tltl.operators import INF
+
+CUT = -37.0  # exp(-37) < 2⁻⁵³: such a term does not change 1 + its weight
+HALF = INF / 2  # |β·margin| from here on cannot be told from ±∞
+
+@njit(cache=True, error_model="numpy")
+def expression(code: Any, numbers: Any, start: int, stop: int, X: Any, sigs: Any, i: int, nt: int) -> None:
+    """Instructions ``start … stop − 1`` at positions ``0 … nt − 1``: each one's row of ``X``."""
+    for j in range(start, stop):
+        op, a, b = code[j, 0], code[j, 1], code[j, 2]
+        x, y, out = X[a], X[b], X[j]
+        if op == VAR:
+            signal = sigs[a]
+            for t in range(nt):
+                out[t] = signal[i, t]
+        elif op == NUM:
+            out[:nt] = numbers[j]
+        elif op == NEG:
+            for t in range(nt):
+                out[t] = -x[t]
+        elif op == ADD:
+            for t in range(nt):
+                out[t] = x[t] + y[t]
+        elif op == SUB:
+            for t in range(nt):
+                out[t] = x[t] - y[t]
+        elif op == MUL:
+            for t in range(nt):
+                out[t] = x[t] * y[t]
+        elif op == DIV:
+            for t in range(nt):
+                out[t] = x[t] / y[t]
+        elif op == SQUARE:
+            for t in range(nt):
+                out[t] = x[t] * x[t]
+        elif op == POW:
+            for t in range(nt):
+                out[t] = x[t] ** y[t]
+        elif op == ABS:
+            for t in range(nt):
+                out[t] = abs(x[t])
+        elif op == SQRT:
+            for t in range(nt):
+                out[t] = math.sqrt(x[t]) if x[t] >= 0.0 else math.nan
+        elif op == EXP:
+            for t in range(nt):
+                out[t] = math.exp(x[t])
+        elif op == LOG:
+            for t in range(nt):
+                out[t] = math.log(x[t]) if x[t] > 0.0 else (-math.inf if x[t] == 0.0 else math.nan)
+        elif op == MIN:
+            for t in range(nt):
+                out[t] = y[t] if y[t] < x[t] else x[t]
+        else:  # MAX
+            for t in range(nt):
+                out[t] = y[t] if y[t] > x[t] else x[t]
+
+
+@njit(cache=True, error_model="numpy")
+def expression_backward(code: Any, start: int, stop: int, X: Any, D: Any, jac: Any, i: int, nt: int) -> None:
+    """Reverse mode through instructions ``stop − 1 … start``: ``D`` holds the adjoints, signals' go to ``jac``."""
+    for j in range(stop - 1, start - 1, -1):
+        op, a, b = code[j, 0], code[j, 1], code[j, 2]
+        d, x, y, out, dx, dy = D[j], X[a], X[b], X[j], D[a], D[b]
+        if op == VAR:
+            target = jac[a, i]
+            for t in range(nt):
+                target[t] += d[t]
+        elif op == NEG:
+            for t in range(nt):
+                dx[t] -= d[t]
+        elif op == ADD:
+            for t in range(nt):
+                dx[t] += d[t]
+                dy[t] += d[t]
+        elif op == SUB:
+            for t in range(nt):
+                dx[t] += d[t]
+                dy[t] -= d[t]
+        elif op == MUL:
+            for t in range(nt):
+                dx[t] += d[t] * y[t]
+                dy[t] += d[t] * x[t]
+        elif op == DIV:
+            for t in range(nt):
+                dx[t] += d[t] / y[t]
+                dy[t] -= d[t] * out[t] / y[t]
+        elif op == SQUARE:
+            for t in range(nt):
+                dx[t] += 2.0 * (d[t] * x[t])
+        elif op == POW:
+            for t in range(nt):
+                dx[t] += d[t] * (y[t] * x[t] ** (y[t] - 1.0))
+                dy[t] += d[t] * out[t] * math.log(x[t])
+        elif op == ABS:  # times the sign (0 at 0; inf · 0 is NaN, as in numpy)
+            for t in range(nt):
+                dx[t] += d[t] * (1.0 if x[t] > 0.0 else (-1.0 if x[t] < 0.0 else 0.0))
+        elif op == SQRT:
+            for t in range(nt):
+                dx[t] += 0.5 * (d[t] / out[t])
+        elif op == EXP:
+            for t in range(nt):
+                dx[t] += d[t] * out[t]
+        elif op == LOG:
+            for t in range(nt):
+                dx[t] += d[t] / x[t]
+        elif op == MIN or op == MAX:  # to the first operand attaining the extreme (times 0 to the other)
+            for t in range(nt):
+                second = y[t] < x[t] if op == MIN else y[t] > x[t]
+                dx[t] += d[t] * (0.0 if second else 1.0)
+                dy[t] += d[t] * (1.0 if second else 0.0)
+
+
+@njit(cache=True, error_model="numpy")
+def lse2(a: float, b: float) -> tuple[float, float, float]:
+    """``log(exp(a) + exp(b))`` and the two softmax weights, the larger term factored out (numpy's way)."""
+    if a - b > 0.0:
+        d = b - a
+        if d < CUT:
+            return a, 1.0, 0.0
+        e = math.exp(d)
+        q = 1.0 / (1.0 + e)
+        return a + math.log(1.0 + e), q, e * q
+    d = a - b
+    if d < CUT:
+        return b, 0.0, 1.0
+    e = math.exp(d)
+    q = 1.0 / (1.0 + e)
+    return b + math.log(1.0 + e), e * q, q
+
+
+@njit(cache=True, error_model="numpy")
+def weight(d: float) -> float:
+    """``exp(d)`` for d ≤ 0, and exactly 0 where it would not change a sum that contains 1."""
+    if d == 0.0:
+        return 1.0
+    return math.exp(d) if d > CUT else 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def kernel(steps: Any, operands: Any, predicates: Any, code: Any, numbers: Any, n_weights: int, beta: float,
+           top: float, grad: bool, z: Any, jac: Any, sigs: Any) -> int:
+    """Smoothed values at position 0 into ``z`` (β units) and, with ``grad``, their gradients into ``jac``.
+
+    Returns -1, or the first trajectory with a predicate value that is NaN, infinite or too large to smooth.
+    """
+    _, n, T = sigs.shape
+    K = steps.shape[0]
+    V = np.empty((K, T))  # every step's values (a step needed at position 0 only: column 0)
+    G = np.zeros((K, T))  # their gradients
+    W = np.empty((n_weights, T))  # what the backward pass multiplies by
+    X = np.empty((max(code.shape[0], 1), T))  # predicates' arithmetic
+    D = np.zeros((max(code.shape[0], 1), T))
+    S = np.empty(T)
+    for i in range(n):
+        # ---------------------------------------------------------------- forward
+        for k in range(K):
+            op, first, sign, o, m, w = steps[k, 0], steps[k, 1], steps[k, 2], steps[k, 3], steps[k, 4], steps[k, 5]
+            nt = 1 if first else T
+            out = V[k]
+            if op == CONST:
+                out[:nt] = sign * top
+            elif op == PRED:
+                start, stop, lhs, rhs, lk, rk = predicates[k]
+                expression(code, numbers, start, stop, X, sigs, i, nt)
+                xa, xb = X[lhs if lk == 0 else 0], X[rhs if rk == 0 else 0]
+                sa, sb = sigs[lhs if lk == 1 else 0][i], sigs[rhs if rk == 1 else 0][i]
+                na, nb = numbers[lhs if lk == 2 else 0], numbers[rhs if rk == 2 else 0]
+                for t in range(nt):
+                    va = xa[t] if lk == 0 else (sa[t] if lk == 1 else na)
+                    vb = xb[t] if rk == 0 else (sb[t] if rk == 1 else nb)
+                    value = beta * (va - vb if sign > 0 else vb - va)
+                    if not abs(value) < HALF:
+                        return i
+                    out[t] = value
+            elif op == NOT:
+                c = V[operands[o]]
+                for t in range(nt):
+                    out[t] = -c[t]
+            elif op == NARY and m == 2:  # two operands: one pass (W[w], W[w + 1]: their weights)
+                a, b = V[operands[o]], V[operands[o + 1]]
+                for t in range(nt):
+                    out[t], W[w, t], W[w + 1, t] = lse2(sign * a[t], sign * b[t])
+                    out[t] *= sign
+            elif op == NARY:  # out holds the extreme, S the softmax total, W[w + r] operand r's weight
+                out[:nt] = V[operands[o], :nt]
+                for r in range(1, m):
+                    c = V[operands[o + r]]
+                    if sign > 0:
+                        for t in range(nt):
+                            out[t] = c[t] if c[t] > out[t] else out[t]
+                    else:
+                        for t in range(nt):
+                            out[t] = c[t] if c[t] < out[t] else out[t]
+                S[:nt] = 0.0
+                for r in range(m):
+                    c, e = V[operands[o + r]], W[w + r]
+                    for t in range(nt):
+                        e[t] = weight(sign * (c[t] - out[t]))
+                        S[t] += e[t]
+                for t in range(nt):
+                    if S[t] != 1.0:
+                        out[t] += sign * math.log(S[t])
+                        S[t] = 1.0 / S[t]
+                for r in range(m):
+                    e = W[w + r]
+                    for t in range(nt):
+                        e[t] *= S[t]
+            elif op == IMPLIES:
+                a, b = V[operands[o]], V[operands[o + 1]]
+                for t in range(nt):
+                    out[t], W[w, t], W[w + 1, t] = lse2(-a[t], b[t])
+            elif op == NEXT:
+                c = V[operands[o]]
+                if first:
+                    out[0] = c[1] if T > 1 else -top
+                else:
+                    out[: T - 1] = c[1:]
+                    out[T - 1] = -top
+            elif op == SUFFIX:  # F / G at every position: W[w] weighs the new term, W[w + 1] the running one
+                c = V[operands[o]]
+                acc = sign * c[T - 1]
+                out[T - 1] = sign * acc
+                W[w, T - 1], W[w + 1, T - 1] = 1.0, 0.0
+                for t in range(T - 2, -1, -1):
+                    acc, W[w + 1, t], W[w, t] = lse2(acc, sign * c[t])
+                    out[t] = sign * acc
+            elif op == REDUCE:  # F / G at position 0: W[w] holds the softmax weights over time
+                c, e = V[operands[o]], W[w]
+                p = c[0]
+                for t in range(1, T):
+                    p = (c[t] if c[t] > p else p) if sign > 0 else (c[t] if c[t] < p else p)
+                total = 0.0
+                for t in range(T):
+                    e[t] = weight(sign * (c[t] - p))
+                    total += e[t]
+                out[0] = p if total == 1.0 else p + sign * math.log(total)
+                q = 1.0 / total
+                for t in range(T):
+                    e[t] *= q
+            elif op == THEN_LINEAR:  # weights: ψ's suffix (new, running), φ and later in the smooth min, outer
+                a, b = V[operands[o]], V[operands[o + 1]]
+                later = -INF  # lse of ψ over t' > t: none at the last position
+                acc = 0.0
+                for t in range(T - 1, -1, -1):
+                    m_, W[w + 2, t], W[w + 3, t] = lse2(-a[t], -later)
+                    if t == T - 1:
+                        acc = -m_
+                        W[w + 4, t], W[w + 5, t] = 1.0, 0.0
+                        later = b[t]
+                        W[w, t], W[w + 1, t] = 1.0, 0.0
+                    else:
+                        acc, W[w + 5, t], W[w + 4, t] = lse2(acc, -m_)
+                        later, W[w + 1, t], W[w, t] = lse2(later, b[t])
+                    out[t] = acc
+            else:  # BINARY_AT_ZERO: weights: prefix (new, running), ψ and inner in the smooth min, outer
+                a, b, e = V[operands[o]], V[operands[o + 1]], W[w + 4]
+                prefix = 0.0
+                p = -INF
+                for t in range(T):
+                    inner = -sign * INF if t == 0 else sign * prefix  # the empty inner reduction first
+                    m_, W[w + 2, t], W[w + 3, t] = lse2(-b[t], -inner)
+                    e[t] = -m_
+                    p = -m_ if -m_ > p else p
+                    if t == 0:
+                        prefix = sign * a[t]
+                        W[w, t], W[w + 1, t] = 1.0, 0.0
+                    else:
+                        prefix, W[w + 1, t], W[w, t] = lse2(prefix, sign * a[t])
+                total = 0.0
+                for t in range(T):
+                    e[t] = weight(e[t] - p)
+                    total += e[t]
+                out[0] = p if total == 1.0 else p + math.log(total)
+                q = 1.0 / total
+                for t in range(T):
+                    e[t] *= q
+        root = V[K - 1, 0]
+        z[i] = root
+        if not grad:
+            continue
+        # ---------------------------------------------------------------- backward
+        G[:, :] = 0.0
+        jac[:, i, :] = 0.0
+        G[K - 1, 0] = 1.0 if abs(root) < HALF else 0.0  # ±∞ results have zero gradient
+        for k in range(K - 1, -1, -1):
+            op, first, sign, o, m, w = steps[k, 0], steps[k, 1], steps[k, 2], steps[k, 3], steps[k, 4], steps[k, 5]
+            nt = 1 if first else T
+            g = G[k]
+            if op == PRED:  # the gradient of the margin (ρ units: β · 1/β)
+                start, stop, lhs, rhs, lk, rk = predicates[k]
+                D[start:stop, :nt] = 0.0
+                for side, kind, slope in ((lhs, lk, sign), (rhs, rk, -sign)):
+                    if kind == 0:
+                        d = D[side]
+                        for t in range(nt):
+                            d[t] += slope * g[t]
+                    elif kind == 1:
+                        target = jac[side, i]
+                        for t in range(nt):
+                            target[t] += slope * g[t]
+                if lk == 0 or rk == 0:
+                    expression_backward(code, start, stop, X, D, jac, i, nt)
+            elif op == NOT:
+                c = G[operands[o]]
+                for t in range(nt):
+                    c[t] -= g[t]
+            elif op == NARY:
+                for r in range(m):
+                    c, e = G[operands[o + r]], W[w + r]
+                    for t in range(nt):
+                        c[t] += g[t] * e[t]
+            elif op == IMPLIES:
+                a, b, ea, eb = G[operands[o]], G[operands[o + 1]], W[w], W[w + 1]
+                for t in range(nt):
+                    a[t] -= g[t] * ea[t]
+                    b[t] += g[t] * eb[t]
+            elif op == NEXT:
+                c = G[operands[o]]
+                if first:
+                    if T > 1:
+                        c[1] += g[0]
+                else:
+                    for t in range(T - 1):
+                        c[t + 1] += g[t]
+            elif op == SUFFIX:  # g_child[t] = w_new[t] · A[t], A[t] = A[t−1] · w_running[t−1] + g[t]
+                c, new, running = G[operands[o]], W[w], W[w + 1]
+                acc = 0.0
+                for t in range(T):
+                    if t > 0:
+                        acc *= running[t - 1]
+                    acc += g[t]
+                    c[t] += new[t] * acc
+            elif op == REDUCE:
+                c, e = G[operands[o]], W[w]
+                for t in range(T):
+                    c[t] += g[0] * e[t]
+            elif op == THEN_LINEAR:
+                a, b = G[operands[o]], G[operands[o + 1]]
+                outer, right, g_later = 0.0, 0.0, 0.0
+                for t in range(T):
+                    if t > 0:
+                        outer *= W[w + 5, t - 1]
+                        right *= W[w + 1, t - 1]
+                    outer += g[t]
+                    g_inner = W[w + 4, t] * outer
+                    a[t] += g_inner * W[w + 2, t]
+                    right += g_later  # ψ's suffix at t is `later` at t − 1
+                    b[t] += W[w, t] * right
+                    g_later = g_inner * W[w + 3, t]
+            elif op == BINARY_AT_ZERO:  # the prefix's gradient: wz[t] · B[t], B[t] = B[t+1] · wr[t+1] + g_prefix[t]
+                a, b = G[operands[o]], G[operands[o + 1]]
+                back, g_inner = 0.0, 0.0
+                for t in range(T - 1, -1, -1):
+                    if t < T - 1:
+                        back = back * W[w + 1, t + 1] + g_inner
+                    a[t] += W[w, t] * back  # sign · sign = 1
+                    g_term = g[0] * W[w + 4, t]
+                    b[t] += g_term * W[w + 2, t]
+                    g_inner = g_term * W[w + 3, t]
+    return -1
