@@ -7,6 +7,7 @@ skipped when numba is not installed.
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -81,3 +82,26 @@ def test_without_numba_the_numpy_plan_answers(monkeypatch):
         assert formula.robustness({"x": [0.0, 2.0]}, backend="numba") == 1.0
     with pytest.raises(ValueError, match="backend"):
         formula.robustness({"x": [0.0]}, backend="torch")
+
+
+def test_auto_runs_the_numpy_plan_until_the_kernel_pays(monkeypatch):
+    trace = {"x": np.linspace(-1, 3, 40).reshape(4, 10), "y": np.linspace(2, -2, 40).reshape(4, 10)}
+    formula = parse("F(x > 2.5 & y < 0) & G(x + y < 4)")
+    expected = formula.robustness(trace, backend="numpy")
+    np.testing.assert_array_equal(formula.robustness(trace), expected)  # auto, numpy so far: nothing compiled
+    assert formula.__dict__["_plans"].get(("fused",)) is None
+    monkeypatch.setattr(fused, "AUTO_SECONDS", 0.0)  # as if the formula had cost half a second already
+    np.testing.assert_array_equal(formula.robustness(trace), expected)
+    assert fused.kernel_for(formula) is not None and formula.__dict__["_plans"][("fused",)]
+    same = parse(str(formula))  # a new formula object: its kernel is in numba's cache, so auto loads it at once
+    monkeypatch.setattr(fused, "AUTO_SECONDS", math.inf)
+    np.testing.assert_array_equal(same.robustness(trace), expected)
+    assert same.__dict__["_plans"].get(("fused",))
+
+
+def test_auto_without_numba_is_the_numpy_plan(monkeypatch):
+    monkeypatch.setattr(fused, "available", lambda: False)
+    monkeypatch.setattr(fused, "AUTO_SECONDS", 0.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert parse("F(x > 1)").robustness({"x": [0.0, 2.0]}) == 1.0

@@ -335,7 +335,7 @@ class Formula:
         return [repr(self)]  # a node class from elsewhere, with no syntax of its own
 
     # Semantics (the evaluators live in their own modules) ---------------------------
-    def robustness(self, trace: Trace, rho_max: float = math.inf, backend: str = "numpy") -> float | np.ndarray:
+    def robustness(self, trace: Trace, rho_max: float = math.inf, backend: str = "auto") -> float | np.ndarray:
         """Robustness of the trace at position 0 (> 0 means it satisfies the formula).
 
         Args:
@@ -343,21 +343,25 @@ class Formula:
                 extra names are ignored.
             rho_max: the value of ``true`` (and minus that of ``false`` and of ``X φ``
                 at the last state).
-            backend: ``"numpy"`` (the default), or ``"numba"``: one fused loop compiled for
-                this formula (`tl_gym.tltl.fused`, needs the ``tl_gym[fast]`` extra; formulas
-                it does not cover, or a missing numba, use numpy).
+            backend: ``"numba"``: one fused loop compiled for this formula (`tl_gym.tltl.fused`,
+                needs the ``tl_gym[fast]`` extra; formulas it does not cover, or a missing numba,
+                use numpy); ``"numpy"``: the numpy plan; ``"auto"`` (the default): the numpy plan
+                until the compiled loop pays (`fused.auto_robustness`: numba is installed and the
+                kernel was compiled on this machine before, or the formula has cost this process
+                half a second), then the loop. The values are the same (bit for bit, except that
+                ``exp``, ``log`` and general powers may differ in the last bit).
 
         Returns:
             A float for ``(T,)`` signals, an array of shape ``(N,)`` for ``(N, T)``.
         """
+        from tl_gym.tltl import exact, fused
+
         if backend == "numba":
-            from tl_gym.tltl import fused
-
             return fused.robustness(self, trace, rho_max)
+        if backend == "auto":
+            return fused.auto_robustness(self, trace, rho_max)
         if backend != "numpy":
-            raise ValueError(f"backend must be 'numpy' or 'numba', got {backend!r}")
-        from tl_gym.tltl import exact
-
+            raise ValueError(f"backend must be 'auto', 'numpy' or 'numba', got {backend!r}")
         return exact.robustness(self, trace, rho_max)
 
     def robustness_over_time(self, trace: Trace, rho_max: float = math.inf) -> np.ndarray:

@@ -81,6 +81,41 @@ def kernel_for(formula: Formula) -> Kernel | None:
     return cached(formula, ("fused",), lambda: _build(formula)) or None
 
 
+AUTO_SECONDS = 0.5  # numpy time a formula must cost a process before ``backend="auto"`` compiles its kernel
+
+
+@dataclass
+class _Usage:
+    """What ``backend="auto"`` knows of a formula: numpy seconds spent on it, whether its kernel is compiled."""
+
+    seconds: float = 0.0
+    compiled: bool | None = None  # on this machine already (numba's cache holds it); None: not looked yet
+
+
+def auto_robustness(formula: Formula, trace: Trace, rho_max: float = math.inf) -> float | np.ndarray:
+    """``backend="auto"``: the fused kernel once it pays, the numpy plan until then.
+
+    The kernel is used when numba is installed and either this machine has compiled it before
+    (it loads in milliseconds) or the formula has cost this process `AUTO_SECONDS` of numpy
+    evaluation (compiling takes about a second, once per machine). So one-off evaluations and
+    the many small formulas of a test suite never wait for a compiler, and a formula evaluated
+    over and over spends at most about twice the best possible time before it runs compiled.
+    """
+    from tl_gym.tltl import exact
+
+    usage: _Usage = cached(formula, ("auto",), _Usage)
+    if available() and usage.compiled is None:
+        source = _kernel_source(formula)
+        usage.compiled = source is not None and any(_path(source).parent.glob(
+            f"__pycache__/{_path(source).stem}.kernel-*.nbi"))
+    if available() and (usage.compiled or usage.seconds >= AUTO_SECONDS):
+        return robustness(formula, trace, rho_max)
+    start = time.perf_counter()
+    out = exact.robustness(formula, trace, rho_max)
+    usage.seconds += time.perf_counter() - start
+    return out
+
+
 def robustness(formula: Formula, trace: Trace, rho_max: float = math.inf) -> float | np.ndarray:
     """Robustness at position 0 through the fused kernel; the numpy plan where it does not apply."""
     from tl_gym.tltl import exact
@@ -129,16 +164,25 @@ def _missing() -> None:
 # --------------------------------------------------------------------------- code generation
 
 
+def _kernel_source(formula: Formula) -> str | None:
+    """The kernel's source (kept on the formula), or None where the numpy plan must run it."""
+    def build() -> str | bool:
+        plan = compile_plan(formula, True)  # steps needed at position 0 only are computed after the loop
+        if not formula.signals or len(plan.steps) > MAX_STEPS or any(step.segments for step in plan.steps):
+            return False
+        size = sum(len(postorder(side)) for s in plan.steps if isinstance(s.node, nodes.Predicate)
+                   for side in (s.node.lhs, s.node.rhs))
+        if size > MAX_EXPRESSION_NODES or any(len(s.inputs) > 64 for s in plan.steps):
+            return False
+        return _source(plan, formula.signals)
+
+    return cached(formula, ("fused source",), build) or None
+
+
 def _build(formula: Formula) -> Kernel | bool:
-    plan = compile_plan(formula, True)  # steps needed at position 0 only are computed after the loop
-    names = formula.signals
-    if not names or len(plan.steps) > MAX_STEPS or any(step.segments for step in plan.steps):
+    source, names = _kernel_source(formula), formula.signals
+    if source is None:
         return False
-    size = sum(len(postorder(side)) for s in plan.steps if isinstance(s.node, nodes.Predicate)
-               for side in (s.node.lhs, s.node.rhs))
-    if size > MAX_EXPRESSION_NODES or any(len(s.inputs) > 64 for s in plan.steps):
-        return False
-    source = _source(plan, names)
     start = time.perf_counter()
     function = _compile(source)
     function(1.0, np.empty(1), *[np.zeros((1, 1))] * len(names))  # numba compiles (or loads) on the first call
@@ -231,7 +275,7 @@ def _source(plan: Plan, names: tuple[str, ...]) -> str:
             else:
                 raise TypeError(f"no fused rule for formula node {type(node).__name__}")
             code.append(f"v{k} = x{k}")
-    body.append(f"check += {' + '.join(checked)}")
+    body.append(f"check += {_balanced_sum(checked)}")
     # time is scanned backwards for the recurrences (X, U, T, F and G at every position); forwards when it is
     # only reduced (the hardware reads forwards a little faster)
     recurrences = (nodes.Next, nodes.Until, nodes.Then)
@@ -260,6 +304,16 @@ def _source(plan: Plan, names: tuple[str, ...]) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _balanced_sum(terms: list[str]) -> str:
+    """``terms`` summed as a balanced tree: one loop-carried addition per position, the rest in parallel.
+
+    (A left-to-right sum is a chain of as many dependent additions, which bounded φ1's loop.)
+    """
+    while len(terms) > 1:
+        terms = [f"({a} + {b})" for a, b in zip(terms[::2], terms[1::2])] + terms[len(terms) - len(terms) % 2:]
+    return terms[0]
 
 
 _FUNCTIONS = {"abs": "abs", "sqrt": "np.sqrt", "exp": "np.exp", "log": "np.log", "min": "np.minimum",
@@ -299,11 +353,16 @@ def _expression(expr: Any, column: dict[str, str], body: list[str], step: int, s
     return stack[0]
 
 
+def _path(source: str) -> Path:
+    """Where the kernel's source is written (numba's cache of its machine code goes beside it)."""
+    digest = hashlib.sha256(source.encode()).hexdigest()[:20]
+    return Path(os.environ.get("TL_GYM_CACHE", Path.home() / ".cache" / "tl_gym")) / "fused" / f"kernel_{digest}.py"
+
+
 def _compile(source: str) -> Any:
     """Write the source to the cache directory and import it (numba caches the machine code beside it)."""
-    digest = hashlib.sha256(source.encode()).hexdigest()[:20]
-    directory = Path(os.environ.get("TL_GYM_CACHE", Path.home() / ".cache" / "tl_gym")) / "fused"
-    path = directory / f"kernel_{digest}.py"
+    path = _path(source)
+    directory, digest = path.parent, path.stem.removeprefix("kernel_")
     try:
         directory.mkdir(parents=True, exist_ok=True)
         if not path.exists():
