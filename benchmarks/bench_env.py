@@ -8,8 +8,8 @@ Each number is the best of several repeats, timed twice: CPU time of this
 process (``time.process_time``, what the code costs even when other jobs share
 the cores) and wall-clock time (``time.perf_counter``, what a user waits).
 
-Usage: ``python -m benchmarks.bench_env [--quick]``; prints a table and writes
-``docs/results/env_speed.md``.
+Usage: ``python -m benchmarks.bench_env [--quick] [--out PATH]``; prints a table and writes
+it to ``PATH`` (default ``docs/results/env_speed.md``).
 """
 
 from __future__ import annotations
@@ -131,6 +131,7 @@ def _micro(timing: Timing) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer episodes and repeats (about 20 s)")
+    parser.add_argument("--out", type=Path, default=OUT, help=f"where to write the table (default {OUT})")
     args = parser.parse_args()
     repeats, episodes = (3, 2) if args.quick else (7, 5)
     half = max(1, episodes // 2)
@@ -188,13 +189,19 @@ def main() -> None:
         for base in ("terminal", "dense"):
             rows.append((f"Markov view (dense + observe_monitor) per step, task {task}, over the {base} mode",
                          _micro(_minus(step["view"], step[base]))))
+        per_car_step = 1 / (half * HORIZON * NUM_ENVS)
         t_plain = vector_time(CarNavVectorEnv(num_envs=NUM_ENVS, task=task), half)
+        t_dense = vector_time(CarNavVectorEnv(num_envs=NUM_ENVS, task=task, reward_mode="dense"), half)
         t_viewed = vector_time(CarNavVectorEnv(num_envs=NUM_ENVS, task=task, observe_monitor=True, reward_mode="dense"),
                                half)
+        rows.append((f"dense mode per car step, CarNavVectorEnv({NUM_ENVS}) task {task}, over the terminal mode",
+                     _micro(_minus(t_dense, t_plain, per_car_step))))
         rows.append((f"Markov view per car step, CarNavVectorEnv({NUM_ENVS}) task {task}",
-                     _micro(_minus(t_viewed, t_plain, 1 / (half * HORIZON * NUM_ENVS)))))
+                     _micro(_minus(t_viewed, t_plain, per_car_step))))
+        rows.append((f"Markov view per car step, CarNavVectorEnv({NUM_ENVS}) task {task}, over the dense mode",
+                     _micro(_minus(t_viewed, t_dense, per_car_step))))
 
-    _report(rows, args.quick)
+    _report(rows, args.quick, args.out)
 
 
 def _time_calls(fn: Callable[[], object], n: int) -> Timing:
@@ -205,17 +212,17 @@ def _time_calls(fn: Callable[[], object], n: int) -> Timing:
     return clock.cpu / n, clock.wall / n
 
 
-def _report(rows: list[tuple[str, str]], quick: bool) -> None:
+def _report(rows: list[tuple[str, str]], quick: bool, out: Path) -> None:
     width = max(len(name) for name, _ in rows)
     lines = [f"{'measurement':<{width}}  CPU time | wall clock"]
     lines += [f"{name:<{width}}  {value}" for name, value in rows]
     print("\n".join(lines))
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    OUT.parent.mkdir(parents=True, exist_ok=True)
+    out.parent.mkdir(parents=True, exist_ok=True)
     table = ["| measurement | CPU time | wall clock |", "|---|---|---|"]
     table += [f"| {name.strip()} | {value} |" for name, value in rows]
     command = f"python -m benchmarks.bench_env{' --quick' if quick else ''}"
-    OUT.write_text(
+    out.write_text(
         "# TLCarNav-v0 and TLTLRewardWrapper speed\n\n"
         f"`{command}` on {platform.processor() or platform.machine()}, "
         f"{os.cpu_count()} cores, Python {platform.python_version()}, numpy {np.__version__}, "
@@ -224,7 +231,7 @@ def _report(rows: list[tuple[str, str]], quick: bool) -> None:
         "episodes of 200 steps with random actions, terminal robustness included.\n\n"
         + "\n".join(table) + "\n"
     )
-    print(f"wrote {OUT}")
+    print(f"wrote {out}")
 
 
 if __name__ == "__main__":

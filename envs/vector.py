@@ -23,6 +23,7 @@ from tl_gym.envs.tasks import task_formula
 from tl_gym.monitor_view import MonitorView, augment_space
 from tl_gym.shaping import HierarchicalPotential
 from tl_gym.tltl.online import PrefixMonitor
+from tl_gym.tltl.online_batch import BatchPrefixMonitor
 from tl_gym.wrapper import (
     MONITOR_KEY,
     terminal_info,
@@ -41,9 +42,9 @@ class CarNavVectorEnv(VectorEnv):
     ends episodes, ``"robustness"``, ``"satisfied"``, ``"trace"`` (an object array of
     one `tl_gym.wrapper.Trace` per car, ``info["trace"][i]["x"]`` of shape ``(T+1,)``, as
     ``SyncVectorEnv`` batches the wrapper's) and, with ``reward="smooth"``,
-    ``"smooth_robustness"``. ``reward_mode="dense"`` and ``observe_monitor=True`` run one
-    online monitor per car (as the single env's wrapper does, with the same features and
-    rewards); they cost that monitor's Python update per car and step.
+    ``"smooth_robustness"``. ``reward_mode="dense"`` and ``observe_monitor=True`` run the
+    online monitor of every car at once (`tl_gym.tltl.online_batch.BatchPrefixMonitor`, a few
+    numpy calls per operator and step for all cars), with the single env's features and rewards.
 
     Example:
         >>> import gymnasium as gym
@@ -85,8 +86,10 @@ class CarNavVectorEnv(VectorEnv):
         self.render_mode = render_mode
 
         self.single_observation_space = observation_space(self.params, self.layout)
-        # one monitor per car, for dense rewards and the Markov view
-        self._views: list[MonitorView] = []
+        # every car's monitor at once, for dense rewards and the Markov view; the view encodes its state
+        self._monitor: BatchPrefixMonitor | None = None
+        self._view: MonitorView | None = None
+        self._value = np.zeros(self.num_envs)  # the monitors' values after the last update
         monitor_scale = settings.monitor_scale
         self._potentials = (
             [HierarchicalPotential(self.formula, self.rho_max, monitor_scale) for _ in range(self.num_envs)]
@@ -96,13 +99,11 @@ class CarNavVectorEnv(VectorEnv):
         if self.reward_mode != "terminal" or self.observe_monitor:
             bounds = dict(zip(("x", "y"), zip(self.single_observation_space.low[:2],
                                                self.single_observation_space.high[:2])))
-            self._views = [
-                MonitorView(PrefixMonitor(self.formula, self.rho_max), monitor_scale, self.clip, self.params.horizon,
-                            bounds)
-                for _ in range(self.num_envs)
-            ]
+            self._view = MonitorView(PrefixMonitor(self.formula, self.rho_max), monitor_scale, self.clip,
+                                     self.params.horizon, bounds)
+            self._monitor = BatchPrefixMonitor(self.formula, self.num_envs, self.rho_max)
         if self.observe_monitor:
-            self.single_observation_space = augment_space(self.single_observation_space, self._views[0], MONITOR_KEY)
+            self.single_observation_space = augment_space(self.single_observation_space, self._view, MONITOR_KEY)
         self.single_action_space = ACTION_SPACE
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
@@ -150,16 +151,14 @@ class CarNavVectorEnv(VectorEnv):
 
     def _observe(self) -> np.ndarray:
         """The cars' observations; with ``observe_monitor``, each monitor updated with its car's position."""
-        if not self._views:
+        if self._monitor is None:
             return self._state.copy()
         t = self._t
-        states = [{"x": x, "y": y} for x, y in self._state[:, :2].tolist()]
-        if self.observe_monitor:
-            features = [view.observe(state, t) for view, state in zip(self._views, states)]
-        else:  # dense rewards only: the monitors' values, no features
-            for view, state in zip(self._views, states):
-                view.update(state, t)
+        if t == 0:
+            self._monitor.reset()
+        self._value = self._monitor.update({"x": self._state[:, 0], "y": self._state[:, 1]})
         if self._potentials:  # γ Φ(s') − Φ(s) of the step that led here, with Φ(s_T) = 0 at the last state
+            states = [{"x": x, "y": y} for x, y in self._state[:, :2].tolist()]
             if t == 0:
                 for potential in self._potentials:
                     potential.reset()
@@ -172,7 +171,7 @@ class CarNavVectorEnv(VectorEnv):
                 self._shaping, self._phi = self.gamma * phi - self._phi, phi
         if not self.observe_monitor:
             return self._state.copy()
-        return np.concatenate([self._state, np.array(features)], axis=1)
+        return np.concatenate([self._state, self._view.encode_rows(self._monitor.rows, t)], axis=1)  # type: ignore[union-attr]
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         if self._t < 0:
@@ -202,8 +201,7 @@ class CarNavVectorEnv(VectorEnv):
                 rewards = rewards + self._shaping
             return obs, rewards, done, ~done, infos
         if self.reward_mode != "terminal":
-            value = np.array([view.value for view in self._views])
-            rewards = np.clip(value, -self.clip, self.clip) - self._paid
+            rewards = np.clip(self._value, -self.clip, self.clip) - self._paid
             self._paid += rewards
         if self._potentials:
             rewards = rewards + self._shaping

@@ -88,18 +88,37 @@ class MonitorView:
         low: list[float] = []
         high: list[float] = []
         window_position = 0  # signal slots come in whole states, in the order of `names`
-        for slot in self.slots:
+        value_slots: list[int] = []  # the encoding's layout: where each slot goes
+        other_slots: list[int] = []
+        divisors: list[float] = []
+        for index, slot in enumerate(self.slots):
             if slot.kind == VALUE:
+                value_slots.append(index)
                 low += [-self.clip / self.scale, -1.0]
                 high += [self.clip / self.scale, 1.0]
-            elif slot.kind == SIGNAL:
+                continue
+            other_slots.append(index)
+            if slot.kind == SIGNAL:
                 signal_low, signal_high = bounds[window_position % len(names)]
                 low.append(signal_low / self.scale)
                 high.append(signal_high / self.scale)
+                divisors.append(self.scale)
                 window_position += 1
             else:
                 low.append(0.0)
                 high.append(1.0)
+                divisors.append(float(slot.bound))
+        kinds = [slot.kind for slot in self.slots]
+        starts = np.cumsum([0] + [2 if kind == VALUE else 1 for kind in kinds])  # each slot's first feature
+        self._value_slots, self._value_features = np.array(value_slots, dtype=np.intp), starts[value_slots]
+        self._flag_features = self._value_features + 1
+        self._other_slots, self._other_features = np.array(other_slots, dtype=np.intp), starts[other_slots]
+        self._divisors = np.array(divisors).reshape(-1, 1)
+        self._is_value = [kind == VALUE for kind in kinds]
+        self._slot_divisors = [self.scale if kind == VALUE else 0.0 for kind in kinds]  # values: scale (unused)
+        for index, divisor in zip(other_slots, divisors):
+            self._slot_divisors[index] = divisor
+        self._first = int(starts[-1])  # the feature `first`, then t / T
         low.append(0.0)  # first
         high.append(1.0)
         if self.horizon is not None:  # t / T
@@ -123,26 +142,38 @@ class MonitorView:
         return self.encode(self.monitor.state(), t)
 
     def encode(self, state: list[float], t: int) -> np.ndarray:
-        """The features of a monitor state at step ``t``."""
-        out = np.empty(self.size)
-        i = 0
-        for slot, value in zip(self.slots, state):
-            if slot.kind == VALUE:
-                if math.isinf(value):
-                    out[i], out[i + 1] = 0.0, math.copysign(1.0, value)
-                else:
-                    out[i], out[i + 1] = min(max(value, -self.clip), self.clip) / self.scale, 0.0
-                i += 2
-            elif slot.kind == SIGNAL:
-                out[i] = value / self.scale
-                i += 1
+        """The features of a monitor state at step ``t`` (floats, for one monitor: `encode_rows` is its array form)."""
+        clip, scale = self.clip, self.scale
+        features: list[float] = []
+        for is_value, divisor, value in zip(self._is_value, self._slot_divisors, state):
+            if not is_value:
+                features.append(value / divisor)
+            elif math.isinf(value):
+                features += (0.0, math.copysign(1.0, value))
             else:
-                out[i] = value / slot.bound
-                i += 1
-        out[i] = 1.0 if t == 0 else 0.0
+                features += (min(max(value, -clip), clip) / scale, 0.0)
+        features.append(1.0 if t == 0 else 0.0)
         if self.horizon is not None:
-            out[i + 1] = min(t / self.horizon, 1.0)  # an env that runs past its stated horizon stays at 1
-        return out
+            features.append(min(t / self.horizon, 1.0))  # an env that runs past its stated horizon stays at 1
+        return np.array(features)
+
+    def encode_rows(self, rows: np.ndarray, t: int) -> np.ndarray:
+        """`encode` of n monitor states at step ``t``, given slot-major ``(len(slots), n)``: the ``(n, size)`` features.
+
+        The same numbers as `encode` on each column (tested), in a fixed number of numpy calls:
+        the encoding of `tl_gym.tltl.online_batch.BatchPrefixMonitor.rows` in the batched car.
+        """
+        out = np.empty((self.size, rows.shape[1]))
+        values = rows[self._value_slots]
+        infinite = np.isinf(values)
+        clipped = np.minimum(np.maximum(values, -self.clip), self.clip)  # np.clip costs more on small arrays
+        out[self._value_features] = np.where(infinite, 0.0, clipped) / self.scale
+        out[self._flag_features] = np.where(infinite, np.sign(values), 0.0)
+        out[self._other_features] = rows[self._other_slots] / self._divisors
+        out[self._first] = 1.0 if t == 0 else 0.0
+        if self.horizon is not None:
+            out[self._first + 1] = min(t / self.horizon, 1.0)
+        return out.T
 
     # decoding (pure functions of the features) ----------------------------------------------
     def decode(self, features: Any) -> tuple[list[float], bool]:
