@@ -32,7 +32,7 @@ Example:
     >>> values.tolist()  # what three PrefixMonitor's report after their two states
     [1.0, 0.5, -1.0]
     >>> monitor.state().tolist()  # per trace: the running max of x - 2 and min of 5 - x
-    [[1.0, 2.0], [2.5, 0.5], [-1.0, -1.0]]
+    [[1.0, 2.0], [2.5, 0.5], [4.0, -1.0]]
 """
 
 from __future__ import annotations
