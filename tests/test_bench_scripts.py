@@ -132,3 +132,22 @@ def test_task_formula_is_the_envs_and_handwritten_phi1_on_a_path_ending_in_the_g
     x = y = np.array([[10.0, 250.0]])  # ends inside the goal
     assert float(task.formula.robustness({"x": x[0], "y": y[0]})) == 10.0
     np.testing.assert_array_equal(handwritten.phi1(task, x, y), [10.0])
+
+
+def test_agent_timing_alternates_and_reports_the_ratio(capsys):
+    from benchmarks import bench_agents
+
+    class Counter:  # an agent whose iterations are counted, in the order they run
+        def __init__(self, name, log):
+            self.name, self.log = name, log
+
+        def learn(self, iterations):
+            self.log.append(self.name)
+
+    log = []
+    times = bench_agents.time_iterations({"A": Counter("A", log), "B": Counter("B", log)}, iterations=2, warmup=1)
+    assert log == ["A", "B"] * 3 and {k: v.shape for k, v in times.items()} == {"A": (2, 2), "B": (2, 2)}
+    assert all((v >= 0).all() for v in times.values())
+    bench_agents.main(["--quick", "--task", "1", "--tlps", "solver_steps=1"])
+    out = capsys.readouterr().out
+    assert "{'solver_steps': 1}" in out and "| TLPS / REPS |" in out and "trust region" in out

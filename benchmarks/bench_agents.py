@@ -1,0 +1,67 @@
+"""Cost of one TLPS iteration against one REPS iteration on the car (issue 16's cost target).
+
+The agents are built side by side and their iterations alternate in one process (TLPS, REPS,
+TLPS, ...), so that a shared machine's load falls on both alike; each iteration is timed in CPU
+seconds of this process (``time.process_time``) and in wall-clock seconds. The first iterations
+are a warm-up. TLPS's own split (sampling, trust region) comes from its history.
+
+Usage: ``python -m benchmarks.bench_agents [--task 2] [--iterations 8] [--tlps key=value ...] [--quick]``
+(``--quick``: one iteration each, no warm-up; the CI smoke run). Prints a Markdown table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import os
+import time
+
+import numpy as np
+from tl_gym.agents import REPS, TLPS
+
+
+def time_iterations(agents: dict[str, object], iterations: int, warmup: int) -> dict[str, np.ndarray]:
+    """``{label: (iterations, 2) array of (CPU, wall) seconds}``, the agents' iterations alternating."""
+    times: dict[str, list[tuple[float, float]]] = {label: [] for label in agents}
+    for i in range(warmup + iterations):
+        for label, agent in agents.items():
+            cpu, wall = time.process_time(), time.perf_counter()
+            agent.learn(1)
+            if i >= warmup:
+                times[label].append((time.process_time() - cpu, time.perf_counter() - wall))
+    return {label: np.array(rows) for label, rows in times.items()}
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Print one row per agent and the TLPS / REPS ratio of median CPU and wall seconds per iteration."""
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.bench_agents", description=__doc__.split("\n")[0])
+    parser.add_argument("--task", type=int, default=2)
+    parser.add_argument("--iterations", type=int, default=8)
+    parser.add_argument("--warmup", type=int, default=2)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--tlps", nargs="*", default=[], metavar="KEY=VALUE", help="TLPS hyperparameters")
+    parser.add_argument("--quick", action="store_true", help="one iteration each, no warm-up")
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.iterations, args.warmup = 1, 0
+    tlps_kwargs = {key: ast.literal_eval(value) for key, value in (item.split("=", 1) for item in args.tlps)}
+    env = {"task": args.task}
+    agents = {"TLPS": TLPS("TLCarNav-v0", env_kwargs=env, seed=args.seed, **tlps_kwargs),
+              "REPS": REPS("TLCarNav-v0", env_kwargs=env, seed=args.seed)}
+    times = time_iterations(agents, args.iterations, args.warmup)
+    print(f"task {args.task}, N = 40 x 200 steps, {args.iterations} iterations after {args.warmup} of warm-up, "
+          f"TLPS {tlps_kwargs or 'defaults'}; load average {os.getloadavg()[0]:.1f}")
+    print("| agent | CPU s per iteration (median) | wall s per iteration (median) |\n|---|---|---|")
+    medians = {label: np.median(rows, axis=0) for label, rows in times.items()}
+    for label, (cpu, wall) in medians.items():
+        print(f"| {label} | {cpu:.3f} | {wall:.3f} |")
+    ratio = medians["TLPS"] / medians["REPS"]
+    history = agents["TLPS"].history[-args.iterations:]
+    split = {key: np.median([row[key] for row in history]) for key in ("time_sampling", "time_trust_region")}
+    print(f"| TLPS / REPS | {ratio[0]:.2f}x | {ratio[1]:.2f}x |")
+    print(f"TLPS's split (median wall s): sampling {split['time_sampling']:.3f}, "
+          f"trust region {split['time_trust_region']:.3f}")
+
+
+if __name__ == "__main__":
+    main()
