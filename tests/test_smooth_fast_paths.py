@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 from tests import reference as ref
 from tests import strategies as S
 from tl_gym import TraceError, parse
+from tl_gym.tltl import ast as nodes
 from tl_gym.tltl import smooth
 from tl_gym.tltl import trace as trace_module
 
@@ -178,8 +179,12 @@ def test_eventually_of_a_conjunction_skips_its_logarithm_and_keeps_its_values():
        S.batched_traces(max_length=5), st.sampled_from(smooth.FORMS), st.booleans(),
        st.sampled_from([True, *(frozenset({name}) for name in sorted(smooth.REWRITES))]))
 def test_rewritten_plan_equals_the_plain_plan(formula, trace, form, first, rewrites):
-    """The rewrites of the smoothing plan, all and each alone (position 0, linear predicates, F over &, spare
-    operands; gradient factors always), give the plain plan's values and gradients."""
+    """The rewrites of the smoothing plan, all and each alone (position 0, linear predicates, F over &;
+    gradient factors always), give the plain plan's values and gradients."""
+    if form == "linear":  # a T needed at position 0 only is smoothed nested (linear time there) in both forms,
+        # while the plain plan smooths every T in the linear form: another smoothing, not a rewrite of it
+        steps = smooth.plan_for(formula, first, form, rewrites).steps
+        assume(not any(step.first and isinstance(step.node, nodes.Then) for step in steps))
     n, length = trace["x"].shape
     signals = {k: np.ascontiguousarray(np.asarray(v, dtype=float).T) for k, v in trace.items()}
     magnitudes = {k: float(np.abs(v).max()) for k, v in trace.items()}

@@ -115,14 +115,6 @@ def _on_segments(group: _Group, step: Step, values: list) -> np.ndarray:
 # --------------------------------------------------------------------------- rewrites: position 0
 
 
-def _exclusive_prefix(ufunc: np.ufunc, values: np.ndarray, empty: Any) -> np.ndarray:
-    """``out[:, t] = ufunc`` over ``values[:, :t]`` (``empty`` at t = 0)."""
-    out = np.empty_like(values)
-    out[:, 0] = empty
-    ufunc.accumulate(values[:, :-1], axis=1, out=out[:, 1:])
-    return out
-
-
 def _next_at_zero(group: _Group, step: Step, values: list) -> np.ndarray:
     return group.full(group.alg.bottom, 1) if group.length == 1 else values[0][:, 1:2]
 
@@ -136,7 +128,9 @@ def _binary_at_zero(group: _Group, step: Step, values: list) -> np.ndarray:
     """U: max_t' min(ψ(t'), min_{t'' < t'} φ(t'')); T: the same with max_{t'' < t'}: one prefix scan."""
     alg = group.alg
     inner, empty = (alg.minimum, alg.empty_min) if isinstance(step.node, Until) else (alg.maximum, alg.empty_max)
-    before = _exclusive_prefix(inner, values[0], empty)
+    before = np.empty_like(values[0])  # [:, t'] = inner over φ(0 … t' − 1), empty at t' = 0
+    before[:, 0] = empty
+    inner.accumulate(values[0][:, :-1], axis=1, out=before[:, 1:])
     return alg.maximum.reduce(alg.minimum(values[1], before), axis=1, keepdims=True)
 
 

@@ -9,7 +9,8 @@ Eq. 17: it merges the max over time into the min (see the tests).
 Implementation. The formula's plan (`tl_gym.tltl.plan`) runs the smoothing rules of
 `tl_gym.tltl.operators` front to back, each returning its value and how to send a
 gradient back to its operands; the gradient runs the plan back to front. Torch sees
-the whole evaluation as one autograd Function.
+the whole evaluation as one autograd Function. At position 0 with numba installed
+(``backend="auto"``), the compiled kernel of `tl_gym.tltl.fused_smooth` runs the same rules.
 
 Rewrites of the plan, each tested equal to the plain plan (`tests/test_smooth_fast_paths.py`):
 
@@ -21,7 +22,6 @@ Rewrites of the plan, each tested equal to the plain plan (`tests/test_smooth_fa
   by their softmax total, instead of taking its logarithm;
 * **gradient factors**: a step whose gradient is a constant multiple of what it receives (β for a
   predicate) has that *gradient factor* applied by its reader, to the smaller array;
-* **spare operands**: a value read by one step only lends its memory to that step;
 * at position 0 the per-trajectory Jacobian is computed group by group during the
   forward pass and handed to torch without a copy (`_hand_over`).
 
@@ -32,11 +32,8 @@ neither values nor gradients can be NaN for β in (0, 1e6]; results beyond
 ±``_INF``/2 are reported as ±∞ with zero gradient, and a predicate whose β-scaled
 value reaches ±``_INF``/2 is refused (`_Group.check_range`).
 
-Cost. O(N·T) per node, except ``U``/``T`` evaluated at every position (when nested
-under another temporal operator): the prescribed nesting makes their inner
-max/min depend on both t and t', an O(N·T²) computation done in chunks of
-trajectories. ``form="linear"`` smooths such a ``T`` through an O(N·T) identity.
-A ``U``/``T`` needed only at position 0 stays linear in both forms.
+Cost. O(N·T) per node, except ``U``/``T`` needed at every position (nested under a temporal
+operator): O(N·T²) in chunks of trajectories; ``form="linear"`` smooths such a ``T`` in O(N·T).
 """
 
 from __future__ import annotations
@@ -63,7 +60,7 @@ FORMS = ("nested", "linear")
 _N_ARGS = 11  # non-tensor arguments of the autograd Function
 BACKENDS = ("auto", "numpy", "numba")
 
-# A step's function: (group, step, operand values, spare flags) -> (value, backward, gradient factor)
+# A step's function: (group, step, operand values) -> (value, backward, gradient factor)
 _Result = tuple[Any, Callable[[np.ndarray], Any], float]
 
 
@@ -185,10 +182,6 @@ class _Group:
         return margin_bound(node.lhs, node.rhs, tuple(self.magnitudes.items()))
 
 
-def _spare(group: _Group, step: Step) -> list[bool]:
-    return step.options.get("spare", [False] * len(step.inputs))
-
-
 # --------------------------------------------------------------------------- leaves
 
 
@@ -291,13 +284,12 @@ def _linear_predicate(group: _Group, step: Step, _: list) -> _Result:
 def _rule(group: _Group, step: Step, values: list) -> _Result:
     """The operator's rule of `tl_gym.tltl.operators`, at every position."""
     node = step.node
-    spare = _spare(group, step)
     if isinstance(node, nodes.Not):
         value, back = ops.smooth_not(values[0])
     elif isinstance(node, nodes.And):
-        value, back = ops.smooth_and(*values, spare=spare)
+        value, back = ops.smooth_and(*values)
     elif isinstance(node, nodes.Or):
-        value, back = ops.smooth_or(*values, spare=spare)
+        value, back = ops.smooth_or(*values)
     elif isinstance(node, nodes.Implies):
         value, back = ops.smooth_implies(*values)
     elif isinstance(node, nodes.Next):
@@ -354,7 +346,7 @@ def _over_time_at_zero(group: _Group, step: Step, values: list) -> _Result:
         extreme, child_total = values[0]
         reduced, exps, total = lse.reduce_forward(extreme, 0, sign, spare=True, divisor=child_total)
     else:
-        reduced, exps, total = lse.reduce_forward(values[0], 0, sign, _spare(group, step)[0])
+        reduced, exps, total = lse.reduce_forward(values[0], 0, sign)
 
     def backward(g: np.ndarray) -> tuple:  # ``g`` is (1, n): the child's gradient factor is already in it
         return (lse.reduce_backward(exps, total, g[0], 0),)
@@ -397,7 +389,7 @@ def _nary_linear(group: _Group, step: Step, values: list) -> _Result:
     node: nodes.And | nodes.Or = step.node  # type: ignore[assignment]
     sign = -1.0 if isinstance(node, nodes.And) else 1.0
     parts = step.options.get("parts", False)
-    out, exps, total = lse.reduce_operands(values, sign, _spare(group, step), value=not parts)
+    out, exps, total = lse.reduce_operands(values, sign, value=not parts)
     by_signal: dict[str, list[tuple[np.ndarray, float]]] = {}
     others: list[int] = []
     for k, (operand, e) in enumerate(zip(node.operands, exps)):
@@ -428,33 +420,18 @@ def _combine(first: np.ndarray, first_slope: float, rest: list[tuple[np.ndarray,
     """``scale · (first + Σ (slope / first_slope) · e)`` over ``rest``: a fresh array."""
     if not rest:
         return np.multiply(first, scale)
-    combined: np.ndarray | None = None
+    combined = first.copy()
     for e, slope in rest:
         ratio = slope / first_slope
-        if combined is None and ratio in (1.0, -1.0):
-            combined = np.add(first, e) if ratio > 0 else np.subtract(first, e)
-            continue
-        if combined is None:
-            combined = first.copy()
-        if ratio == 1.0:
-            combined += e
-        elif ratio == -1.0:
-            combined -= e
-        else:
-            combined += ratio * e
-    assert combined is not None
-    combined *= scale
-    return combined
+        (np.add if ratio > 0 else np.subtract)(combined, e if abs(ratio) == 1.0 else abs(ratio) * e, out=combined)
+    return np.multiply(combined, scale, out=combined)
 
 
 # --------------------------------------------------------------------------- compiling
 
 _DIRECT = (_nary_linear, _on_segments)  # rules whose backward also writes signal gradients itself
 
-_READS_OWN_VALUE = (nodes.Implies,)  # rules whose backward reads the value they returned (plus T in linear form)
-
-
-REWRITES = frozenset({"at_zero", "linear", "parts", "spare"})
+REWRITES = frozenset({"at_zero", "linear", "parts"})
 
 
 def plan_for(formula: Formula, first: bool, form: str, rewrite: bool | frozenset[str] = True) -> Plan:
@@ -485,24 +462,14 @@ def plan_for(formula: Formula, first: bool, form: str, rewrite: bool | frozenset
                     step.run = _nary_linear
             else:
                 raise TypeError(f"no smoothing rule for formula node {type(node).__name__}")
-        for step in steps:
-            # an operand read by this step alone, whose backward does not read its value, may be overwritten
-            spare = [steps[j].readers == 1 and not _reads_own_value(steps[j], form) for j in step.inputs]
-            if "spare" in rewrites:
-                step.options["spare"] = spare
-            node = step.node
-            if "parts" in rewrites and step.first and isinstance(node, (nodes.Eventually, nodes.Always)) and spare[0]:
-                child = steps[step.inputs[0]]
-                if isinstance(child.node, nodes.And if isinstance(node, nodes.Eventually) else nodes.Or):
+        for step in steps:  # F over & (G over |) at position 0, the & read by F alone: "parts"
+            if "parts" in rewrites and step.first and isinstance(step.node, (nodes.Eventually, nodes.Always)):
+                child, inner = steps[step.inputs[0]], nodes.And if isinstance(step.node, nodes.Eventually) else nodes.Or
+                if child.readers == 1 and isinstance(child.node, inner):
                     child.run, child.options["parts"], step.options["parts"] = _nary_linear, True, True
         return plan
 
     return cached(formula, ("smooth", first, form, rewrites), build)
-
-
-def _reads_own_value(step: Step, form: str) -> bool:
-    return isinstance(step.node, _READS_OWN_VALUE) or (
-        isinstance(step.node, nodes.Then) and form == "linear" and not step.first and not step.segments)
 
 
 @functools.lru_cache(maxsize=64)

@@ -207,16 +207,15 @@ def kernel(steps: Any, operands: Any, predicates: Any, code: Any, numbers: Any, 
             elif op == PRED:
                 start, stop, lhs, rhs, lk, rk = predicates[k]
                 expression(code, numbers, start, stop, X, sigs, i, nt)
-                xa, xb = X[lhs if lk == 0 else 0], X[rhs if rk == 0 else 0]
-                sa, sb = sigs[lhs if lk == 1 else 0][i], sigs[rhs if rk == 1 else 0][i]
-                na, nb = numbers[lhs if lk == 2 else 0], numbers[rhs if rk == 2 else 0]
+                # each side: a row of X (kind 0), a signal (1) or a number (2); the margin is sign · (lhs − rhs)
+                a = X[lhs] if lk == 0 else (sigs[lhs, i] if lk == 1 else np.full(nt, numbers[lhs]))
+                b = X[rhs] if rk == 0 else (sigs[rhs, i] if rk == 1 else np.full(nt, numbers[rhs]))
+                high, low = (a, b) if sign > 0 else (b, a)
                 for t in range(nt):
-                    va = xa[t] if lk == 0 else (sa[t] if lk == 1 else na)
-                    vb = xb[t] if rk == 0 else (sb[t] if rk == 1 else nb)
-                    value = beta * (va - vb if sign > 0 else vb - va)
-                    if not abs(value) < HALF:
+                    out[t] = beta * (high[t] - low[t])
+                for t in range(nt):
+                    if not abs(out[t]) < HALF:
                         return i
-                    out[t] = value
             elif op == NOT:
                 c = V[operands[o]]
                 for t in range(nt):
@@ -242,14 +241,12 @@ def kernel(steps: Any, operands: Any, predicates: Any, code: Any, numbers: Any, 
                     for t in range(nt):
                         e[t] = weight(sign * (c[t] - out[t]))
                         S[t] += e[t]
-                for t in range(nt):
+                for t in range(nt):  # most totals are 1: the other operands are more than 37 away
                     if S[t] != 1.0:
                         out[t] += sign * math.log(S[t])
-                        S[t] = 1.0 / S[t]
-                for r in range(m):
-                    e = W[w + r]
-                    for t in range(nt):
-                        e[t] *= S[t]
+                        q = 1.0 / S[t]
+                        for r in range(m):
+                            W[w + r, t] *= q
             elif op == IMPLIES:
                 a, b = V[operands[o]], V[operands[o + 1]]
                 for t in range(nt):
