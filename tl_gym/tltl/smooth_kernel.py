@@ -52,13 +52,13 @@ def expression(code: Any, numbers: Any, start: int, stop: int, X: Any, sigs: Any
     """Instructions ``start … stop − 1`` at positions ``0 … nt − 1``: each one's row of ``X``."""
     for j in range(start, stop):
         op, a, b = code[j, 0], code[j, 1], code[j, 2]
+        if op == NUM:  # its row is filled once per call
+            continue
         x, y, out = X[a], X[b], X[j]
         if op == VAR:
             signal = sigs[a]
             for t in range(nt):
                 out[t] = signal[i, t]
-        elif op == NUM:
-            out[:nt] = numbers[j]
         elif op == NEG:
             for t in range(nt):
                 out[t] = -x[t]
@@ -196,6 +196,9 @@ def kernel(steps: Any, operands: Any, predicates: Any, code: Any, numbers: Any, 
     X = np.empty((max(code.shape[0], 1), T))  # predicates' arithmetic
     D = np.zeros((max(code.shape[0], 1), T))
     S = np.empty(T)
+    for j in range(code.shape[0]):
+        if code[j, 0] == NUM:
+            X[j] = numbers[j]
     for i in range(n):
         # ---------------------------------------------------------------- forward
         for k in range(K):
@@ -208,8 +211,8 @@ def kernel(steps: Any, operands: Any, predicates: Any, code: Any, numbers: Any, 
                 start, stop, lhs, rhs, lk, rk = predicates[k]
                 expression(code, numbers, start, stop, X, sigs, i, nt)
                 # each side: a row of X (kind 0), a signal (1) or a number (2); the margin is sign · (lhs − rhs)
-                a = X[lhs] if lk == 0 else (sigs[lhs, i] if lk == 1 else np.full(nt, numbers[lhs]))
-                b = X[rhs] if rk == 0 else (sigs[rhs, i] if rk == 1 else np.full(nt, numbers[rhs]))
+                a = sigs[lhs, i] if lk == 1 else X[lhs]  # a number's row is filled once per call
+                b = sigs[rhs, i] if rk == 1 else X[rhs]
                 high, low = (a, b) if sign > 0 else (b, a)
                 for t in range(nt):
                     out[t] = beta * (high[t] - low[t])
