@@ -114,6 +114,15 @@ def test_a_copied_batch_continues_on_its_own(clone):
         assert np.array_equal(batch.state(), twin.state())
 
 
+@pytest.mark.parametrize("text", ["F(a > 0)", "F(a > 0) & G(a < 2)"])
+def test_returned_values_are_not_changed_by_later_updates(text):
+    batch = BatchPrefixMonitor(parse(text), 2)
+    first = batch.update({"a": np.array([0.5, 1.0])})
+    kept = first.copy()
+    batch.update({"a": np.array([1.5, 1.5])})
+    assert np.array_equal(first, kept)
+
+
 def test_errors_name_their_culprit():
     with pytest.raises(ValueError, match=r"'G \(a > 0 -> F b > 1\)' is outside the incremental fragment"):
         BatchPrefixMonitor(parse("F(a > 1) & G(a > 0 -> F b > 1)"), 2)

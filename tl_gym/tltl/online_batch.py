@@ -510,7 +510,7 @@ class BatchPrefixMonitor:
         for rule, operands in self._program:
             values[position] = rule(self._parts.alg, *(values[i] for i in operands))
             position += 1
-        return values[-1]
+        return values[-1] if self._program else values[-1].copy()  # a lone leaf's value is a view of its state
 
     @property
     def rows(self) -> np.ndarray:
