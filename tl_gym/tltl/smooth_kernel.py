@@ -158,19 +158,15 @@ def expression_backward(code: Any, start: int, stop: int, X: Any, D: Any, jac: A
 @njit(cache=True, error_model="numpy")
 def lse2(a: float, b: float) -> tuple[float, float, float]:
     """``log(exp(a) + exp(b))`` and the two softmax weights, the larger term factored out (numpy's way)."""
-    if a - b > 0.0:
-        d = b - a
-        if d < CUT:
-            return a, 1.0, 0.0
-        e = math.exp(d)
-        q = 1.0 / (1.0 + e)
-        return a + math.log(1.0 + e), q, e * q
-    d = a - b
+    big = a - b > 0.0
+    m = a if big else b
+    d = (b - a) if big else (a - b)  # ≤ 0
     if d < CUT:
-        return b, 0.0, 1.0
+        return m, (1.0 if big else 0.0), (0.0 if big else 1.0)
     e = math.exp(d)
     q = 1.0 / (1.0 + e)
-    return b + math.log(1.0 + e), e * q, q
+    eq = e * q
+    return m + math.log(1.0 + e), (q if big else eq), (eq if big else q)
 
 
 @njit(cache=True, error_model="numpy")
