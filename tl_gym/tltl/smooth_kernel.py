@@ -192,6 +192,7 @@ def kernel(steps: Any, operands: Any, predicates: Any, code: Any, numbers: Any, 
     X = np.empty((max(code.shape[0], 1), T))  # predicates' arithmetic
     D = np.zeros((max(code.shape[0], 1), T))
     S = np.empty(T)
+    Q = np.empty(K)  # 1 / softmax total of the reductions over time (F / G, U / T at position 0)
     for j in range(code.shape[0]):
         if code[j, 0] == NUM:
             X[j] = numbers[j]
@@ -212,7 +213,6 @@ def kernel(steps: Any, operands: Any, predicates: Any, code: Any, numbers: Any, 
                 high, low = (a, b) if sign > 0 else (b, a)
                 for t in range(nt):
                     out[t] = beta * (high[t] - low[t])
-                for t in range(nt):
                     if not abs(out[t]) < HALF:
                         return i
             elif op == NOT:
@@ -275,9 +275,7 @@ def kernel(steps: Any, operands: Any, predicates: Any, code: Any, numbers: Any, 
                     e[t] = weight(sign * (c[t] - p))
                     total += e[t]
                 out[0] = p if total == 1.0 else p + sign * math.log(total)
-                q = 1.0 / total
-                for t in range(T):
-                    e[t] *= q
+                Q[k] = 1.0 / total  # the weights are e / total: divided in the backward pass
             elif op == THEN_LINEAR:  # weights: ψ's suffix (new, running), φ and later in the smooth min, outer
                 a, b = V[operands[o]], V[operands[o + 1]]
                 later = -INF  # lse of ψ over t' > t: none at the last position
@@ -312,9 +310,7 @@ def kernel(steps: Any, operands: Any, predicates: Any, code: Any, numbers: Any, 
                     e[t] = weight(e[t] - p)
                     total += e[t]
                 out[0] = p if total == 1.0 else p + math.log(total)
-                q = 1.0 / total
-                for t in range(T):
-                    e[t] *= q
+                Q[k] = 1.0 / total
         root = V[K - 1, 0]
         z[i] = root
         if not grad:
@@ -372,9 +368,9 @@ def kernel(steps: Any, operands: Any, predicates: Any, code: Any, numbers: Any, 
                     acc += g[t]
                     c[t] += new[t] * acc
             elif op == REDUCE:
-                c, e = G[operands[o]], W[w]
+                c, e, h = G[operands[o]], W[w], g[0] * Q[k]
                 for t in range(T):
-                    c[t] += g[0] * e[t]
+                    c[t] += h * e[t]
             elif op == THEN_LINEAR:
                 a, b = G[operands[o]], G[operands[o + 1]]
                 outer, right, g_later = 0.0, 0.0, 0.0
@@ -389,13 +385,13 @@ def kernel(steps: Any, operands: Any, predicates: Any, code: Any, numbers: Any, 
                     b[t] += W[w, t] * right
                     g_later = g_inner * W[w + 3, t]
             elif op == BINARY_AT_ZERO:  # the prefix's gradient: wz[t] · B[t], B[t] = B[t+1] · wr[t+1] + g_prefix[t]
-                a, b = G[operands[o]], G[operands[o + 1]]
+                a, b, h = G[operands[o]], G[operands[o + 1]], g[0] * Q[k]
                 back, g_inner = 0.0, 0.0
                 for t in range(T - 1, -1, -1):
                     if t < T - 1:
                         back = back * W[w + 1, t + 1] + g_inner
                     a[t] += W[w, t] * back  # sign · sign = 1
-                    g_term = g[0] * W[w + 4, t]
+                    g_term = h * W[w + 4, t]
                     b[t] += g_term * W[w + 2, t]
                     g_inner = g_term * W[w + 3, t]
     return -1
