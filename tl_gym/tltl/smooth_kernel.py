@@ -170,6 +170,28 @@ def lse2(a: float, b: float) -> tuple[float, float, float]:
 
 
 @njit(cache=True, error_model="numpy")
+def add_term(m: float, s: float, value: float, y: float) -> tuple[float, float, float, float, float]:
+    """One step of a scan ``value = log Σ exp(terms)``, kept as ``m`` (the largest term) and ``s = Σ exp(term − m)``.
+
+    Returns the new ``m, s, value`` and the weights of ``y`` and of the previous sum in the new one. Only
+    ``m`` and ``s`` go from one step to the next (a max and a multiply-add): the ``exp`` and ``log`` of a
+    step do not wait for the previous step's, as they would in ``value = lse2(value, y)``.
+    """
+    if y > m:
+        d = m - y
+        r = s * math.exp(d) if d > CUT else 0.0  # the previous sum, rescaled to the new largest term
+        m, e = y, 1.0
+    else:
+        d = y - m
+        if d < CUT:  # y does not change 1 + its weight: nothing changes
+            return m, s, value, 0.0, 1.0
+        r, e = s, math.exp(d)
+    s = r + e
+    q = 1.0 / s
+    return m, s, (m if s == 1.0 else m + math.log(s)), e * q, r * q
+
+
+@njit(cache=True, error_model="numpy")
 def weight(d: float) -> float:
     """``exp(d)`` for d ≤ 0, and exactly 0 where it would not change a sum that contains 1."""
     if d == 0.0:
@@ -259,11 +281,11 @@ def kernel(steps: Any, operands: Any, predicates: Any, code: Any, numbers: Any, 
                     out[T - 1] = -top
             elif op == SUFFIX:  # F / G at every position: W[w] weighs the new term, W[w + 1] the running one
                 c = V[operands[o]]
-                acc = sign * c[T - 1]
+                m_, s_, acc = sign * c[T - 1], 1.0, sign * c[T - 1]
                 out[T - 1] = sign * acc
                 W[w, T - 1], W[w + 1, T - 1] = 1.0, 0.0
                 for t in range(T - 2, -1, -1):
-                    acc, W[w + 1, t], W[w, t] = lse2(acc, sign * c[t])
+                    m_, s_, acc, W[w, t], W[w + 1, t] = add_term(m_, s_, acc, sign * c[t])
                     out[t] = sign * acc
             elif op == REDUCE:  # F / G at position 0: W[w] holds the softmax weights over time
                 c, e = V[operands[o]], W[w]
@@ -279,21 +301,21 @@ def kernel(steps: Any, operands: Any, predicates: Any, code: Any, numbers: Any, 
             elif op == THEN_LINEAR:  # weights: ψ's suffix (new, running), φ and later in the smooth min, outer
                 a, b = V[operands[o]], V[operands[o + 1]]
                 later = -INF  # lse of ψ over t' > t: none at the last position
-                acc = 0.0
+                acc, lm, ls, am, as_ = 0.0, 0.0, 0.0, 0.0, 0.0  # the two scans' (largest term, scaled sum)
                 for t in range(T - 1, -1, -1):
                     m_, W[w + 2, t], W[w + 3, t] = lse2(-a[t], -later)
                     if t == T - 1:
-                        acc = -m_
+                        acc, am, as_ = -m_, -m_, 1.0
                         W[w + 4, t], W[w + 5, t] = 1.0, 0.0
-                        later = b[t]
+                        later, lm, ls = b[t], b[t], 1.0
                         W[w, t], W[w + 1, t] = 1.0, 0.0
                     else:
-                        acc, W[w + 5, t], W[w + 4, t] = lse2(acc, -m_)
-                        later, W[w + 1, t], W[w, t] = lse2(later, b[t])
+                        am, as_, acc, W[w + 4, t], W[w + 5, t] = add_term(am, as_, acc, -m_)
+                        lm, ls, later, W[w, t], W[w + 1, t] = add_term(lm, ls, later, b[t])
                     out[t] = acc
             else:  # BINARY_AT_ZERO: weights: prefix (new, running), ψ and inner in the smooth min, outer
                 a, b, e = V[operands[o]], V[operands[o + 1]], W[w + 4]
-                prefix = 0.0
+                prefix, pm, ps = 0.0, 0.0, 0.0
                 p = -INF
                 for t in range(T):
                     inner = -sign * INF if t == 0 else sign * prefix  # the empty inner reduction first
@@ -301,10 +323,10 @@ def kernel(steps: Any, operands: Any, predicates: Any, code: Any, numbers: Any, 
                     e[t] = -m_
                     p = -m_ if -m_ > p else p
                     if t == 0:
-                        prefix = sign * a[t]
+                        prefix, pm, ps = sign * a[t], sign * a[t], 1.0
                         W[w, t], W[w + 1, t] = 1.0, 0.0
                     else:
-                        prefix, W[w + 1, t], W[w, t] = lse2(prefix, sign * a[t])
+                        pm, ps, prefix, W[w, t], W[w + 1, t] = add_term(pm, ps, prefix, sign * a[t])
                 total = 0.0
                 for t in range(T):
                     e[t] = weight(e[t] - p)
