@@ -117,7 +117,26 @@ def test_undefined_or_too_large_predicates_are_refused_as_by_numpy(text, trace):
     assert str(error.value) == str(numpy_error.value)
 
 
-def test_the_default_backend_runs_the_kernel_and_torch_gets_its_gradient():
+def test_auto_loads_the_kernel_once_numpy_smoothing_has_cost_the_process_enough(monkeypatch):
+    calls = []
+    kernel = fused_smooth.at_position_zero
+    monkeypatch.setattr(fused_smooth, "at_position_zero", lambda *a: calls.append(1) or kernel(*a))
+    monkeypatch.setattr(fused_smooth, "_KERNEL_MODULE", "not loaded")  # as in a process that has not loaded it
+    monkeypatch.setattr(fused_smooth, "_SPENT", [0.0])
+    monkeypatch.setattr(fused_smooth, "AUTO_SECONDS", math.inf)
+    formula, trace = parse("F(x > 1) & G(y < 3)"), {"x": np.array([[0.0, 2.0, 1.5]]), "y": np.array([[1.0, 2.0, 0.0]])}
+    expected = formula.smooth_robustness(trace, 2.0, backend="numpy")
+    assert formula.smooth_robustness(trace, 2.0) == expected and not calls  # numpy, and its time counted
+    assert fused_smooth._SPENT[0] > 0
+    monkeypatch.setattr(fused_smooth, "AUTO_SECONDS", fused_smooth._SPENT[0])
+    np.testing.assert_allclose(formula.smooth_robustness(trace, 2.0), expected, rtol=1e-12)
+    assert calls == [1]
+    formula.smooth_robustness(trace, 2.0, backend="numpy")
+    assert calls == [1]
+
+
+def test_the_default_backend_runs_the_kernel_and_torch_gets_its_gradient(monkeypatch):
+    monkeypatch.setattr(fused_smooth, "AUTO_SECONDS", 0.0)
     formula = task_formula(2, "leave")
     rng = np.random.default_rng(2)
     x, y = rng.uniform(0, 300, (2, 4, 30))
@@ -147,3 +166,13 @@ def test_without_numba_the_numpy_smoother_answers(monkeypatch):
     assert value == formula.smooth_robustness(trace, 2.0, backend="numpy")
     with pytest.raises(ValueError, match="backend"):
         formula.smooth_robustness(trace, 2.0, backend="jax")
+
+
+def test_terms_under_steep_predicates_are_not_cut():
+    """A term 45 below the smooth min, under sqrt(|x|) at x = 5.6e-135: its weight (3e-20) times its slope
+    (7e66) is most of the gradient, so below non-linear predicates the kernel exponentiates every term."""
+    formula = parse("x < 0 & X(0 < sqrt(abs(x)))")
+    expected, got = _both(formula, {"x": np.array([[5.0, 5.55771789e-135]])}, 9.0)
+    assert abs(expected[1]["x"][0, 1]) > 1e40
+    _assert_equal(expected, got)
+    assert fused_smooth.program_for(formula, "nested").cuts.tolist() == [-37.0, -700.0, -700.0, -700.0]

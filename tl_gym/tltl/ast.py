@@ -391,7 +391,8 @@ class Formula:
         O(T) smoothing with the same limit and bracket (see `tl_gym.tltl.smooth`).
         ``backend="auto"`` (the default) computes it with a kernel compiled once per machine
         when numba is installed (``tl_gym[fast]``; `tl_gym.tltl.fused_smooth`, equal to the
-        numpy plan to rounding), else with the numpy plan; ``"numpy"`` forces the plan.
+        numpy plan to rounding) once the process has spent a second smoothing with numpy, else
+        with the numpy plan; ``"numba"`` uses the kernel at once, ``"numpy"`` never.
         """
         from tl_gym.tltl import smooth
 

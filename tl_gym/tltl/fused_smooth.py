@@ -36,15 +36,27 @@ raises its error). Values and gradients equal the numpy smoother's to rounding
 
 from __future__ import annotations
 
+import math
+import sys
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from tl_gym.tltl import ast as nodes
+from tl_gym.tltl import fused
 from tl_gym.tltl.expressions import postorder
-from tl_gym.tltl.operators import SIGN
+from tl_gym.tltl.operators import INF, SIGN
 from tl_gym.tltl.plan import Plan, cached, compile_plan
+
+# A term more than CUT below the largest (β units) is not exponentiated: exp(-37) < 2⁻⁵³, so 1 + its weight
+# is 1 and the value does not change; its own gradient (its weight times the derivative below it) is
+# dropped. Below steps whose predicates are all signals against numbers or signals, that derivative is
+# ±1 (times weights ≤ 1), so the error is below 1e-16 a term. Elsewhere (sqrt, log, division... may have
+# any slope) the kernel exponentiates down to numpy's own floor (`tl_gym.tltl.lse`).
+CUT, EXP_FLOOR = -37.0, -700.0
 
 # step codes
 CONST, PRED, NOT, NARY, IMPLIES, NEXT, SUFFIX, REDUCE, THEN_LINEAR, BINARY_AT_ZERO = range(10)
@@ -60,6 +72,7 @@ class Program:
 
     names: tuple[str, ...]  # the signals, in argument order
     steps: np.ndarray  # (n_steps, 6) int64: code, first, sign (±1), start of operands, their count, weight row
+    cuts: np.ndarray  # float64 per step: terms further below the largest than this are not exponentiated
     operands: np.ndarray  # int64: the operand steps of every step, concatenated
     predicates: np.ndarray  # (n_steps, 6) int64: instructions start, stop; lhs, rhs; their kinds (row, signal, number)
     code: np.ndarray  # (n_instructions, 3) int64: code, operand a (or signal), operand b
@@ -71,6 +84,31 @@ def program_for(formula: nodes.Formula, form: str) -> Program | None:
     """The formula's program for ``form`` (built once, kept on the formula), or None if not covered."""
     return cached(formula, ("fused_smooth", form), lambda: encode(compile_plan(formula, True), formula.signals,
                                                                 form) or False) or None
+
+
+AUTO_SECONDS = 1.0  # numpy smoothing time a process spends before backend="auto" loads the kernel (1-4 s)
+_SPENT = [0.0]  # numpy smoothing time of this process under "auto"
+
+
+def or_numpy(backend: str, formula: nodes.Formula, signals: dict[str, np.ndarray], beta: float, rho_max: float,
+             form: str, jacobian: bool, numpy: Callable[[], Any]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """`at_position_zero` when it applies and pays, else ``numpy()`` (the numpy smoother's answer).
+
+    "numba" uses the kernel whenever numba is installed (warning once if not). "auto" does so once the
+    kernel is loaded in this process, or once the process has spent `AUTO_SECONDS` smoothing with numpy:
+    loading the kernel costs 1-4 s per process (compiling it, once per machine, about a minute on this
+    2-core machine), so one-off calls never wait for it and a training run loads it within seconds.
+    """
+    if fused.wanted(backend) and (backend == "numba" or _SPENT[0] >= AUTO_SECONDS or _KERNEL_MODULE in sys.modules):
+        top = min(beta * rho_max, INF) if math.isfinite(rho_max) else INF
+        out = at_position_zero(formula, signals, beta, top, form, jacobian)
+        if out is not None:
+            return out
+    start = time.perf_counter()
+    result = numpy()
+    if backend == "auto":
+        _SPENT[0] += time.perf_counter() - start
+    return result
 
 
 def at_position_zero(formula: nodes.Formula, signals: dict[str, np.ndarray], beta: float, top: float, form: str,
@@ -90,7 +128,7 @@ def at_position_zero(formula: nodes.Formula, signals: dict[str, np.ndarray], bet
     _, n, length = stacked.shape
     z = np.empty(n)
     jac = np.empty((len(arrays), n, length) if jacobian else (len(arrays), 0, 0))
-    if _kernel()(program.steps, program.operands, program.predicates, program.code, program.numbers,
+    if _kernel()(program.steps, program.cuts, program.operands, program.predicates, program.code, program.numbers,
                  program.weights, float(beta), float(top), jacobian, z, jac, stacked) >= 0:
         return None
     return z[None], ({name: jac[c] for c, name in enumerate(program.names)} if jacobian else {})
@@ -110,6 +148,7 @@ def encode(plan: Plan, names: tuple[str, ...], form: str) -> Program | None:
     numbers: list[float] = []
     weights = 0
     nary: list[tuple[int, type, tuple[int, ...]]] = []  # (step, type, operands) of the n-ary steps so far
+    linear: list[bool] = []  # every predicate below the step is a signal against a number or a signal
     for k, step in enumerate(plan.steps):
         node, ins = step.node, list(step.inputs)
         sign, size, expression = 1, 0, [0, 0, 0, 0, 0, 0]
@@ -151,11 +190,13 @@ def encode(plan: Plan, names: tuple[str, ...], form: str) -> Program | None:
             kind, sign, size = BINARY_AT_ZERO, (-1 if isinstance(node, nodes.Until) else 1), 5
         else:
             return None
+        linear.append(all(linear[j] for j in step.inputs) and (kind != PRED or 0 not in expression[4:]))
         steps.append([kind, int(step.first), sign, len(operands), len(ins), weights])
         operands += ins
         predicates.append(expression)
         weights += size
-    return Program(names, np.array(steps, dtype=np.int64), np.array(operands + [0], dtype=np.int64),
+    cuts = np.array([CUT if flag else EXP_FLOOR for flag in linear])
+    return Program(names, np.array(steps, dtype=np.int64), cuts, np.array(operands + [0], dtype=np.int64),
                    np.array(predicates, dtype=np.int64), np.array(code + [[0, 0, 0]], dtype=np.int64),
                    np.array(numbers + [0.0]), max(weights, 1))
 
@@ -214,6 +255,9 @@ def _expression(expr: nodes.Expr, names: tuple[str, ...], code: list[list[int]],
         numbers.append(e.value if isinstance(e, nodes.Num) else 0.0)
         stack.append(len(code) - 1)
     return stack[0]
+
+
+_KERNEL_MODULE = "tl_gym.tltl.smooth_kernel"
 
 
 def _kernel() -> Any:

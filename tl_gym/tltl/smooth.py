@@ -47,7 +47,7 @@ import numpy as np
 
 from tl_gym.errors import TraceError
 from tl_gym.tltl import ast as nodes
-from tl_gym.tltl import fused, fused_smooth, lse
+from tl_gym.tltl import fused_smooth, lse
 from tl_gym.tltl import operators as ops
 from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.expressions import evaluate_with_gradient, margin_bound
@@ -522,11 +522,10 @@ def _at_position_zero(formula: Formula, signals: dict[str, np.ndarray], n: int, 
     stays in cache instead of a tape of whole-batch arrays. ``backend`` other than "numpy":
     the compiled kernel of `tl_gym.tltl.fused_smooth` answers where it covers the formula.
     """
-    if backend != "numpy" and fused.wanted(backend):
-        top = min(beta * rho_max, _INF) if math.isfinite(rho_max) else _INF
-        fast = fused_smooth.at_position_zero(formula, signals, beta, top, form, jacobian)
-        if fast is not None:
-            return fast
+    if backend != "numpy":  # the compiled kernel where it applies and pays, else this function with "numpy"
+        return fused_smooth.or_numpy(backend, formula, signals, beta, rho_max, form, jacobian,
+                                     lambda: _at_position_zero(formula, signals, n, length, beta, rho_max, form,
+                                                               magnitudes, jacobian))
     z = np.empty((1, n))
     jac: dict[str, np.ndarray] = {}
     signals = {k: np.ascontiguousarray(v) for k, v in signals.items()}  # a no-op for the usual (N, T) arrays
@@ -681,9 +680,9 @@ def smooth_robustness(
     ``form="linear"`` smooths ``φ T ψ`` nested under a temporal operator through the
     identity ρ(φ T ψ, t) = max_{s ≥ t} min(φ(s), max_{t' > s} ψ(t')) in O(T) instead of
     the prescribed O(T²) nesting (same limit as β → ∞, same Lemma 1 bracket).
-    ``backend``: "auto" runs the compiled kernel of `tl_gym.tltl.fused_smooth` when numba is
-    installed and the kernel covers the formula, else the numpy plan; "numpy" always the plan;
-    "numba" as "auto", warning once if numba is missing.
+    ``backend``: "numba" runs the compiled kernel of `tl_gym.tltl.fused_smooth` where it covers the
+    formula (warning once if numba is missing); "auto" does so once it pays (`fused_smooth.or_numpy`);
+    "numpy" always runs the plan.
     """
     return _smooth(formula, trace, beta, rho_max, form, first_only=True, backend=backend)
 

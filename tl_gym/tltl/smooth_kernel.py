@@ -44,7 +44,6 @@ from tl_gym.tltl.fused_smooth import (
 )
 from tl_gym.tltl.operators import INF
 
-CUT = -37.0  # exp(-37) < 2⁻⁵³: such a term does not change 1 + its weight
 HALF = INF / 2  # |β·margin| from here on cannot be told from ±∞
 
 @njit(cache=True, error_model="numpy")
@@ -156,12 +155,12 @@ def expression_backward(code: Any, start: int, stop: int, X: Any, D: Any, jac: A
 
 
 @njit(cache=True, error_model="numpy")
-def lse2(a: float, b: float) -> tuple[float, float, float]:
+def lse2(a: float, b: float, cut: float) -> tuple[float, float, float]:
     """``log(exp(a) + exp(b))`` and the two softmax weights, the larger term factored out (numpy's way)."""
     big = a - b > 0.0
     m = a if big else b
     d = (b - a) if big else (a - b)  # ≤ 0
-    if d < CUT:
+    if d < cut:
         return m, (1.0 if big else 0.0), (0.0 if big else 1.0)
     e = math.exp(d)
     q = 1.0 / (1.0 + e)
@@ -170,7 +169,7 @@ def lse2(a: float, b: float) -> tuple[float, float, float]:
 
 
 @njit(cache=True, error_model="numpy")
-def add_term(m: float, s: float, value: float, y: float) -> tuple[float, float, float, float, float]:
+def add_term(m: float, s: float, value: float, y: float, cut: float) -> tuple[float, float, float, float, float]:
     """One step of a scan ``value = log Σ exp(terms)``, kept as ``m`` (the largest term) and ``s = Σ exp(term − m)``.
 
     Returns the new ``m, s, value`` and the weights of ``y`` and of the previous sum in the new one. Only
@@ -179,11 +178,11 @@ def add_term(m: float, s: float, value: float, y: float) -> tuple[float, float, 
     """
     if y > m:
         d = m - y
-        r = s * math.exp(d) if d > CUT else 0.0  # the previous sum, rescaled to the new largest term
+        r = s * math.exp(d) if d > cut else 0.0  # the previous sum, rescaled to the new largest term
         m, e = y, 1.0
     else:
         d = y - m
-        if d < CUT:  # y does not change 1 + its weight: nothing changes
+        if d < cut:  # y does not change 1 + its weight: nothing changes
             return m, s, value, 0.0, 1.0
         r, e = s, math.exp(d)
     s = r + e
@@ -192,15 +191,15 @@ def add_term(m: float, s: float, value: float, y: float) -> tuple[float, float, 
 
 
 @njit(cache=True, error_model="numpy")
-def weight(d: float) -> float:
+def weight(d: float, cut: float) -> float:
     """``exp(d)`` for d ≤ 0, and exactly 0 where it would not change a sum that contains 1."""
     if d == 0.0:
         return 1.0
-    return math.exp(d) if d > CUT else 0.0
+    return math.exp(d) if d > cut else 0.0
 
 
 @njit(cache=True, error_model="numpy")
-def kernel(steps: Any, operands: Any, predicates: Any, code: Any, numbers: Any, n_weights: int, beta: float,
+def kernel(steps: Any, cuts: Any, operands: Any, predicates: Any, code: Any, numbers: Any, n_weights: int, beta: float,
            top: float, grad: bool, z: Any, jac: Any, sigs: Any) -> int:
     """Smoothed values at position 0 into ``z`` (β units) and, with ``grad``, their gradients into ``jac``.
 
@@ -222,7 +221,7 @@ def kernel(steps: Any, operands: Any, predicates: Any, code: Any, numbers: Any, 
         # ---------------------------------------------------------------- forward
         for k in range(K):
             op, first, sign, o, m, w = steps[k, 0], steps[k, 1], steps[k, 2], steps[k, 3], steps[k, 4], steps[k, 5]
-            nt = 1 if first else T
+            nt, cut = (1 if first else T), cuts[k]
             out = V[k]
             if op == CONST:
                 out[:nt] = sign * top
@@ -244,7 +243,7 @@ def kernel(steps: Any, operands: Any, predicates: Any, code: Any, numbers: Any, 
             elif op == NARY and m == 2:  # two operands: one pass (W[w], W[w + 1]: their weights)
                 a, b = V[operands[o]], V[operands[o + 1]]
                 for t in range(nt):
-                    out[t], W[w, t], W[w + 1, t] = lse2(sign * a[t], sign * b[t])
+                    out[t], W[w, t], W[w + 1, t] = lse2(sign * a[t], sign * b[t], cut)
                     out[t] *= sign
             elif op == NARY:  # out holds the extreme, S the softmax total, W[w + r] operand r's weight
                 out[:nt] = V[operands[o], :nt]
@@ -260,7 +259,7 @@ def kernel(steps: Any, operands: Any, predicates: Any, code: Any, numbers: Any, 
                 for r in range(m):
                     c, e = V[operands[o + r]], W[w + r]
                     for t in range(nt):
-                        e[t] = weight(sign * (c[t] - out[t]))
+                        e[t] = weight(sign * (c[t] - out[t]), cut)
                         S[t] += e[t]
                 for t in range(nt):  # most totals are 1: the other operands are more than 37 away
                     if S[t] != 1.0:
@@ -271,7 +270,7 @@ def kernel(steps: Any, operands: Any, predicates: Any, code: Any, numbers: Any, 
             elif op == IMPLIES:
                 a, b = V[operands[o]], V[operands[o + 1]]
                 for t in range(nt):
-                    out[t], W[w, t], W[w + 1, t] = lse2(-a[t], b[t])
+                    out[t], W[w, t], W[w + 1, t] = lse2(-a[t], b[t], cut)
             elif op == NEXT:
                 c = V[operands[o]]
                 if first:
@@ -285,7 +284,7 @@ def kernel(steps: Any, operands: Any, predicates: Any, code: Any, numbers: Any, 
                 out[T - 1] = sign * acc
                 W[w, T - 1], W[w + 1, T - 1] = 1.0, 0.0
                 for t in range(T - 2, -1, -1):
-                    m_, s_, acc, W[w, t], W[w + 1, t] = add_term(m_, s_, acc, sign * c[t])
+                    m_, s_, acc, W[w, t], W[w + 1, t] = add_term(m_, s_, acc, sign * c[t], cut)
                     out[t] = sign * acc
             elif op == REDUCE:  # F / G at position 0: W[w] holds the softmax weights over time
                 c, e = V[operands[o]], W[w]
@@ -294,7 +293,7 @@ def kernel(steps: Any, operands: Any, predicates: Any, code: Any, numbers: Any, 
                     p = (c[t] if c[t] > p else p) if sign > 0 else (c[t] if c[t] < p else p)
                 total = 0.0
                 for t in range(T):
-                    e[t] = weight(sign * (c[t] - p))
+                    e[t] = weight(sign * (c[t] - p), cut)
                     total += e[t]
                 out[0] = p if total == 1.0 else p + sign * math.log(total)
                 Q[k] = 1.0 / total  # the weights are e / total: divided in the backward pass
@@ -303,15 +302,15 @@ def kernel(steps: Any, operands: Any, predicates: Any, code: Any, numbers: Any, 
                 later = -INF  # lse of ψ over t' > t: none at the last position
                 acc, lm, ls, am, as_ = 0.0, 0.0, 0.0, 0.0, 0.0  # the two scans' (largest term, scaled sum)
                 for t in range(T - 1, -1, -1):
-                    m_, W[w + 2, t], W[w + 3, t] = lse2(-a[t], -later)
+                    m_, W[w + 2, t], W[w + 3, t] = lse2(-a[t], -later, cut)
                     if t == T - 1:
                         acc, am, as_ = -m_, -m_, 1.0
                         W[w + 4, t], W[w + 5, t] = 1.0, 0.0
                         later, lm, ls = b[t], b[t], 1.0
                         W[w, t], W[w + 1, t] = 1.0, 0.0
                     else:
-                        am, as_, acc, W[w + 4, t], W[w + 5, t] = add_term(am, as_, acc, -m_)
-                        lm, ls, later, W[w, t], W[w + 1, t] = add_term(lm, ls, later, b[t])
+                        am, as_, acc, W[w + 4, t], W[w + 5, t] = add_term(am, as_, acc, -m_, cut)
+                        lm, ls, later, W[w, t], W[w + 1, t] = add_term(lm, ls, later, b[t], cut)
                     out[t] = acc
             else:  # BINARY_AT_ZERO: weights: prefix (new, running), ψ and inner in the smooth min, outer
                 a, b, e = V[operands[o]], V[operands[o + 1]], W[w + 4]
@@ -319,17 +318,17 @@ def kernel(steps: Any, operands: Any, predicates: Any, code: Any, numbers: Any, 
                 p = -INF
                 for t in range(T):
                     inner = -sign * INF if t == 0 else sign * prefix  # the empty inner reduction first
-                    m_, W[w + 2, t], W[w + 3, t] = lse2(-b[t], -inner)
+                    m_, W[w + 2, t], W[w + 3, t] = lse2(-b[t], -inner, cut)
                     e[t] = -m_
                     p = -m_ if -m_ > p else p
                     if t == 0:
                         prefix, pm, ps = sign * a[t], sign * a[t], 1.0
                         W[w, t], W[w + 1, t] = 1.0, 0.0
                     else:
-                        pm, ps, prefix, W[w, t], W[w + 1, t] = add_term(pm, ps, prefix, sign * a[t])
+                        pm, ps, prefix, W[w, t], W[w + 1, t] = add_term(pm, ps, prefix, sign * a[t], cut)
                 total = 0.0
                 for t in range(T):
-                    e[t] = weight(e[t] - p)
+                    e[t] = weight(e[t] - p, cut)
                     total += e[t]
                 out[0] = p if total == 1.0 else p + math.log(total)
                 Q[k] = 1.0 / total
