@@ -175,3 +175,28 @@ def test_deep_chains_agree_with_the_reference(formula, trace, beta):
     np.testing.assert_allclose(smooth[finite], expected_smooth[finite], rtol=1e-7, atol=1e-7)
     assert parse(str(formula)) == formula
 
+
+
+@pytest.mark.parametrize("op", [Until, Then])
+def test_a_chain_nested_through_left_operands_is_evaluated_once_per_prefix(op, monkeypatch):
+    """((x > 0 U x > 1) U x > 2) U ...: each temporal left operand is judged on every prefix, once.
+
+    Without sharing the prefixes' values the cost grows as T**depth (a depth-10 chain on 20 states took
+    27 s); with it, each of the chain's operators runs its left operand's plan once per prefix length.
+    """
+    from tl_gym.tltl import exact
+
+    depth, length = 5, 7
+    chain: Formula = parse("x > 0")
+    for i in range(depth):
+        chain = op(chain, parse(f"x > {i + 1}"))
+    rng = np.random.default_rng(3)
+    trace = {"x": rng.uniform(-1, 7, size=(3, length))}
+    runs = []
+    original = exact.run
+    monkeypatch.setattr(exact, "run", lambda plan, group: runs.append(group.length) or original(plan, group))
+    values = chain.robustness(trace)
+    assert len(runs) <= 1 + depth * length  # the root's plan, then each left operand once per prefix
+    expected = reference.robustness(chain, trace)
+    np.testing.assert_allclose(values, expected, rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(chain.satisfied(trace), reference.satisfied(chain, trace))

@@ -14,14 +14,16 @@ Rewrites of the plan, each giving the plain plan's values (`tests/test_exact_fas
   the extreme of e over time and applies f to it alone (`_monotone_extreme`).
 
 Every operator costs O(N·T), except ``U``/``T`` whose left operand is temporal: that operand
-must be judged on every truncated segment, O(N·T²) time (and O(N·T) memory).
+must be judged on every truncated segment, O(N·T²) time (and O(N·T) memory). A prefix of a prefix
+is a prefix, so such operands share their values per prefix (`_Group.on_prefix`): a chain of n
+``U`` nested through their left operands runs n·T sub-plans, not T^n.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -44,14 +46,18 @@ class _Group:
     length: int
     magnitudes: dict[str, float]
     first_row: int  # index of the group's first trajectory in the caller's batch
+    on_prefix: dict[tuple[int, int], np.ndarray] = field(default_factory=dict)  # shared with every prefix
 
     def full(self, value: Any, length: int | None = None) -> np.ndarray:
         return np.full((self.n, self.length if length is None else length), value, dtype=self.alg.dtype)
 
-    def prefix(self, length: int) -> _Group:
-        """The same trajectories truncated to s_0 … s_{length-1}."""
-        return _Group(self.alg, {k: v[:, :length] for k, v in self.signals.items()}, self.n, length,
-                      self.magnitudes, self.first_row)
+    def on(self, plan: Plan, length: int) -> np.ndarray:
+        """``plan`` on the truncated s_0 … s_{length-1}, run once per plan and length (module docstring)."""
+        if (id(plan), length) not in self.on_prefix:
+            prefix = _Group(self.alg, {k: v[:, :length] for k, v in self.signals.items()}, self.n, length,
+                            self.magnitudes, self.first_row, self.on_prefix)
+            self.on_prefix[id(plan), length] = run(plan, prefix)
+        return self.on_prefix[id(plan), length]
 
 
 def run(plan: Plan, group: _Group) -> np.ndarray:
@@ -108,7 +114,7 @@ def _operator(group: _Group, step: Step, values: list) -> np.ndarray:
 
 def _on_segments(group: _Group, step: Step, values: list) -> np.ndarray:
     sub = plan_for(step.node.left, False, group.alg.boolean)  # type: ignore[attr-defined]
-    out = ops.exact_on_segments(group.alg, step.node, lambda k: run(sub, group.prefix(k)), values[0])  # type: ignore[arg-type]
+    out = ops.exact_on_segments(group.alg, step.node, lambda k: group.on(sub, k), values[0])  # type: ignore[arg-type]
     return out[:, :1] if step.first else out
 
 
@@ -149,10 +155,9 @@ def _monotone_parts(node: Formula) -> tuple[Call, float, bool] | None:
     """``(f(e), c, grows)`` for a predicate ``f(e) ⋈ c`` (or ``c ⋈ f(e)``) with f increasing, else None."""
     if not isinstance(node, Predicate):
         return None
-    if isinstance(node.lhs, Call) and node.lhs.func in _MONOTONE and isinstance(node.rhs, Num):
-        return node.lhs, node.rhs.value, ops.SIGN[node.op] > 0
-    if isinstance(node.rhs, Call) and node.rhs.func in _MONOTONE and isinstance(node.lhs, Num):
-        return node.rhs, node.lhs.value, ops.SIGN[node.op] < 0
+    for call, number, side in ((node.lhs, node.rhs, 1), (node.rhs, node.lhs, -1)):
+        if isinstance(call, Call) and call.func in _MONOTONE and isinstance(number, Num):
+            return call, number.value, side * ops.SIGN[node.op] > 0
     return None
 
 
