@@ -151,3 +151,11 @@ def test_agent_timing_alternates_and_reports_the_ratio(capsys):
     bench_agents.main(["--quick", "--task", "1", "--tlps", "solver_steps=1"])
     out = capsys.readouterr().out
     assert "{'solver_steps': 1}" in out and "| TLPS / REPS |" in out and "trust region" in out
+
+
+def test_the_linear_smoother_target_reads_the_alternated_pair():
+    from benchmarks.bench_robustness import targets
+
+    met, missed = targets([], linear_alternated=(0.002, 0.0005)), targets([], linear_alternated=(0.003, 0.0005))
+    assert any("**4.00×**" in line and "target ≤ 5×: met" in line for line in met)
+    assert any("**6.00×**" in line and "target ≤ 5×: not met" in line for line in missed)
