@@ -88,17 +88,13 @@ class MonitorView:
         low: list[float] = []
         high: list[float] = []
         window_position = 0  # signal slots come in whole states, in the order of `names`
-        value_slots: list[int] = []  # the encoding's layout: where each slot goes
-        other_slots: list[int] = []
-        divisors: list[float] = []
-        for index, slot in enumerate(self.slots):
+        divisors: list[float] = []  # each slot's scale (a value's is applied after clipping)
+        for slot in self.slots:
             if slot.kind == VALUE:
-                value_slots.append(index)
                 low += [-self.clip / self.scale, -1.0]
                 high += [self.clip / self.scale, 1.0]
-                continue
-            other_slots.append(index)
-            if slot.kind == SIGNAL:
+                divisors.append(self.scale)
+            elif slot.kind == SIGNAL:
                 signal_low, signal_high = bounds[window_position % len(names)]
                 low.append(signal_low / self.scale)
                 high.append(signal_high / self.scale)
@@ -108,16 +104,15 @@ class MonitorView:
                 low.append(0.0)
                 high.append(1.0)
                 divisors.append(float(slot.bound))
-        kinds = [slot.kind for slot in self.slots]
-        starts = np.cumsum([0] + [2 if kind == VALUE else 1 for kind in kinds])  # each slot's first feature
-        self._value_slots, self._value_features = np.array(value_slots, dtype=np.intp), starts[value_slots]
+        # the encoding's layout, for `encode` (per slot) and `encode_rows` (slots grouped by kind)
+        self._is_value = [slot.kind == VALUE for slot in self.slots]
+        self._slot_divisors = divisors
+        starts = np.cumsum([0] + [2 if is_value else 1 for is_value in self._is_value])  # each slot's first feature
+        self._value_slots = np.flatnonzero(self._is_value)
+        self._other_slots = np.flatnonzero(np.logical_not(self._is_value))
+        self._value_features, self._other_features = starts[self._value_slots], starts[self._other_slots]
         self._flag_features = self._value_features + 1
-        self._other_slots, self._other_features = np.array(other_slots, dtype=np.intp), starts[other_slots]
-        self._divisors = np.array(divisors).reshape(-1, 1)
-        self._is_value = [kind == VALUE for kind in kinds]
-        self._slot_divisors = [self.scale if kind == VALUE else 0.0 for kind in kinds]  # values: scale (unused)
-        for index, divisor in zip(other_slots, divisors):
-            self._slot_divisors[index] = divisor
+        self._divisors = np.array(divisors)[self._other_slots].reshape(-1, 1)
         self._first = int(starts[-1])  # the feature `first`, then t / T
         low.append(0.0)  # first
         high.append(1.0)
