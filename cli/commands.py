@@ -38,7 +38,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from tl_gym.agents import Agent
-from tl_gym.agents.callbacks import HistoryCSV, as_callback, write_history
+from tl_gym.agents.callbacks import HistoryCSV, as_callback
 from tl_gym.agents.evaluation import as_vector_env, collect_episodes, predictor_controller
 from tl_gym.agents.registry import is_episodic, make_agent
 from tl_gym.agents.sampling import env_attribute, run_episodes
@@ -139,11 +139,11 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
             snapshots.append((row["iteration"], traces))
         return True
 
-    # history.csv grows after every iteration, so a long run can be watched (and survives a kill)
+    # history.csv is written after every iteration (all of this fresh agent's rows), so a long run can be
+    # watched and a killed one keeps its rows
     agent.learn(iterations, callback=as_callback([record, HistoryCSV(out / "history.csv")]),
                 progress_bar=not args.quiet)
     agent.save(out / AGENT_FILE)
-    write_history(agent.history, out / "history.csv")
     write_plots(agent, run, snapshots, out)
     last = agent.history[-1]
     print(f"iteration {last['iteration']}: mean robustness {last['mean_robustness']:.4g}, "

@@ -39,7 +39,6 @@ def test_train_writes_history_while_it_runs(tmp_path, monkeypatch):
     import tl_gym.cli.commands as commands
 
     seen = []  # lines in history.csv right after each iteration's write
-    monkeypatch.setattr(commands, "write_history", lambda rows, path: None)  # only the live writer remains
     monkeypatch.setattr(commands.HistoryCSV, "on_iteration", _counting(commands.HistoryCSV.on_iteration, seen))
     assert main(["train", "--env", "TLCarNav-v0", "--env-kwargs", '{"horizon": 10}', "--agent", "reps",
                  "--iterations", "3", "--n-episodes", "4", "--out", str(tmp_path), "--quiet"]) == 0
