@@ -1,15 +1,10 @@
 """Speed of TLCarNav-v0 and of TLTLRewardWrapper.
 
-Measures car steps per second of the single env, of `SyncVectorEnv` over 40 of
-them and of the batched `CarNavVectorEnv` (40 cars), full 200-step episodes with
-their terminal robustness included; and the wrapper's per-step overhead over the
-bare car and over a do-nothing env, with the terminal evaluation timed apart.
-Each number is the best of several repeats, timed twice: CPU time of this
-process (``time.process_time``, what the code costs even when other jobs share
-the cores) and wall-clock time (``time.perf_counter``, what a user waits).
-
-Usage: ``python -m benchmarks.bench_env [--quick] [--out PATH]``; prints a table and writes
-it to ``PATH`` (default ``docs/results/env_speed.md``).
+Car steps per second of the single env, of `SyncVectorEnv` over 40 of them and of the batched `CarNavVectorEnv`
+(full 200-step episodes, terminal robustness included), and the wrapper's per-step overhead over the bare car and a
+do-nothing env, the terminal evaluation timed apart. Each number is the best of several repeats, in CPU time of this
+process (what the code costs on shared cores) and in wall-clock time (what a user waits). Prints the table and
+writes it to ``--out`` (default ``docs/results/env_speed.md``).
 """
 
 from __future__ import annotations
@@ -59,10 +54,7 @@ class Idle(gym.Env):
 class Clock:
     """Accumulates wall-clock and CPU seconds over the timed sections."""
 
-    def __init__(self) -> None:
-        self.wall = 0.0
-        self.cpu = 0.0
-        self._start = (0.0, 0.0)
+    wall = cpu = 0.0
 
     def __enter__(self) -> Clock:
         self._start = (time.perf_counter(), time.process_time())
@@ -116,16 +108,13 @@ def interleaved_steps(envs: dict[str, Any], actions: np.ndarray, rounds: int, ep
     return {name: best(timings) for name, timings in runs.items()}
 
 
-def _minus(a: Timing, b: Timing, scale: float = 1.0) -> Timing:
-    return (a[0] - b[0]) * scale, (a[1] - b[1]) * scale
-
-
 def _rate(count: float, timing: Timing) -> str:
     return f"{count / timing[0]:,.0f} | {count / timing[1]:,.0f}"
 
 
-def _micro(timing: Timing) -> str:
-    return f"{timing[0] * 1e6:.2f} us | {timing[1] * 1e6:.2f} us"
+def _micro(timing: Timing, minus: Timing = (0.0, 0.0), scale: float = 1.0) -> str:
+    cpu, wall = ((t - m) * scale * 1e6 for t, m in zip(timing, minus))
+    return f"{cpu:.2f} us | {wall:.2f} us"
 
 
 def main() -> None:
@@ -164,7 +153,7 @@ def main() -> None:
     for name, make_bare in (("do-nothing env", Idle), ("bare car", lambda: CarNavEnv(task=1))):
         envs = {"bare": make_bare(), "wrapped": TLTLRewardWrapper(make_bare(), task_formula(1), signals=XY)}
         step = interleaved_steps(envs, actions, 3 * repeats, episodes)
-        rows.append((f"wrapper overhead per step on a {name}", _micro(_minus(step["wrapped"], step["bare"]))))
+        rows.append((f"wrapper overhead per step on a {name}", _micro(step["wrapped"], step["bare"])))
     rows.append(("  (bare car step)", _micro(step["bare"])))
     for task in (1, 2):
         trace = {"x": np.linspace(0, 300, HORIZON + 1), "y": np.linspace(0, 300, HORIZON + 1)}
@@ -188,25 +177,24 @@ def main() -> None:
         step = interleaved_steps(envs, actions, 3 * repeats, half)
         for base in ("terminal", "dense"):
             rows.append((f"Markov view (dense + observe_monitor) per step, task {task}, over the {base} mode",
-                         _micro(_minus(step["view"], step[base]))))
+                         _micro(step["view"], step[base])))
         per_car_step = 1 / (half * HORIZON * NUM_ENVS)
         t_plain = vector_time(CarNavVectorEnv(num_envs=NUM_ENVS, task=task), half)
         t_dense = vector_time(CarNavVectorEnv(num_envs=NUM_ENVS, task=task, reward_mode="dense"), half)
         t_viewed = vector_time(CarNavVectorEnv(num_envs=NUM_ENVS, task=task, observe_monitor=True, reward_mode="dense"),
                                half)
         rows.append((f"dense mode per car step, CarNavVectorEnv({NUM_ENVS}) task {task}, over the terminal mode",
-                     _micro(_minus(t_dense, t_plain, per_car_step))))
+                     _micro(t_dense, t_plain, per_car_step)))
         rows.append((f"Markov view per car step, CarNavVectorEnv({NUM_ENVS}) task {task}",
-                     _micro(_minus(t_viewed, t_plain, per_car_step))))
+                     _micro(t_viewed, t_plain, per_car_step)))
         rows.append((f"Markov view per car step, CarNavVectorEnv({NUM_ENVS}) task {task}, over the dense mode",
-                     _micro(_minus(t_viewed, t_dense, per_car_step))))
+                     _micro(t_viewed, t_dense, per_car_step)))
 
     _report(rows, args.quick, args.out)
 
 
 def _time_calls(fn: Callable[[], object], n: int) -> Timing:
-    clock = Clock()
-    with clock:
+    with Clock() as clock:
         for _ in range(n):
             fn()
     return clock.cpu / n, clock.wall / n

@@ -1,14 +1,15 @@
 """Speed of tl_gym's robustness against hand-written numpy and numba and peer libraries (issues 3, 10, 17).
 
-Trajectories per second on the paper's φ1 and φ2 of tl_gym (exact, also with the numba backend if installed;
-smoothed with the gradient of the sum), of `benchmarks.handwritten` and of every peer of `benchmarks.peers` that
-imports, in one process; a library's values are checked against tl_gym's before it is timed. The table and the
-targets go to stdout and ``docs/results/speed.md``; docs/speed.md says how to run and read it.
+Trajectories per second of φ1 and φ2, exact and smoothed with gradient, for tl_gym, `benchmarks.handwritten` and
+every peer that imports, each checked against tl_gym's values before it is timed. The table and the targets go to
+stdout and ``docs/results/speed.md``; docs/speed.md says how to run and read it.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import functools
 import math
 import os
 import platform
@@ -239,14 +240,10 @@ def run_cell(task: Task, x: np.ndarray, y: np.ndarray, evaluators: list, setting
     return rows
 
 
-def _format_rate(value: float | None) -> str:
-    return "—" if value is None else f"{value:,.0f}" if value >= 100 else f"{value:,.3g}"
-
-
 def _format_row(r: Row) -> str:
+    rate = "—" if r.per_second is None else f"{r.per_second:,.0f}" if r.per_second >= 100 else f"{r.per_second:,.3g}"
     ratio = "" if r.ratio is None else f"{r.ratio:,.3g}"
-    return (f"| {r.task} | {r.n:,} | {r.length:,} | {r.library} | {r.mode} | {_format_rate(r.per_second)} "
-            f"| {ratio} | {r.note} |")
+    return f"| {r.task} | {r.n:,} | {r.length:,} | {r.library} | {r.mode} | {rate} | {ratio} | {r.note} |"
 
 
 HEADER = "| formula | N | T | library | mode | traj/s | tl_gym × | note |\n|---|---:|---:|---|---|---:|---:|---|"
@@ -260,17 +257,12 @@ def table(rows: list[Row]) -> str:
 def machine() -> str:
     """A one-paragraph description of this machine and the library versions."""
     cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), cpu)
-    except OSError:
-        pass
+    with contextlib.suppress(OSError), open("/proc/cpuinfo") as f:
+        cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), cpu)
     versions = [f"tl_gym commit {git('rev-parse', '--short', 'HEAD') or 'unknown'}"]
     for dist in ("tl_gym", "numpy", "torch", "rtamt", "argus-temporal-logic", "stlrom", "stlcgpp", "stljax", "jax"):
-        try:
+        with contextlib.suppress(metadata.PackageNotFoundError):
             versions.append(f"{dist} {metadata.version(dist)}")
-        except metadata.PackageNotFoundError:
-            pass
     load = ", ".join(f"{v:.1f}" for v in os.getloadavg())
     return (f"{cpu}, {os.cpu_count()} logical cores, {platform.system()} {platform.release()}, "
             f"Python {platform.python_version()}; load average at the end {load}; " + ", ".join(versions))
@@ -291,13 +283,6 @@ def interleaved(task: Task, x: np.ndarray, y: np.ndarray, beta: float, rounds: i
     by_mode = {e.mode: e for e in tl_gym_evaluators(task, beta)}
     return alternate((by_mode["exact"].run, by_mode["smooth+grad"].run,
                       lambda x, y: handwritten.smooth_phi1(task, x, y, beta)), x, y, rounds)
-
-
-def interleaved_linear(task: Task, x: np.ndarray, y: np.ndarray, beta: float, rounds: int) -> tuple[float, ...]:
-    """Best times of tl_gym's smoothed φ2 (linear form, with gradient: TLPS's call) and the hand-written exact φ2."""
-    ours = next(e for e in tl_gym_evaluators(task, beta) if e.mode == SMOOTH_LINEAR)
-    hand = next(e for e in handwritten_evaluators(task, beta) if e.mode == "exact")
-    return alternate((ours.run, hand.run), x, y, rounds)
 
 
 def alternate(calls: Sequence[Callable[[np.ndarray, np.ndarray], Any]], x: np.ndarray, y: np.ndarray,
@@ -322,7 +307,7 @@ def targets(rows: list[Row], alternated: tuple[float, ...] | None = None,
     """The issues' speed targets (docs/speed.md), each with the measured numbers at T = 200 and whether it is met.
 
     ``alternated``: (N, exact s, smoothed s, hand-written smoothed s) of `interleaved` for φ1, if measured;
-    ``linear_alternated``: (smoothed linear s, hand-written exact s) of `interleaved_linear` for φ2 at N = 40.
+    ``linear_alternated``: (smoothed linear s, hand-written exact s) of φ2 at N = 40, `alternate`d.
     """
     n_big = max((r.n for r in rows if r.length == 200), default=0)
 
@@ -461,10 +446,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> list[Row]:
     """Run the grid, print the table and the targets, write the results file; returns the rows."""
     args = parse_args(argv)
-
-    def log(text: str) -> None:
-        print(text, file=sys.stderr, flush=True)
-
+    log = functools.partial(print, file=sys.stderr, flush=True)
     import torch
 
     torch.set_num_threads(args.threads)
@@ -485,17 +467,17 @@ def main(argv: list[str] | None = None) -> list[Row]:
                           *peer_evaluators(args.peers, task, args.beta, say)]
             for n in sizes:
                 rows += run_cell(task, x_all[:n], y_all[:n], evaluators, args, log)
-    alternated = None
-    phi1 = next((t for t in tasks if t.key == "phi1"), None)
-    if args.alternate and phi1 is not None and 200 in args.t:
+    by_key, alternated, linear_alternated = {t.key: t for t in tasks}, None, None
+    if args.alternate and "phi1" in by_key and 200 in args.t:
         n_alt = max(n for n in args.n if n * 200 <= args.max_elements)
         x_alt, y_alt = trajectories(n_alt, 200, args.seed + 200, tasks)
-        alternated = (n_alt, *interleaved(phi1, x_alt, y_alt, args.beta, args.alternate))
-    linear_alternated = None
-    phi2 = next((t for t in tasks if t.key == "phi2"), None)
-    if args.alternate and phi2 is not None and 200 in args.t and 40 in args.n:
+        alternated = (n_alt, *interleaved(by_key["phi1"], x_alt, y_alt, args.beta, args.alternate))
+    if args.alternate and "phi2" in by_key and 200 in args.t and 40 in args.n:
+        # TLPS's call (smoothed φ2, linear form, with gradient) against the hand-written exact φ2
+        ours = next(e for e in tl_gym_evaluators(by_key["phi2"], args.beta) if e.mode == SMOOTH_LINEAR)
+        hand = next(e for e in handwritten_evaluators(by_key["phi2"], args.beta) if e.mode == "exact")
         x_40, y_40 = trajectories(40, 200, args.seed + 200, tasks)
-        linear_alternated = interleaved_linear(phi2, x_40, y_40, args.beta, 5 * args.alternate)
+        linear_alternated = alternate((ours.run, hand.run), x_40, y_40, 5 * args.alternate)
     print(table(rows))
     lines = targets(rows, alternated, linear_alternated)
     if lines:

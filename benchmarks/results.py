@@ -7,6 +7,7 @@ Only the runs that ``OUT/sweep.json`` lists and that have a ``done.json`` count;
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import dataclasses
 import json
@@ -48,18 +49,13 @@ class RunResult:
 
 def load_runs(out_dir: str | Path) -> list[RunResult]:
     """The finished runs of the sweep in ``out_dir``, in config order (FileNotFoundError: no sweep.json)."""
-    out_dir = Path(out_dir)
-    manifest_path = out_dir / "sweep.json"
-    if not manifest_path.is_file():
+    manifest = Path(out_dir) / "sweep.json"
+    if not manifest.is_file():
         raise FileNotFoundError(f"{out_dir} holds no sweep.json: run `python -m benchmarks.runner CONFIG` first")
-    manifest = json.loads(manifest_path.read_text())
-    results = []
-    for run_id, spec in manifest["runs"].items():
-        run_dir = out_dir / "runs" / run_id
-        if (run_dir / DONE).is_file():
-            results.append(RunResult(RunSpec.from_json(spec), read_history(run_dir / HISTORY),
-                                     json.loads((run_dir / DONE).read_text()), run_dir))
-    return results
+    specs = json.loads(manifest.read_text())["runs"]
+    dirs = {run_id: Path(out_dir) / "runs" / run_id for run_id in specs}
+    return [RunResult(RunSpec.from_json(specs[key]), read_history(d / HISTORY), json.loads((d / DONE).read_text()), d)
+            for key, d in dirs.items() if (d / DONE).is_file()]
 
 
 def read_history(path: str | Path) -> dict[str, np.ndarray]:
@@ -68,10 +64,8 @@ def read_history(path: str | Path) -> dict[str, np.ndarray]:
         rows = list(csv.DictReader(handle))
     columns: dict[str, np.ndarray] = {}
     for key in rows[0] if rows else ():
-        try:
+        with contextlib.suppress(TypeError, ValueError):  # a non-numeric column
             columns[key] = np.array([float(row[key]) for row in rows])
-        except (TypeError, ValueError):
-            continue
     return columns
 
 

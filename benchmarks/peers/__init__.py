@@ -1,9 +1,8 @@
 """Adapters that evaluate the benchmark's task formulas with peer robustness libraries (docs/speed.md).
 
 `load` gives a peer's adapter; its ``evaluators(task, beta)`` imports the library (ImportError when it is not
-installed) and returns what it offers for that task: `Evaluator` objects for exact robustness and, where the
-library has one, smoothed robustness with its gradient, and an `Unsupported` note, which the table shows, for
-what it cannot express. The text-parsing peers are in `benchmarks.peers.text`, the tensor ones in
+installed) and returns an `Evaluator` per mode it offers (exact, smoothed with gradient) and an `Unsupported` note
+per mode it cannot express. The text-parsing peers are in `benchmarks.peers.text`, the tensor ones in
 `benchmarks.peers.tensor`; they live in their own virtualenv (``benchmarks/requirements-peers.txt``).
 """
 
@@ -70,8 +69,4 @@ def load(name: str) -> Peer:
 
 def per_trajectory(run_one: Callable[[np.ndarray, np.ndarray], float]) -> Batch:
     """Lift a one-trajectory evaluation ``(x[T], y[T]) -> float`` to a batch ``(N, T) -> (N,)``."""
-
-    def run(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        return np.array([run_one(xi, yi) for xi, yi in zip(x, y)], dtype=np.float64)
-
-    return run
+    return lambda x, y: np.array([run_one(xi, yi) for xi, yi in zip(x, y)], dtype=np.float64)

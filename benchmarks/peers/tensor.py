@@ -1,9 +1,8 @@
 """stlcg++ (``stlcgpp``, PyTorch) and its JAX twin stljax: exact and smoothed (log-sum-exp, with gradient) φ1.
 
-Both evaluate one trajectory ``[T, 2]`` per call, batched with ``vmap`` in memory-bounded chunks: their unbounded
-F and G build a ``(2T, T)`` matrix per trajectory, so T above `MAX_LENGTH` is declined. Their log-sum-exp smoothing
-with ``temperature=β`` is tl_gym's for φ1, so values must agree to rounding. stljax is ``jax.jit``-compiled on
-fixed-size chunks (float64). φ2 is not offered: docs/speed.md says why.
+Both evaluate one trajectory ``[T, 2]`` per call, batched with ``vmap`` in memory-bounded chunks (their F and G
+build a ``(2T, T)`` matrix per trajectory: T above `MAX_LENGTH` is declined); their log-sum-exp smoothing with
+``temperature=β`` is tl_gym's for φ1. φ2 is not offered: docs/speed.md says why.
 """
 
 from __future__ import annotations

@@ -1,8 +1,7 @@
 """The peers that parse formula text: rtamt, argus and STLRom, exact robustness only.
 
-Each library's `Syntax` says how it writes the pieces of the tasks, and `specification` assembles them into one
-text. Where a library lacks an operator, docs/speed.md ("What each peer evaluates") gives the rewrite and its
-consequence, and `Evaluator.expressed` carries it to the table.
+Each library's `Syntax` says how it writes the pieces of the tasks; `specification` assembles them into one text.
+Rewrites for missing operators are in docs/speed.md ("What each peer evaluates") and in `Evaluator.expressed`.
 """
 
 from __future__ import annotations
@@ -88,8 +87,7 @@ RTAMT = Syntax(
 def rtamt_evaluators(task: Task, beta: float) -> list[Evaluator | Unsupported]:
     """Exact φ1 and φ2 with rtamt (discrete-time offline STL monitor, pure Python, one trajectory per call).
 
-    Its F, G and U are tl_gym's; two exact rewrites: ``φ T ψ = F(φ & X F ψ)`` for temporal-free φ, and tl_gym's
-    strong ``X φ`` as ``not(next(not φ))`` (rtamt's next is weak: +∞ at the last sample).
+    Exact rewrites: ``φ T ψ = F(φ & X F ψ)`` (temporal-free φ) and strong ``X φ`` as ``not(next(not φ))``.
     """
     import rtamt
 
@@ -115,13 +113,11 @@ ARGUS = Syntax(
 
 
 def argus_evaluators(task: Task, beta: float) -> list[Evaluator | Unsupported]:
-    """Exact φ1, and φ2-strict, with argus (``argus-temporal-logic``, Rust core).
+    """Exact φ1, and φ2-strict, with argus (``argus-temporal-logic``, Rust core; its quirks: docs/speed.md).
 
-    Piecewise-constant signals on integer times make its dense-time F, G and U tl_gym's. It has no ``sqrt`` (the
-    distance ``d_o`` is a third signal, computed inside the timed call), and in 0.1.4 its ``X`` fails an internal
-    assertion and a bounded ``F[a,b]`` acts as ``F[a,]`` (``F[1,1.5] x > 0`` on x = 0, 3, 1, 5, 2 is 5 at t = 0):
-    φ2-strict is written with ``G[1,]`` and ``F[1,]``, which hold the last sample where tl_gym's X is −∞ (the
-    equality check decides whether that matters), and φ2's default clause, which needs ``X ¬g``, is not offered.
+    Piecewise-constant signals on integer times make its dense-time F, G and U tl_gym's; ``d_o`` is a third signal
+    (no ``sqrt``). Its ``X`` fails and ``F[a,b]`` acts as ``F[a,]`` in 0.1.4, so φ2's default clause (``X ¬g``) is
+    not offered and φ2-strict uses ``G[1,]`` and ``F[1,]``, which hold the last sample where tl_gym's X is −∞.
     """
     import argus
 
@@ -160,11 +156,10 @@ def stlrom_syntax(length: int) -> Syntax:
 
 
 def stlrom_evaluators(task: Task, beta: float) -> list[Evaluator | Unsupported]:
-    """Exact φ1 and an attempt at φ2 with STLRom (C++ online monitor, Breach's successor).
+    """Exact φ1 and an attempt at φ2 with STLRom (C++ online monitor, Breach's successor; docs/speed.md).
 
-    ``PREVIOUS`` interpolation and one duplicate of the last sample at time T make its dense-time ``ev_[0, T]``,
-    ``alw_[0, T]`` and ``until_`` tl_gym's F, G and U. ``d_o`` is a third signal (no ``sqrt``); without a next,
-    φ2's ``X φ`` is ``ev_[1, 1.5] φ``, which sees the duplicate where tl_gym has −∞ (the equality check decides).
+    ``PREVIOUS`` interpolation and a duplicate last sample at time T make its ``ev_``, ``alw_`` and ``until_``
+    tl_gym's F, G and U; ``d_o`` is a third signal (no ``sqrt``); ``X φ`` is ``ev_[1, 1.5] φ`` (no next).
     """
     import stlrom
 
