@@ -1,12 +1,8 @@
 """Cost of one TLPS iteration against one REPS iteration on the car (issue 16's cost target).
 
-The agents are built side by side and their iterations alternate in one process (TLPS, REPS,
-TLPS, ...), so that a shared machine's load falls on both alike; each iteration is timed in CPU
-seconds of this process (``time.process_time``) and in wall-clock seconds. The first iterations
-are a warm-up. TLPS's own split (sampling, trust region) comes from its history.
-
-Usage: ``python -m benchmarks.bench_agents [--task 2] [--iterations 8] [--tlps key=value ...] [--quick]``
-(``--quick``: one iteration each, no warm-up; the CI smoke run). Prints a Markdown table.
+The agents' iterations alternate in one process (TLPS, REPS, TLPS, ...), so that a shared machine's load falls
+on both alike; each is timed in CPU seconds of this process and in wall-clock seconds, after a warm-up. TLPS's own
+split (sampling, trust region) comes from its history. Prints a Markdown table; ``--quick`` is the CI smoke run.
 """
 
 from __future__ import annotations

@@ -34,7 +34,6 @@ TL_GYM = "tl_gym"
 HANDWRITTEN = "numpy (hand-written)"
 FUSED, TL_GYM_NUMBA = "numba (hand-written, fused)", "tl_gym, backend='numba'"  # with the numba extra (issue 17)
 SMOOTH_LINEAR = "smooth+grad, linear form"
-# φ2's nested smoothing costs O(T²) per trajectory: one trajectory of T = 20,000 ran > 14 min here (killed).
 NESTED_MAX_LENGTH = 2_000
 NESTED_TOO_LONG = "nested smoothing is O(T²) per trajectory; one at T = 20,000 ran > 14 min"
 RESULTS = Path("docs/results/speed.md")
@@ -64,8 +63,7 @@ def trajectories(n: int, length: int, seed: int, tasks: Iterable[Task] = ()) -> 
     route = waypoints[:, seg] + frac * (waypoints[:, seg + 1] - waypoints[:, seg])  # (n, length, 2)
     base = np.where(routed[:, None, None], route, start[:, None, :])
     noise = np.where(routed[None, :, None], 0.1, 1.0) * walk
-    x = np.clip(base[..., 0] + noise[0], 0, ARENA)
-    y = np.clip(base[..., 1] + noise[1], 0, ARENA)
+    x, y = np.clip(np.moveaxis(base, -1, 0) + noise, 0, ARENA)
     return x, y
 
 
@@ -175,10 +173,7 @@ def _mismatch(values: np.ndarray, reference: np.ndarray) -> str:
 
 def measure(evaluator: Evaluator, row: Row, x: np.ndarray, y: np.ndarray, reference: np.ndarray | None,
             settings: argparse.Namespace) -> np.ndarray | None:
-    """Check ``evaluator`` against ``reference`` and time it as the options ``settings`` say; fill ``row``.
-
-    Returns the values (on ``row.timed_on`` trajectories), or None when it was skipped, crashed or disagreed.
-    """
+    """Check ``evaluator`` against ``reference``, time it as ``settings`` say, fill ``row``; its values or None."""
     n, length = x.shape
     if evaluator.max_length is not None and length > evaluator.max_length:
         row.note = f"skipped: T > {evaluator.max_length:,} ({evaluator.too_long})"
@@ -191,10 +186,8 @@ def measure(evaluator: Evaluator, row: Row, x: np.ndarray, y: np.ndarray, refere
         start = time.perf_counter()
         evaluator.run(x[:probe], y[:probe])
         per_one = (time.perf_counter() - start) / probe
-        if evaluator.per_trajectory:
-            k = int(min(n, max(1, settings.budget // max(per_one, 1e-9))))
-        elif per_one * n > settings.max_seconds:
-            k = int(min(n, max(1, settings.max_seconds // max(per_one, 1e-9))))
+        limit = settings.budget if evaluator.per_trajectory else settings.max_seconds  # on a batch: a cap
+        k = int(min(n, max(1, limit // max(per_one, 1e-9))))
     try:
         seconds, values = _time(lambda: evaluator.run(x[:k], y[:k]), settings.repeats, settings.budget, k == probe,
                                 evaluator.compiles)
@@ -209,10 +202,7 @@ def measure(evaluator: Evaluator, row: Row, x: np.ndarray, y: np.ndarray, refere
             row.note = problem
             return None
     row.per_second, row.timed_on = k / seconds, k
-    notes = [evaluator.expressed] if evaluator.expressed else []
-    if k < n:
-        notes.append(f"timed on {k:,} of {n:,}")
-    row.note = "; ".join(notes)
+    row.note = "; ".join(filter(None, [evaluator.expressed, f"timed on {k:,} of {n:,}" if k < n else ""]))
     return values
 
 

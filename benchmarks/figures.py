@@ -14,10 +14,7 @@ from benchmarks.results import RunResult, group_runs, mean_band, stack
 
 
 def plot_learning_curves(runs: Sequence[RunResult], path: str | Path | None = None, title: str | None = None) -> Figure:
-    """Mean exact robustness (top, of the sampled episodes as in the paper) and success rate per iteration.
-
-    One column per task, every curve a mean over seeds with its 95% band; saved to ``path`` if given.
-    """
+    """Mean exact robustness of the sampled episodes (top) and success rate per iteration, by task, with 95% bands."""
     groups = group_runs(runs)
     tasks = list(dict.fromkeys(task for task, _ in groups))
     order = list(dict.fromkeys(label for _, label in groups))
@@ -57,6 +54,7 @@ def plot_band(ax: Any, x: np.ndarray, values: np.ndarray, color: Any, label: str
 
 def plot_trajectory_distribution(run: RunResult, path: str | Path | None = None, title: str | None = None) -> Figure:
     """The sampled x-y paths of one run at its recorded iterations, mean ± 2σ, lighter = earlier (ValueError: none)."""
+    import gymnasium as gym
     from tl_gym.agents.plotting import plot_trajectories
     from tl_gym.envs.rendering import draw_layout
 
@@ -65,7 +63,11 @@ def plot_trajectory_distribution(run: RunResult, path: str | Path | None = None,
     if not iterations:
         raise ValueError(f"run {run.path.name} recorded no trajectories")
     snapshots = [(it, {"x": traces[f"it{it}_x"], "y": traces[f"it{it}_y"]}) for it in iterations]
-    layout = env_layout(run.spec.env, dict(run.spec.env_kwargs))
+    env = gym.make(run.spec.env, **run.spec.env_kwargs)  # built once, for its task layout
+    try:
+        layout = env.unwrapped.layout
+    finally:
+        env.close()
 
     layout_patches = []
 
@@ -89,17 +91,6 @@ def plot_trajectory_distribution(run: RunResult, path: str | Path | None = None,
         success = float(np.mean(traces[f"it{it}_robustness"] > 0))
         text.set_text(f"iteration {it}" + (" (initial)" if it == 0 else "") + f": success {success:.0%}")
     return saved(fig, path)
-
-
-def env_layout(env: str, env_kwargs: dict[str, Any]) -> Any:
-    """The task layout of an env (its ``layout`` attribute), built once to draw it."""
-    import gymnasium as gym
-
-    instance = gym.make(env, **env_kwargs)
-    try:
-        return instance.unwrapped.layout
-    finally:
-        instance.close()
 
 
 def saved(fig: Figure, path: str | Path | None, dpi: int = 110) -> Figure:

@@ -1,7 +1,6 @@
 """The paper's task formulas φ1 (Eq. 16) and φ2 (Eq. 19) over signals ``x, y``, with their geometry.
 
-Every evaluator of the speed benchmark builds its formula from one `Task`, so all judge the goals and obstacle
-of TLCarNav-v0 (`tl_gym.envs.tasks`), whose formula is the one tl_gym evaluates here.
+Every evaluator of the speed benchmark builds its formula from one `Task`: all judge TLCarNav-v0's geometry.
 """
 
 from __future__ import annotations

@@ -1,8 +1,7 @@
 """Hand-written robustness of φ1 and φ2, the practical speed limit the benchmark times tl_gym against.
 
-What a careful user would write for one formula judged at position 0 only: every temporal operator one
-reduction or prefix/suffix scan along time over the ``(N, T)`` batch (numpy), or one running value in a
-fused loop (numba); `smooth_phi1` is φ1's smoothed value and gradient. Semantics are tl_gym's.
+What a careful user would write for one formula judged at position 0: every temporal operator one reduction or
+prefix/suffix scan over the ``(N, T)`` batch (numpy), or one running value in a fused loop (numba).
 """
 
 from __future__ import annotations

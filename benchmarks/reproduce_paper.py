@@ -144,18 +144,14 @@ def claims(task: Any, rows: Sequence[results.GroupSummary]) -> str:
     """The paper's claims for ``task``, each set against the measured numbers (computed, not asserted)."""
     by_label = {row.label: row for row in rows}
     tlps, reps = by_label.get(DEFAULT_TLPS), by_label.get("REPS")
+    key, what, paper = ("first_positive", "mean ρ > 0", 30) if task == 1 else ("first_success", "success ≥ 80%", 50)
     lines = []
     if tlps is not None:
-        if task == 1:
-            lines.append(_claim("Task 1 is satisfied (mean ρ > 0) around iteration 30 with β = 9",
-                                tlps.first_positive, 30, "mean ρ > 0"))
-        else:
-            lines.append(_claim("Task 2 is satisfied around iteration 50 with β = 9 (measured here: success ≥ 80%)",
-                                tlps.first_success, 50, "success ≥ 80%"))
+        claim = ("Task 1 is satisfied (mean ρ > 0) around iteration 30 with β = 9" if task == 1
+                 else "Task 2 is satisfied around iteration 50 with β = 9 (measured here: success ≥ 80%)")
+        lines.append(_claim(claim, getattr(tlps, key), paper, what))
     betas = sorted(((_beta(row.label), row) for row in rows if _beta(row.label) is not None), key=lambda p: p[0])
     if len(betas) > 1:
-        key = "first_positive" if task == 1 else "first_success"
-        what = "mean ρ > 0" if task == 1 else "success ≥ 80%"
         parts = [f"β = {beta:g}: {results.first_text(getattr(row, key))}, final success {row.final_success:.0%}"
                  for beta, row in betas]
         medians = [results.median_first(getattr(row, key)) for _, row in betas]
@@ -193,8 +189,7 @@ def _claim(text: str, firsts: Sequence[int | None], paper: int, what: str) -> st
 def _ahead(a: results.GroupSummary, b: results.GroupSummary) -> str:
     """Which of two curves is ahead on success ≥ 80%, only when the seeds leave no doubt.
 
-    More seeds reaching it wins; with as many, one is ahead only if every one of its seeds got
-    there before every seed of the other (a few seeds cannot separate overlapping ranges).
+    More seeds reaching it wins; with as many, every seed of one must get there before every seed of the other.
     """
     reached_a = [f for f in a.first_success if f is not None]
     reached_b = [f for f in b.first_success if f is not None]

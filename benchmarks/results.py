@@ -167,11 +167,8 @@ def notes(runs: Iterable[RunResult]) -> str:
 
 def table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
     """A markdown table: the header's cells, a rule, then one line per row."""
-
-    def line(cells: Sequence[Any]) -> str:
-        return "| " + " | ".join(map(str, cells)) + " |"
-
-    return "\n".join([line(header), "|" + "---|" * len(header), *map(line, rows)])
+    lines = ["| " + " | ".join(map(str, cells)) + " |" for cells in [header, *rows]]
+    return "\n".join([lines[0], "|" + "---|" * len(header), *lines[1:]])
 
 
 def percent(value: float | None) -> str:

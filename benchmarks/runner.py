@@ -1,14 +1,14 @@
 """The experiment runner: a TOML config expands into runs (task × agent × hyperparameters × seed).
 
-Every run gets a folder ``OUT/runs/<run_id>``; its ``done.json``, written last and atomically, is the only mark
-of a finished run, so a rerun skips it and restarts the others from scratch. ``OUT/sweep.json`` lists the
-config's runs for `benchmarks.results`. The command line, the config keys and the run files are in
-``docs/benchmarks.md``.
+Every run gets a folder ``OUT/runs/<run_id>`` whose ``done.json``, written last and atomically, alone marks it
+finished: a rerun skips it and restarts the others from scratch. ``OUT/sweep.json`` lists the config's runs for
+`benchmarks.results`. Command line, config keys and run files: ``docs/benchmarks.md``.
 """
 
 from __future__ import annotations
 
 import argparse
+import collections
 import concurrent.futures as futures
 import dataclasses
 import fnmatch
@@ -52,10 +52,7 @@ class ConfigError(ValueError):
 
 @dataclasses.dataclass(frozen=True)
 class RunSpec:
-    """Everything that defines one training run, in plain JSON values (the config keys of docs/benchmarks.md).
-
-    ``agent`` is a name of `tl_gym.agents.registry`; the seeds of one ``label`` make one curve.
-    """
+    """Everything that defines one training run, in JSON values (docs/benchmarks.md); a ``label``'s seeds: one curve."""
 
     env: str
     env_kwargs: Mapping[str, Any]
@@ -148,8 +145,7 @@ def _expand(data: Mapping[str, Any], variant: str | None, overrides: Mapping[str
         entry = {**entry, **changes, "hyperparameters": hyper}
         if not entry.get("skip", False):
             runs.extend(_expand_agent(entry, top, where))
-    ids = [run.run_id for run in runs]
-    duplicates = sorted({i for i in ids if ids.count(i) > 1})
+    duplicates = sorted(i for i, count in collections.Counter(run.run_id for run in runs).items() if count > 1)
     if duplicates:
         raise ConfigError(f"the same run appears twice: {duplicates} (two agents with one label and hyperparameters?)")
     if not runs:
@@ -248,10 +244,7 @@ def is_done(run_dir: str | Path) -> bool:
 
 
 def execute_run(spec: RunSpec | Mapping[str, Any], run_dir: str | Path) -> dict[str, Any]:
-    """Run ``spec`` into ``run_dir`` unless it is finished there; return ``done.json``'s content.
-
-    An unfinished folder (no ``done.json``) is wiped and the run starts from scratch.
-    """
+    """Run ``spec`` into ``run_dir`` unless it is finished there (else from scratch); return ``done.json``'s content."""
     spec = spec if isinstance(spec, RunSpec) else RunSpec.from_json(spec)
     run_dir = Path(run_dir)
     if is_done(run_dir):
@@ -303,8 +296,7 @@ def execute_run(spec: RunSpec | Mapping[str, Any], run_dir: str | Path) -> dict[
 def sample_traces(agent: Any, spec: RunSpec, iteration: int) -> dict[str, np.ndarray]:
     """``trajectory_episodes`` episodes of the stochastic policy on the agent's own env view.
 
-    Returns ``it<iteration>_<signal>`` -> ``(episodes, T+1)`` float32 (NaN-padded), the signals the robustness
-    was computed on, and ``it<iteration>_robustness`` -> ``(episodes,)``.
+    ``it<k>_<signal>`` (the signals ρ was computed on) -> ``(episodes, T+1)`` float32, NaN-padded; ``it<k>_robustness``.
     """
     from tl_gym.agents.evaluation import collect_episodes
     from tl_gym.agents.sampling import make_vector_env

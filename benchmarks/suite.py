@@ -1,9 +1,8 @@
 """The TL task suite benchmark: every suite task × {TLPS, REPS, PPO, SAC}, SB3 also on the plain terminal reward.
 
-One runner config per task in ``benchmarks/configs/suite/``; every run evaluates its policy on fresh episodes
-along the way (``evaluate_every``). This script runs them, then writes ``docs/results/suite.md`` (which agent
-solves each task, at how many env steps, and one table per task) and ``docs/results/suite_<task>.png``
-(``--quick``: under ``--out``). ``--tasks car1 pendulum`` picks tasks, ``--report-only`` only redraws.
+Runs the configs of ``benchmarks/configs/suite/`` (one per task, evaluated on fresh episodes along the way), then
+writes ``docs/results/suite.md`` (who solves each task, at how many env steps; a table per task) and one figure per
+task (``--quick``: under ``--out``).
 """
 
 from __future__ import annotations
@@ -73,10 +72,7 @@ def plot_task(name: str, runs: Sequence[RunResult], path: Path | None) -> Figure
 
 
 def task_table(runs: Sequence[RunResult]) -> tuple[str, list[tuple[str, float, float | None, int, int]]]:
-    """The markdown table of one task, and one summary tuple per agent.
-
-    The tuples are ``(label, median final success, median env steps to solve, seeds that solved, seeds)``.
-    """
+    """One task's markdown table and, per agent, (label, median final success, median steps to solve, solved, seeds)."""
     header = ["agent", "seeds", "budget (env steps)", "final success, fresh episodes: median (min–max)",
               "env steps to ≥ 90 %: median (seeds)", "final mean ρ", "note"]
     lines, rows = [], []
@@ -110,11 +106,7 @@ def headline(task: str, rows: Sequence[tuple[str, float, float | None, int, int]
 
 def write_report(results: dict[str, tuple[str, list[RunResult]]], command: str, out: Path,
                  planned: dict[str, list[str]] | None = None) -> Path:
-    """``suite.md`` in ``out``: the headline table, then each task's table and figure.
-
-    ``planned`` maps a task to the labels of its config; those without a finished run are listed
-    under the task's table as not run, so that a partial report says what it leaves out.
-    """
+    """``suite.md`` in ``out``: the headline, then each task's table and figure, and its ``planned`` labels not run."""
     lines = ["# The TL task suite", "",
              f"Produced by `{command}` (seeds and budgets in `benchmarks/configs/suite/`); success is "
              "ρ > 0 on fresh episodes of the deterministic policy, evaluated along training. "
