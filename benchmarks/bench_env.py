@@ -81,11 +81,7 @@ def best_of(repeats: int, fn: Callable[[], Timing]) -> Timing:
 
 
 def time_episodes(env: Any, actions: np.ndarray, episodes: int, terminal: bool = True) -> Timing:
-    """Seconds for ``episodes`` full episodes, stepping ``actions[t]``; resets (and autoreset steps) not timed.
-
-    Without ``terminal``, the seconds per step of the non-terminal steps (the terminal step and its evaluation
-    are stepped, not timed).
-    """
+    """Seconds for ``episodes`` episodes of ``actions``, resets untimed; without ``terminal``, per non-terminal step."""
     env.reset(seed=0)
     clock, timed = Clock(), HORIZON if terminal else HORIZON - 1
     for _ in range(episodes):
@@ -178,17 +174,13 @@ def main() -> None:
         for base in ("terminal", "dense"):
             rows.append((f"Markov view (dense + observe_monitor) per step, task {task}, over the {base} mode",
                          _micro(step["view"], step[base])))
-        per_car_step = 1 / (half * HORIZON * NUM_ENVS)
-        t_plain = vector_time(CarNavVectorEnv(num_envs=NUM_ENVS, task=task), half)
-        t_dense = vector_time(CarNavVectorEnv(num_envs=NUM_ENVS, task=task, reward_mode="dense"), half)
-        t_viewed = vector_time(CarNavVectorEnv(num_envs=NUM_ENVS, task=task, observe_monitor=True, reward_mode="dense"),
-                               half)
-        rows.append((f"dense mode per car step, CarNavVectorEnv({NUM_ENVS}) task {task}, over the terminal mode",
-                     _micro(t_dense, t_plain, per_car_step)))
-        rows.append((f"Markov view per car step, CarNavVectorEnv({NUM_ENVS}) task {task}",
-                     _micro(t_viewed, t_plain, per_car_step)))
-        rows.append((f"Markov view per car step, CarNavVectorEnv({NUM_ENVS}) task {task}, over the dense mode",
-                     _micro(t_viewed, t_dense, per_car_step)))
+        per_car_step, where = 1 / (half * HORIZON * NUM_ENVS), f"per car step, CarNavVectorEnv({NUM_ENVS}) task {task}"
+        car = {name: vector_time(CarNavVectorEnv(num_envs=NUM_ENVS, task=task, **kwargs), half)
+               for name, kwargs in (("terminal", {}), ("dense", {"reward_mode": "dense"}),
+                                    ("view", {"observe_monitor": True, "reward_mode": "dense"}))}
+        rows += [(f"dense mode {where}, over the terminal mode", _micro(car["dense"], car["terminal"], per_car_step)),
+                 (f"Markov view {where}", _micro(car["view"], car["terminal"], per_car_step)),
+                 (f"Markov view {where}, over the dense mode", _micro(car["view"], car["dense"], per_car_step))]
 
     _report(rows, args.quick, args.out)
 
@@ -202,9 +194,7 @@ def _time_calls(fn: Callable[[], object], n: int) -> Timing:
 
 def _report(rows: list[tuple[str, str]], quick: bool, out: Path) -> None:
     width = max(len(name) for name, _ in rows)
-    lines = [f"{'measurement':<{width}}  CPU time | wall clock"]
-    lines += [f"{name:<{width}}  {value}" for name, value in rows]
-    print("\n".join(lines))
+    print("\n".join(f"{name:<{width}}  {value}" for name, value in [("measurement", "CPU time | wall clock"), *rows]))
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     out.parent.mkdir(parents=True, exist_ok=True)
     table = ["| measurement | CPU time | wall clock |", "|---|---|---|"]

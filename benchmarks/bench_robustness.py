@@ -265,11 +265,7 @@ def _rate(rows: list[Row], task: str, n: int, length: int, library: str, mode: s
 
 
 def interleaved(task: Task, x: np.ndarray, y: np.ndarray, beta: float, rounds: int) -> tuple[float, ...]:
-    """Best times of tl_gym's exact and smoothed (with gradient) φ1 and of the hand-written smoothed φ1.
-
-    The calls alternate ``rounds`` times in one loop, so all see the same machine: two rows timed apart swing
-    with this VM's drift (the same call took 13 ms in one process and 21 ms in the next).
-    """
+    """Best times of tl_gym's exact and smoothed φ1 and the hand-written smoothed φ1, alternated (docs/speed.md)."""
     by_mode = {e.mode: e for e in tl_gym_evaluators(task, beta)}
     return alternate((by_mode["exact"].run, by_mode["smooth+grad"].run,
                       lambda x, y: handwritten.smooth_phi1(task, x, y, beta)), x, y, rounds)

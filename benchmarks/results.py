@@ -104,8 +104,7 @@ def stack(runs: Sequence[RunResult], key: str) -> tuple[np.ndarray, np.ndarray]:
 
 def first_iteration(iterations: np.ndarray, values: np.ndarray, threshold: float, strict: bool = True) -> int | None:
     """First iteration whose value exceeds ``threshold`` (``>=`` when not strict); None if never."""
-    hits = values > threshold if strict else values >= threshold
-    index = np.flatnonzero(hits)
+    index = np.flatnonzero(values > threshold if strict else values >= threshold)
     return int(iterations[index[0]]) if index.size else None
 
 
@@ -192,10 +191,8 @@ def markdown_table(rows: Sequence[GroupSummary]) -> str:
 
 def summaries_by_task(runs: Iterable[RunResult]) -> dict[Any, list[GroupSummary]]:
     """`GroupSummary` rows grouped by task, in config order."""
-    tables: dict[Any, list[GroupSummary]] = {}
-    for (task, label), members in group_runs(runs).items():
-        tables.setdefault(task, []).append(summarise(task, label, members))
-    return tables
+    rows = [summarise(task, label, members) for (task, label), members in group_runs(runs).items()]
+    return group_by(rows, lambda row: row.task)
 
 
 def per_seed_table(rows: Sequence[Mapping[str, Any]], task: Any) -> str:

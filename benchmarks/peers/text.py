@@ -85,10 +85,7 @@ RTAMT = Syntax(
 
 
 def rtamt_evaluators(task: Task, beta: float) -> list[Evaluator | Unsupported]:
-    """Exact φ1 and φ2 with rtamt (discrete-time offline STL monitor, pure Python, one trajectory per call).
-
-    Exact rewrites: ``φ T ψ = F(φ & X F ψ)`` (temporal-free φ) and strong ``X φ`` as ``not(next(not φ))``.
-    """
+    """Exact φ1 and φ2 with rtamt (pure-Python offline STL monitor); T and strong X rewritten exactly (speed.md)."""
     import rtamt
 
     spec = rtamt.StlDiscreteTimeOfflineSpecification()
@@ -156,18 +153,14 @@ def stlrom_syntax(length: int) -> Syntax:
 
 
 def stlrom_evaluators(task: Task, beta: float) -> list[Evaluator | Unsupported]:
-    """Exact φ1 and an attempt at φ2 with STLRom (C++ online monitor, Breach's successor; docs/speed.md).
-
-    ``PREVIOUS`` interpolation and a duplicate last sample at time T make its ``ev_``, ``alw_`` and ``until_``
-    tl_gym's F, G and U; ``d_o`` is a third signal (no ``sqrt``); ``X φ`` is ``ev_[1, 1.5] φ`` (no next).
-    """
+    """Exact φ1 and an attempt at φ2 with STLRom (C++ online monitor); its dense-time rewrites: docs/speed.md."""
     import stlrom
 
     @lru_cache(maxsize=4)
     def driver(length: int) -> Any:
         d = stlrom.STLDriver()
         d.parse_string(specification(task, stlrom_syntax(length)))
-        d.set_interpol("PREVIOUS")
+        d.set_interpol("PREVIOUS")  # with a duplicate last sample at T: its ev_, alw_, until_ are tl_gym's F, G, U
         return d
 
     def run_one(x: np.ndarray, y: np.ndarray) -> float:
