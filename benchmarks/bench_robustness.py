@@ -173,7 +173,7 @@ def _mismatch(values: np.ndarray, reference: np.ndarray) -> str:
 
 def measure(evaluator: Evaluator, row: Row, x: np.ndarray, y: np.ndarray, reference: np.ndarray | None,
             settings: argparse.Namespace) -> np.ndarray | None:
-    """Check ``evaluator`` against ``reference``, time it as ``settings`` say, fill ``row``; its values or None."""
+    """Check ``evaluator`` against ``reference``, time it as ``settings`` say, fill ``row``: its values (or None)."""
     n, length = x.shape
     if evaluator.max_length is not None and length > evaluator.max_length:
         row.note = f"skipped: T > {evaluator.max_length:,} ({evaluator.too_long})"

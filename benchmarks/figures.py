@@ -41,7 +41,7 @@ def plot_learning_curves(runs: Sequence[RunResult], path: str | Path | None = No
 
 def plot_band(ax: Any, x: np.ndarray, values: np.ndarray, color: Any, label: str, rate: bool = False,
               markersize: float = 4) -> None:
-    """Mean over seeds of ``values`` ``(seeds, len(x))`` against ``x``, 95% band ([0, 1] for a rate); short: markers."""
+    """Mean over seeds of ``values`` ``(seeds, len(x))`` against ``x``, 95% band ([0, 1] for a rate), short: markers."""
     mean, low, high = mean_band(values)
     if rate:
         low, high = np.clip(low, 0.0, 1.0), np.clip(high, 0.0, 1.0)

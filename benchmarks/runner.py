@@ -123,7 +123,7 @@ def _expand(data: Mapping[str, Any], variant: str | None, overrides: Mapping[str
     _check_keys(data, TOP_KEYS, "top level")
     variants = _table(data.get("variants", {}), "variants")
     for name, table in variants.items():  # all checked, not only the one asked for
-        _check_keys(_table(table, f"variants.{name}"), VARIANT_KEYS, f"variants.{name}")
+        _check_keys(table, VARIANT_KEYS, f"variants.{name}")
     if variant is not None and variant not in variants:
         raise ConfigError(f"no variant {variant!r}; the config has {sorted(variants)}")
     _check_keys(overrides, VARIANT_KEYS, "overrides")
@@ -136,10 +136,9 @@ def _expand(data: Mapping[str, Any], variant: str | None, overrides: Mapping[str
     runs: list[RunSpec] = []
     for index, entry in enumerate(top["agents"]):
         where = f"agents[{index}]"
-        entry = _check_keys(_table(entry, where), AGENT_KEYS, where)
+        entry = _check_keys(entry, AGENT_KEYS, where)
         at = f"{where}.variants.{variant}"
-        changes = _check_keys(_table(_table(entry.get("variants", {}), f"{where}.variants").get(variant, {}), at),
-                              AGENT_KEYS, at)
+        changes = _check_keys(_table(entry.get("variants", {}), f"{where}.variants").get(variant, {}), AGENT_KEYS, at)
         hyper = {**_table(entry.get("hyperparameters", {}), f"{where}.hyperparameters"),
                  **_table(changes.get("hyperparameters", {}), f"{at}.hyperparameters")}
         entry = {**entry, **changes, "hyperparameters": hyper}
@@ -153,8 +152,8 @@ def _expand(data: Mapping[str, Any], variant: str | None, overrides: Mapping[str
     return Sweep(top["name"] + (f"-{variant}" if variant else ""), str(top.get("description", "")), tuple(runs))
 
 
-def _check_keys(table: Mapping[str, Any], valid: set[str], where: str) -> dict[str, Any]:
-    unknown = sorted(set(table) - valid)
+def _check_keys(table: Any, valid: set[str], where: str) -> dict[str, Any]:
+    unknown = sorted(set(_table(table, where)) - valid)
     if unknown:
         raise ConfigError(f"{where}: unknown key(s) {unknown}; valid: {sorted(valid)}")
     return dict(table)
