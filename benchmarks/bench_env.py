@@ -1,10 +1,8 @@
 """Speed of TLCarNav-v0 and of TLTLRewardWrapper.
 
-Car steps per second of the single env, of `SyncVectorEnv` over 40 of them and of the batched `CarNavVectorEnv`
-(full 200-step episodes, terminal robustness included), and the wrapper's per-step overhead over the bare car and a
-do-nothing env, the terminal evaluation timed apart. Each number is the best of several repeats, in CPU time of this
-process (what the code costs on shared cores) and in wall-clock time (what a user waits). Prints the table and
-writes it to ``--out`` (default ``docs/results/env_speed.md``).
+Car steps per second (single env, `SyncVectorEnv` and the batched `CarNavVectorEnv` of 40 cars, 200-step episodes)
+and the wrapper's per-step costs, each the best of several repeats in CPU time of this process (fair on shared
+cores) and in wall-clock time. Prints the table and writes it to ``--out`` (default ``docs/results/env_speed.md``).
 """
 
 from __future__ import annotations

@@ -135,10 +135,9 @@ class Row:
 
 def _time(run: Callable[[], np.ndarray], repeats: int, budget: float, warm: bool,
           must_warm: bool = False) -> tuple[float, np.ndarray]:
-    """Best wall time of ``run`` over a few repeats, and its values.
+    """Best wall time of ``run`` over a few repeats, and its values; unless ``warm``, an untimed first call warms up.
 
-    Unless ``warm``, a first call warms up (imports, allocator); it is the time when it alone is too slow to
-    repeat, unless ``must_warm`` (a JIT compiles on the first call).
+    That first call is the time when it alone is too slow to repeat, unless ``must_warm`` (a JIT compiles on it).
     """
     values = None
     if not warm or must_warm:

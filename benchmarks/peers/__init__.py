@@ -25,22 +25,16 @@ Batch = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 @dataclass(frozen=True)
 class Evaluator:
-    """One way a library evaluates one task.
-
-    ``run`` maps ``(x, y)`` signals ``(N, T)`` to the ``(N,)`` robustness values (in ``mode`` ``"smooth+grad"``
-    also running the backward pass of their sum); ``expressed`` says how the library writes the formula when not
-    literally. A ``per_trajectory`` library is timed on a prefix of the batch sized by a time budget; ``max_length``
-    is the longest T it takes here (``too_long`` says why); one that ``compiles`` (JIT) gets an untimed first call.
-    """
+    """One way a library evaluates one task."""
 
     library: str
     mode: str
-    run: Batch
-    expressed: str = ""
-    per_trajectory: bool = True
-    max_length: int | None = None
+    run: Batch  # (x, y) signals (N, T) -> (N,) robustness; in mode "smooth+grad" also the backward pass of their sum
+    expressed: str = ""  # how the library writes the formula, when not literally
+    per_trajectory: bool = True  # then timed on a prefix of the batch, sized by a time budget
+    max_length: int | None = None  # the longest T it takes here (too_long says why)
     too_long: str = "memory grows as T²"
-    compiles: bool = False
+    compiles: bool = False  # a JIT: its first call is not timed
 
 
 @dataclass(frozen=True)

@@ -110,12 +110,7 @@ ARGUS = Syntax(
 
 
 def argus_evaluators(task: Task, beta: float) -> list[Evaluator | Unsupported]:
-    """Exact φ1, and φ2-strict, with argus (``argus-temporal-logic``, Rust core; its quirks: docs/speed.md).
-
-    Piecewise-constant signals on integer times make its dense-time F, G and U tl_gym's; ``d_o`` is a third signal
-    (no ``sqrt``). Its ``X`` fails and ``F[a,b]`` acts as ``F[a,]`` in 0.1.4, so φ2's default clause (``X ¬g``) is
-    not offered and φ2-strict uses ``G[1,]`` and ``F[1,]``, which hold the last sample where tl_gym's X is −∞.
-    """
+    """Exact φ1 and φ2-strict with argus (Rust core; piecewise-constant signals); its rewrites: docs/speed.md."""
     import argus
 
     if task.key == "phi2":
