@@ -87,6 +87,15 @@ def angle_components(space: gym.spaces.Box) -> np.ndarray:
     return np.isclose(low, -math.pi, rtol=0, atol=1e-6) & np.isclose(high, math.pi, rtol=0, atol=1e-6)
 
 
+def matching_components(observations: np.ndarray, trace: np.ndarray) -> list[int]:
+    """The observation components equal to a signal's ``(N, T+1)`` trace at every step of every episode."""
+    trace = np.asarray(trace, dtype=float)
+    if trace.shape != observations.shape[:2]:
+        return []
+    return [j for j in range(observations.shape[-1])
+            if np.allclose(observations[..., j], trace, rtol=1e-9, atol=1e-9)]
+
+
 def signal_components(observations: np.ndarray, traces: dict[str, np.ndarray]) -> np.ndarray:
     """Observation components that some signal's trace equals over the whole batch.
 
@@ -102,11 +111,7 @@ def signal_components(observations: np.ndarray, traces: dict[str, np.ndarray]) -
     """
     mask = np.zeros(observations.shape[-1], dtype=bool)
     for values in traces.values():
-        values = np.asarray(values, dtype=float)
-        for j in range(observations.shape[-1]):
-            if values.shape == observations.shape[:2] and np.allclose(observations[..., j], values,
-                                                                      rtol=1e-9, atol=1e-9):
-                mask[j] = True
+        mask[matching_components(observations, values)] = True
     return mask
 
 

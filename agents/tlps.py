@@ -24,12 +24,17 @@ by `tl_gym.TLTLRewardWrapper`. One update (Algorithm 1, lines 4–18):
    damping schedule", section VI), and with fitted feedback ``K_t`` and its centre by
    weighted ridge regression on the drawn noise.
 
+With ``action_repair="model"`` and an env that exposes a differentiable ``dynamics_model``
+(the car), step 2 moves each episode's feed-forward instead, through the model, and step 5
+refits to the repaired episodes (`tl_gym.agents.model_repair`; docs/tlps.md, H19).
+
 Where this departs from the paper, and why, is in `docs/tlps.md`: the weights are
 not the literal softmax of densities, which does not learn (see `TLPSConfig.weights`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -40,11 +45,13 @@ from scipy.stats import spearmanr
 from tl_gym.checks import check_positive
 
 from .episodic import AbstractEpisodicSearch, EpisodicSearchConfig
+from .model_repair import find_model, repair_feedforward
 from .sampling import rollout
 from .trust_region import check_trust_region, improve_trajectories
 from .weights import WEIGHTINGS, adapt_alpha, kl_to_uniform, sample_logits, softmax_weights
 
 SMOOTHING_FORMS = ("nested", "linear")
+ACTION_REPAIRS = ("none", "model")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -85,6 +92,14 @@ class TLPSConfig(EpisodicSearchConfig):
     threads: int | None = 1
     """Torch threads during the trust-region solve (one is fastest for these small tensors);
     ``None`` keeps the process setting."""
+    action_repair: str = "none"
+    """``"none"``: the paper's update in signal space (line 8). ``"model"``: repair each episode's
+    feed-forward through the env's differentiable ``dynamics_model`` and refit to the repaired
+    episodes (`tl_gym.agents.model_repair`); needs such an env (TLCarNav-v0) and the projected solver."""
+    action_epsilon: float = 1.0
+    """With ``action_repair="model"``: trust region ``‖k̄^i − k^i‖² ≤ action_epsilon`` in squared
+    normalised action units, summed over steps and action components (> 0); 1.0 moves a 200-step
+    car episode's actions by 0.05 per component on average (docs/tlps.md, H19)."""
     def __post_init__(self) -> None:
         super().__post_init__()
         check_trust_region(self.epsilon, self.beta, self.solver, self.solver_steps, self.solver_decay)
@@ -95,6 +110,11 @@ class TLPSConfig(EpisodicSearchConfig):
         if not 0 <= self.hybrid_mix <= 1:
             raise ValueError(f"hybrid_mix must lie in [0, 1], got {self.hybrid_mix!r}")
         check_positive("kl_bound", self.kl_bound)
+        if self.action_repair not in ACTION_REPAIRS:
+            raise ValueError(f"action_repair must be one of {ACTION_REPAIRS}, got {self.action_repair!r}")
+        check_positive("action_epsilon", self.action_epsilon)
+        if self.action_repair == "model" and self.solver != "projected":
+            raise ValueError(f"action_repair='model' runs the projected solver; got solver={self.solver!r}")
         if self.alpha is not None:
             check_positive("alpha", self.alpha)
         check_positive("regularization", self.regularization)
@@ -121,6 +141,12 @@ class TLPS(AbstractEpisodicSearch):
     config: TLPSConfig
     config_class = TLPSConfig
 
+    def _setup(self) -> None:
+        super()._setup()
+        self._model = find_model(self.env) if self.config.action_repair == "model" else None
+        if self.config.action_repair == "model" and self._model is None:
+            raise ValueError(f"action_repair='model' needs an env with a differentiable `dynamics_model` "
+                             f"(TLCarNav-v0 has one); {_env_name(self.env)!r} has none")
 
     @property
     def signal_names(self) -> tuple[str, ...]:
@@ -137,16 +163,26 @@ class TLPS(AbstractEpisodicSearch):
         tau = np.stack([batch.traces[name] for name in self.signal_names], axis=-1)  # τ^i: (N, T+1, S)
         sampled_at = time.perf_counter()
 
-        result = improve_trajectories(  # l.8: τ̄^i = argmax ρ̂ s.t. ‖τ̄^i − τ^i‖² ≤ ε
-            self.formula, self.signal_names, tau, cfg.beta, cfg.epsilon, solver=cfg.solver,
-            steps=cfg.solver_steps, decay=cfg.solver_decay, form=cfg.smoothing, threads=cfg.threads,
-        )
+        if self._model is None:
+            result = improve_trajectories(  # l.8: τ̄^i = argmax ρ̂ s.t. ‖τ̄^i − τ^i‖² ≤ ε
+                self.formula, self.signal_names, tau, cfg.beta, cfg.epsilon, solver=cfg.solver,
+                steps=cfg.solver_steps, decay=cfg.solver_decay, form=cfg.smoothing, threads=cfg.threads,
+            )
+            updated, smooth_before, smooth_after = result.updated, result.smooth_before, result.smooth_after
+        else:  # l.8 through the model: k̄^i = argmax ρ̂(τ(k)) s.t. ‖k − k^i‖² ≤ ε_a; refit to the repaired episodes
+            repair = repair_feedforward(self._model, self.policy, batch, feedforward, self.formula,
+                                        cfg.action_epsilon, cfg.beta, cfg.solver_steps, cfg.solver_decay,
+                                        cfg.smoothing, cfg.threads)
+            updated = np.stack([repair.traces[name] for name in self.signal_names], axis=-1)
+            smooth_before, smooth_after = repair.smooth_before, repair.smooth_after
+            batch = dataclasses.replace(batch, observations=repair.observations, traces=repair.traces)
+            feedforward = repair.feedforward
         solved_at = time.perf_counter()
 
         # l.9: fit (μ̄, Σ̄) to the updated τ̄ (Eq. 12); l.10-11: log N(τ^i | μ̄, Σ̄), and the
         # importance / hybrid corrections (see weights.py); l.12: w^i ∝ exp(α logit^i)
-        logits = sample_logits(cfg.weights, tau, result.updated, cfg.regularization,
-                               updated_smooth=result.smooth_after, mix=cfg.hybrid_mix)
+        logits = sample_logits(cfg.weights, tau, updated, cfg.regularization,
+                               updated_smooth=smooth_after, mix=cfg.hybrid_mix)
         alpha = adapt_alpha(logits, cfg.kl_bound) if cfg.alpha is None else cfg.alpha
         weights = softmax_weights(logits, alpha)
 
@@ -161,8 +197,8 @@ class TLPS(AbstractEpisodicSearch):
             "env_steps": batch.env_steps,
             "mean_robustness": batch.mean_robustness,
             "success_rate": batch.success_rate,
-            "smooth_robustness": float(np.mean(result.smooth_before)),
-            "smooth_updated": float(np.mean(result.smooth_after)),
+            "smooth_robustness": float(np.mean(smooth_before)),
+            "smooth_updated": float(np.mean(smooth_after)),
             "alpha": float(alpha),
             "kl": kl_to_uniform(weights),
             "weight_rank_corr": float(np.nan_to_num(corr)),
@@ -172,3 +208,8 @@ class TLPS(AbstractEpisodicSearch):
             "time_trust_region": solved_at - sampled_at,
             **refit,
         }
+
+
+def _env_name(env: Any) -> str:
+    spec = getattr(env, "spec", None)
+    return getattr(spec, "id", None) or type(env).__name__

@@ -158,7 +158,7 @@ def improve_trajectories(
 
     with torch_threads(threads):
         if solver == "projected":
-            return _projected(evaluate, trajectories, epsilon, steps, decay)
+            return projected_ascent(lambda x, rows: evaluate(x), trajectories, epsilon, steps, decay)
         return _slsqp(evaluate, trajectories, epsilon, 5 * steps)
 
 
@@ -175,12 +175,22 @@ def check_trust_region(epsilon: float, beta: float, solver: str, steps: int, dec
 
 
 Evaluate = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+#: ``(points, their row indices in the batch) -> (values, gradients)``
+RowEvaluate = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
-def _projected(evaluate: Evaluate, tau: np.ndarray, epsilon: float, steps: int, decay: float) -> TrustRegionResult:
+def projected_ascent(
+    evaluate: RowEvaluate, tau: np.ndarray, epsilon: float, steps: int, decay: float
+) -> TrustRegionResult:
+    """The projected solver (module docstring) on any batch ``(N, T, D)``: ``‖x^i − tau^i‖² ≤ ε`` for each i.
+
+    ``evaluate(x, rows)`` returns ``(values, gradients like x)`` of the points ``x``, which are the
+    batch's rows ``rows``. TLPS runs it on trajectories here and on feed-forward sequences in
+    `tl_gym.agents.model_repair`.
+    """
     radius = math.sqrt(epsilon)
     best_x = tau.copy()
-    best_value, grad = evaluate(best_x)
+    best_value, grad = evaluate(best_x, np.arange(tau.shape[0]))
     before = best_value.copy()
     # per-trajectory step length: grows after a gain, shrinks after a loss ("bold driver");
     # the first step, of length √ε along the gradient, is the linearised solution
@@ -195,7 +205,7 @@ def _projected(evaluate: Evaluate, tau: np.ndarray, epsilon: float, steps: int, 
         offset = x - tau[active]  # project back onto the ball ‖x − τ‖ ≤ √ε
         length = np.sqrt(np.sum(offset**2, axis=(1, 2), keepdims=True))
         x = tau[active] + offset * np.minimum(1.0, radius / np.maximum(length, 1e-300))
-        value, new_grad = evaluate(x)
+        value, new_grad = evaluate(x, active)
         better = value > best_value[active]
         improved = active[better]
         best_x[improved], best_value[improved], grad[improved] = x[better], value[better], new_grad[better]

@@ -10,6 +10,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from tl_gym.envs.car_model import CarModel
 from tl_gym.envs.dynamics import CarParams, car_step, sample_episode_noise
 from tl_gym.envs.tasks import Layout, make_layout, task_formula
 
@@ -160,6 +161,11 @@ class CarNavEnv(gym.Env):
     def horizon(self) -> int:
         """Actions per episode; the trace has ``horizon + 1`` states."""
         return self.params.horizon
+
+    @property
+    def dynamics_model(self) -> CarModel:
+        """The car's dynamics as a differentiable model (`tl_gym.envs.car_model.CarModel`)."""
+        return CarModel(self.params)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
         super().reset(seed=seed)

@@ -17,6 +17,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from tl_gym.envs.car import ACTION_SPACE, RENDER_SIZE, car_reward_settings, car_setup, observation_space
+from tl_gym.envs.car_model import CarModel
 from tl_gym.envs.dynamics import car_step, sample_episode_noise
 from tl_gym.envs.tasks import task_formula
 
@@ -131,6 +132,11 @@ class CarNavVectorEnv(VectorEnv):
     def horizon(self) -> int:
         """Actions per episode; the trace has ``horizon + 1`` states."""
         return self.params.horizon
+
+    @property
+    def dynamics_model(self) -> CarModel:
+        """The car's dynamics as a differentiable model (`tl_gym.envs.car_model.CarModel`)."""
+        return CarModel(self.params)
 
     def reset(
         self, *, seed: int | Sequence[int | None] | None = None, options: dict[str, Any] | None = None

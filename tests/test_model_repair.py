@@ -1,0 +1,102 @@
+"""TLPS's action repair through a known model (agents/model_repair.py, envs/car_model.py)."""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from tl_gym.agents import TLPS
+from tl_gym.agents.model_repair import closed_loop, find_model, repair_feedforward
+from tl_gym.agents.policy import LinearGaussianPolicy
+from tl_gym.agents.sampling import find_formula, make_vector_env, rollout
+from tl_gym.envs.car_model import CarModel
+from tl_gym.envs.dynamics import CarParams, car_step
+
+import tl_gym  # noqa: F401  (registers the ids)
+
+HORIZON = 25  # short car episodes keep these tests fast
+
+
+def test_the_torch_model_is_the_env_step_including_clipping_and_wrapping():
+    rng = np.random.default_rng(0)
+    params = CarParams()
+    state = np.concatenate([rng.uniform(-300, 300, (64, 2)), rng.uniform(-4, 4, (64, 1)), rng.normal(size=(64, 3))], 1)
+    action = rng.uniform(-1.5, 1.5, (64, 2))  # beyond the Box: both clip
+    noise = rng.normal(0, 0.2, (64, 3))
+    expected = car_step(state, params.physical_action(action), params.dt, params.wheelbase, noise)
+    got = CarModel(params).step(torch.tensor(state), torch.tensor(action), torch.tensor(noise)).numpy()
+    np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-9)
+
+
+def _batch(policy, seed=3, n=6, task=2):
+    venv = make_vector_env("TLCarNav-v0", n, {"task": task, "horizon": HORIZON})
+    feedforward = policy.sample_feedforward(n, np.random.default_rng(seed))
+    return venv, feedforward, rollout(venv, feedforward, policy.feedback, seed=seed)
+
+
+@pytest.mark.parametrize("with_gains", [False, True])
+def test_recovered_noise_replays_the_episodes_through_the_closed_loop(with_gains):
+    rng = np.random.default_rng(1)
+    angles = np.array([False, False, True, False, False, False])
+    policy = LinearGaussianPolicy(HORIZON, 6, 2, init_std=0.5, angles=angles)
+    if with_gains:  # feedback around a centre state, heading wrapped: the path fitted feedback takes
+        policy.gains = rng.normal(0, 0.05, (HORIZON, 2, 6))
+        policy.centre = rng.normal(0, 3.0, (HORIZON, 6))
+    venv, feedforward, batch = _batch(policy)
+    model = find_model(venv)
+    assert isinstance(model, CarModel)
+    noise = model.noise(batch.observations, batch.actions)
+    assert np.abs(noise[..., :2]).max() < 1.0  # the env's noise: std 0.15 on x, y
+    replay = closed_loop(model, policy, torch.tensor(batch.observations[:, 0]), torch.tensor(noise),
+                         torch.tensor(feedforward)).numpy()
+    np.testing.assert_allclose(replay, batch.observations, atol=1e-6)
+
+
+def test_repair_raises_every_smoothed_robustness_within_the_action_trust_region():
+    policy = LinearGaussianPolicy(HORIZON, 6, 2, init_std=0.5)
+    venv, feedforward, batch = _batch(policy, task=1)
+    formula = find_formula(venv)
+    repair = repair_feedforward(find_model(venv), policy, batch, feedforward, formula, epsilon=0.5, beta=9.0,
+                                steps=5)
+    assert np.all(repair.smooth_after >= repair.smooth_before)
+    assert np.mean(repair.smooth_after - repair.smooth_before) > 0.1
+    moved = np.sum((repair.feedforward - feedforward) ** 2, axis=(1, 2))
+    assert np.all(moved <= 0.5 + 1e-9)
+    # the repaired states are the repaired actions' episodes, and their ρ̂ is the reported one
+    again = formula.smooth_robustness({"x": repair.observations[..., 0], "y": repair.observations[..., 1]}, 9.0,
+                                      math.inf, "linear")
+    np.testing.assert_allclose(again, repair.smooth_after, rtol=1e-9, atol=1e-9)
+    np.testing.assert_array_equal(repair.traces["x"], repair.observations[..., 0])
+
+
+def test_tlps_with_model_repair_learns_saves_and_loads(tmp_path):
+    kwargs = dict(seed=0, env_kwargs={"task": 1, "horizon": HORIZON}, n_episodes=8, solver_steps=3,
+                  action_repair="model", action_epsilon=0.5)
+    agent = TLPS("TLCarNav-v0", **kwargs).learn(2)
+    assert all(row["smooth_updated"] > row["smooth_robustness"] for row in agent.history)
+    agent.save(tmp_path / "agent.zip")
+    loaded = TLPS.load(tmp_path / "agent.zip")
+    assert loaded.config.action_repair == "model" and loaded.config.action_epsilon == 0.5
+    same = TLPS("TLCarNav-v0", **kwargs).learn(2)  # seeded: the repair is deterministic
+    assert [r["mean_robustness"] for r in same.history] == [r["mean_robustness"] for r in agent.history]
+
+
+@pytest.mark.parametrize(
+    ("env", "kwargs", "match"),
+    [
+        ("TLCarNav-v0", {"action_repair": "fitted"}, "action_repair must be one of"),
+        ("TLCarNav-v0", {"action_repair": "model", "solver": "slsqp"}, "projected solver"),
+        ("TLCarNav-v0", {"action_epsilon": 0.0}, "action_epsilon"),
+        ("TLPendulum-v0", {"action_repair": "model"}, "'TLPendulum-v0' has none"),
+    ],
+)
+def test_bad_repair_settings_are_refused_at_construction(env, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        TLPS(env, n_episodes=8, **kwargs)
+
+
+def test_an_env_without_a_model_has_none():
+    assert find_model(make_vector_env(gym.make("TLPendulum-v0"), 2)) is None
