@@ -114,8 +114,9 @@ def _micro(timing: Timing, minus: Timing = (0.0, 0.0), scale: float = 1.0) -> st
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer episodes and repeats (about 20 s)")
-    parser.add_argument("--out", type=Path, default=OUT, help=f"where to write the table (default {OUT})")
+    parser.add_argument("--out", type=Path, help=f"the table's file (default {OUT}; --quick: runs/results-quick)")
     args = parser.parse_args()
+    args.out = args.out or (Path("runs/results-quick/env_speed.md") if args.quick else OUT)
     repeats, episodes = (3, 2) if args.quick else (7, 5)
     half = max(1, episodes // 2)
     rng = np.random.default_rng(0)

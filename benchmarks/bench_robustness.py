@@ -418,8 +418,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         "machine more threads spin-wait on every small op)")
     parser.add_argument("--alternate", type=int, default=20, metavar="ROUNDS",
                         help="also time exact and smoothed φ1 alternately, ROUNDS calls each (0: off)")
-    parser.add_argument("--out", type=Path, default=RESULTS, help="markdown results file ('-' for none)")
+    parser.add_argument("--out", type=Path, help=f"markdown results file ('-' for none; default {RESULTS}, "
+                        f"--quick: runs/results-quick/speed.md)")
     args = parser.parse_args(argv)
+    args.out = args.out or (Path("runs/results-quick/speed.md") if args.quick else RESULTS)
     if args.quick:  # seconds, not minutes: the smallest sizes, one timed repeat, small budgets
         args.n, args.t, args.repeats, args.budget, args.max_seconds = [1, 40], [200], 1, 0.05, 1.0
     for name, value in (("n", min(args.n)), ("t", min(args.t)), ("beta", args.beta), ("threads", args.threads)):
