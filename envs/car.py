@@ -54,7 +54,23 @@ def car_setup(task: int, car_kwargs: Mapping[str, Any]) -> tuple[Layout, CarPara
     return make_layout(task, **overrides), params, overrides
 
 
-class CarNavEnv(gym.Env):
+class CarProperties:
+    """What the single and the batched car derive from their `CarParams` (``self.params``)."""
+
+    params: CarParams
+
+    @property
+    def horizon(self) -> int:
+        """Actions per episode; the trace has ``horizon + 1`` states."""
+        return self.params.horizon
+
+    @property
+    def dynamics_model(self) -> CarModel:
+        """The car's dynamics as a differentiable model (`tl_gym.envs.car_model.CarModel`)."""
+        return CarModel(self.params)
+
+
+class CarNavEnv(CarProperties, gym.Env):
     """The car of "A Policy Search Method For Temporal Logic Specified RL Tasks" (Li, Ma, Belta), section VI.
 
     ## Description
@@ -156,16 +172,6 @@ class CarNavEnv(gym.Env):
         self._path = np.zeros((self.params.horizon + 1, 2))
         self._t = -1  # -1: never reset
         self._viewer: Any = None
-
-    @property
-    def horizon(self) -> int:
-        """Actions per episode; the trace has ``horizon + 1`` states."""
-        return self.params.horizon
-
-    @property
-    def dynamics_model(self) -> CarModel:
-        """The car's dynamics as a differentiable model (`tl_gym.envs.car_model.CarModel`)."""
-        return CarModel(self.params)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
         super().reset(seed=seed)

@@ -16,8 +16,14 @@ import numpy as np
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
-from tl_gym.envs.car import ACTION_SPACE, RENDER_SIZE, car_reward_settings, car_setup, observation_space
-from tl_gym.envs.car_model import CarModel
+from tl_gym.envs.car import (
+    ACTION_SPACE,
+    RENDER_SIZE,
+    CarProperties,
+    car_reward_settings,
+    car_setup,
+    observation_space,
+)
 from tl_gym.envs.dynamics import car_step, sample_episode_noise
 from tl_gym.envs.tasks import task_formula
 
@@ -31,7 +37,7 @@ from tl_gym.wrapper import (
 )
 
 
-class CarNavVectorEnv(VectorEnv):
+class CarNavVectorEnv(CarProperties, VectorEnv):
     """``num_envs`` TLCarNav-v0 cars with one batched simulator and one batched reward.
 
     It behaves as ``SyncVectorEnv`` over ``gym.make("TLCarNav-v0", ...)`` with the same
@@ -127,16 +133,6 @@ class CarNavVectorEnv(VectorEnv):
         self._path[0] = self._state[:, :2]
         self._autoreset = False
         self._paid[:] = 0.0
-
-    @property
-    def horizon(self) -> int:
-        """Actions per episode; the trace has ``horizon + 1`` states."""
-        return self.params.horizon
-
-    @property
-    def dynamics_model(self) -> CarModel:
-        """The car's dynamics as a differentiable model (`tl_gym.envs.car_model.CarModel`)."""
-        return CarModel(self.params)
 
     def reset(
         self, *, seed: int | Sequence[int | None] | None = None, options: dict[str, Any] | None = None
