@@ -10,7 +10,8 @@ instead:
 2. with that noise fixed, the episode's states are a function of its feed-forward ``k^i``
    through the closed loop ``a_t = k_t + K_t (s_t ⊖ s̄_t)``; climb ρ̂ of that function,
    ``k̄^i = argmax ρ̂(τ(k))`` subject to ``‖k − k^i‖² ≤ action_epsilon``, with the projected
-   solver of `tl_gym.agents.trust_region` and torch's gradient through model and engine;
+   solver of `tl_gym.agents.trust_region`, the engine's gradient carried back to the actions
+   by the adjoint of the closed loop (the model's Jacobians);
 3. re-simulate: the repaired states and feed-forwards are a consistent pair, which the
    policy is refit to with the weights, so its mean can move past the best sample.
 
@@ -26,21 +27,23 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
-import torch
 
 from tl_gym.tltl.ast import Formula
 
-from .feedback import matching_components
+from .feedback import deviation, matching_components
 from .policy import LinearGaussianPolicy
 from .sampling import Rollouts
-from .trust_region import TrustRegionResult, projected_ascent, torch_threads
+from .trust_region import projected_ascent, smooth_value_and_grad, torch_threads
 
 
 class DynamicsModel(Protocol):
-    """What ``action_repair="model"`` needs from an env's ``dynamics_model``."""
+    """What ``action_repair="model"`` needs from an env's ``dynamics_model`` (the car's: `CarModel`)."""
 
-    def step(self, state: torch.Tensor, action: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
+    def step(self, state: np.ndarray, action: np.ndarray, noise: np.ndarray) -> np.ndarray:
         """Next states ``(n, obs_dim)`` from states, actions as sent to the env and additive noise."""
+
+    def jacobians(self, state: np.ndarray, action: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(∂step/∂state (n, obs_dim, obs_dim), ∂step/∂action (n, obs_dim, act_dim))``."""
 
     def noise(self, observations: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """The additive noise ``(N, T, k)`` that reproduces recorded episodes through `step`."""
@@ -81,19 +84,37 @@ def signal_columns(batch: Rollouts, names: tuple[str, ...]) -> dict[str, int]:
     return columns
 
 
-def closed_loop(model: DynamicsModel, policy: LinearGaussianPolicy, start: torch.Tensor, noise: torch.Tensor,
-                feedforward: torch.Tensor) -> torch.Tensor:
-    """States ``(N, T+1, obs_dim)`` of the closed loop ``a_t = k_t + K_t (s_t ⊖ s̄_t)`` under fixed noise."""
-    gains, centre, angles = (torch.as_tensor(np.ascontiguousarray(a)) for a in
-                             (policy.gains, policy.centre, policy.angles))
-    states, s = [start], start
-    for t in range(feedforward.shape[1]):
-        deviation = s - centre[t]
-        wrapped = torch.remainder(deviation + math.pi, 2.0 * math.pi) - math.pi
-        action = feedforward[:, t] + torch.einsum("ij,nj->ni", gains[t], torch.where(angles, wrapped, deviation))
-        s = model.step(s, action, noise[:, t])
-        states.append(s)
-    return torch.stack(states, dim=1)
+def closed_loop(model: DynamicsModel, policy: LinearGaussianPolicy, start: np.ndarray, noise: np.ndarray,
+                feedforward: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """States ``(N, T+1, obs_dim)``, actions ``(N, T, act_dim)`` of ``a_t = k_t + K_t (s_t ⊖ s̄_t)``, noise fixed."""
+    n, horizon, act_dim = feedforward.shape
+    states = np.empty((n, horizon + 1, start.shape[-1]))
+    actions = np.empty((n, horizon, act_dim))
+    states[:, 0] = start
+    for t in range(horizon):  # the feedback term of `LinearGaussianPolicy.feedback_term`, for one step's rows
+        actions[:, t] = feedforward[:, t] + deviation(states[:, t], policy.centre[t], policy.angles) @ policy.gains[t].T
+        states[:, t + 1] = model.step(states[:, t], actions[:, t], noise[:, t])
+    return states, actions
+
+
+def feedforward_gradient(model: DynamicsModel, policy: LinearGaussianPolicy, states: np.ndarray, actions: np.ndarray,
+                         state_gradient: np.ndarray) -> np.ndarray:
+    """The gradient of a function of the states with respect to the feed-forward, by the adjoint of `closed_loop`.
+
+    ``state_gradient`` ``(N, T+1, obs_dim)`` is the function's gradient with respect to each
+    state; the adjoint carries it back through ``s_{t+1} = f(s_t, a_t)`` and the feedback
+    ``∂a_t/∂s_t = K_t`` (the heading's wrap has slope 1). Returns ``(N, T, act_dim)``.
+    """
+    n, horizon, act_dim = actions.shape
+    obs_dim = states.shape[-1]
+    d_state, d_action = model.jacobians(states[:, :-1].reshape(-1, obs_dim), actions.reshape(-1, act_dim))  # all steps
+    d_state, d_action = d_state.reshape(n, horizon, obs_dim, obs_dim), d_action.reshape(n, horizon, obs_dim, act_dim)
+    grad = np.empty_like(actions)
+    adjoint = state_gradient[:, horizon].copy()
+    for t in range(horizon - 1, -1, -1):
+        grad[:, t] = np.einsum("nij,ni->nj", d_action[:, t], adjoint)
+        adjoint = state_gradient[:, t] + np.einsum("nij,ni->nj", d_state[:, t], adjoint) + grad[:, t] @ policy.gains[t]
+    return grad
 
 
 def repair_feedforward(model: DynamicsModel, policy: LinearGaussianPolicy, batch: Rollouts, feedforward: np.ndarray,
@@ -122,24 +143,19 @@ def repair_feedforward(model: DynamicsModel, policy: LinearGaussianPolicy, batch
     if np.any(batch.lengths != feedforward.shape[1]):
         raise RuntimeError("action_repair='model' needs episodes of the full horizon; one ended early")
     columns = signal_columns(batch, formula.signals)
-    start = torch.from_numpy(np.ascontiguousarray(batch.observations[:, 0], dtype=np.float64))
-    noise = torch.from_numpy(model.noise(batch.observations, batch.actions))
-
-    def smooth(states: torch.Tensor) -> torch.Tensor:
-        return formula.smooth_robustness({n: states[..., j] for n, j in columns.items()}, beta, math.inf, form)
+    names, index = tuple(columns), list(columns.values())
+    start, noise = batch.observations[:, 0], model.noise(batch.observations, batch.actions)
 
     def evaluate(k: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        x = torch.tensor(k, dtype=torch.float64, requires_grad=True)
-        index = torch.from_numpy(rows)
-        values = smooth(closed_loop(model, policy, start[index], noise[index], x))
-        values.sum().backward()
-        return values.detach().numpy(), x.grad.numpy()
+        states, actions = closed_loop(model, policy, start[rows], noise[rows], k)
+        values, signal_grad = smooth_value_and_grad(formula, names, states[..., index], beta, math.inf, form)
+        state_grad = np.zeros_like(states)
+        state_grad[..., index] = signal_grad
+        return values, feedforward_gradient(model, policy, states, actions, state_grad)
 
     with torch_threads(threads):
-        result: TrustRegionResult = projected_ascent(evaluate, np.asarray(feedforward, dtype=np.float64),
-                                                     epsilon, steps, decay)
-        with torch.no_grad():
-            observations = closed_loop(model, policy, start, noise, torch.from_numpy(result.updated)).numpy()
+        result = projected_ascent(evaluate, np.asarray(feedforward, dtype=np.float64), epsilon, steps, decay)
+    observations, _ = closed_loop(model, policy, start, noise, result.updated)
     traces = {n: observations[..., j] for n, j in columns.items()}
     return Repair(result.updated, observations, traces, result.smooth_before, result.smooth_after)
 

@@ -7,28 +7,67 @@ import math
 import gymnasium as gym
 import numpy as np
 import pytest
-import torch
 from tl_gym.agents import TLPS
-from tl_gym.agents.model_repair import closed_loop, find_model, repair_feedforward
+from tl_gym.agents.model_repair import closed_loop, feedforward_gradient, find_model, repair_feedforward
 from tl_gym.agents.policy import LinearGaussianPolicy
 from tl_gym.agents.sampling import find_formula, make_vector_env, rollout
 from tl_gym.envs.car_model import CarModel
-from tl_gym.envs.dynamics import CarParams, car_step
+from tl_gym.envs.dynamics import CarParams, car_step, wrap_angle
 
 import tl_gym  # noqa: F401  (registers the ids)
 
 HORIZON = 25  # short car episodes keep these tests fast
 
 
-def test_the_torch_model_is_the_env_step_including_clipping_and_wrapping():
+def test_the_model_is_the_env_step_and_its_jacobians_are_the_step_s_slopes():
     rng = np.random.default_rng(0)
-    params = CarParams()
-    state = np.concatenate([rng.uniform(-300, 300, (64, 2)), rng.uniform(-4, 4, (64, 1)), rng.normal(size=(64, 3))], 1)
-    action = rng.uniform(-1.5, 1.5, (64, 2))  # beyond the Box: both clip
+    params, model = CarParams(), CarModel(CarParams())
+    state = np.concatenate([rng.uniform(-300, 300, (64, 2)), rng.uniform(-3, 3, (64, 1)), rng.normal(size=(64, 3))], 1)
+    action = rng.uniform(-1.5, 1.5, (64, 2))  # beyond the Box: both clip, and the slope there is 0
     noise = rng.normal(0, 0.2, (64, 3))
     expected = car_step(state, params.physical_action(action), params.dt, params.wheelbase, noise)
-    got = CarModel(params).step(torch.tensor(state), torch.tensor(action), torch.tensor(noise)).numpy()
-    np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-9)
+    np.testing.assert_array_equal(model.step(state, action, noise), expected)
+    d_state, d_action = model.jacobians(state, action)
+    eps = 1e-6
+    for j in range(6):
+        step = np.zeros(6)
+        step[j] = eps
+        diff = model.step(state + step, action, noise) - model.step(state - step, action, noise)
+        diff[:, 2] = wrap_angle(diff[:, 2])  # the heading's wrap is no slope
+        numeric = diff / (2 * eps)
+        np.testing.assert_allclose(d_state[:, :, j], numeric, atol=1e-5)
+    for j in range(2):
+        step = np.zeros(2)
+        step[j] = eps
+        numeric = (model.step(state, action + step, noise) - model.step(state, action - step, noise)) / (2 * eps)
+        inside = np.abs(action[:, j]) < 1 - eps
+        np.testing.assert_allclose(d_action[inside, :, j], numeric[inside], atol=1e-4)
+        assert np.all(d_action[~inside, :, j] == 0)
+
+
+def test_the_adjoint_is_the_closed_loop_s_gradient():
+    rng = np.random.default_rng(2)
+    horizon, n = 6, 3
+    policy = LinearGaussianPolicy(horizon, 6, 2, init_std=0.3, angles=np.array([0, 0, 1, 0, 0, 0], dtype=bool))
+    policy.gains = rng.normal(0, 0.05, (horizon, 2, 6))
+    policy.centre = rng.normal(0, 2.0, (horizon, 6))
+    model = CarModel(CarParams())
+    start = np.concatenate([rng.uniform(0, 100, (n, 2)), rng.uniform(-1, 1, (n, 1)), np.zeros((n, 3))], 1)
+    noise, feedforward = rng.normal(0, 0.1, (n, horizon, 3)), rng.uniform(-0.8, 0.8, (n, horizon, 2))
+    weights = rng.normal(size=(n, horizon + 1, 6))  # the function: Σ weights · states
+
+    def value(k):
+        return np.sum(weights * closed_loop(model, policy, start, noise, k)[0], axis=(1, 2))
+
+    states, actions = closed_loop(model, policy, start, noise, feedforward)
+    grad = feedforward_gradient(model, policy, states, actions, weights)
+    eps = 1e-6
+    for t in range(horizon):
+        for j in range(2):
+            step = np.zeros_like(feedforward)
+            step[:, t, j] = eps
+            numeric = (value(feedforward + step) - value(feedforward - step)) / (2 * eps)
+            np.testing.assert_allclose(grad[:, t, j], numeric, rtol=1e-4, atol=1e-4)
 
 
 def _batch(policy, seed=3, n=6, task=2):
@@ -50,8 +89,7 @@ def test_recovered_noise_replays_the_episodes_through_the_closed_loop(with_gains
     assert isinstance(model, CarModel)
     noise = model.noise(batch.observations, batch.actions)
     assert np.abs(noise[..., :2]).max() < 1.0  # the env's noise: std 0.15 on x, y
-    replay = closed_loop(model, policy, torch.tensor(batch.observations[:, 0]), torch.tensor(noise),
-                         torch.tensor(feedforward)).numpy()
+    replay, _ = closed_loop(model, policy, batch.observations[:, 0], noise, feedforward)
     np.testing.assert_allclose(replay, batch.observations, atol=1e-6)
 
 
