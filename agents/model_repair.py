@@ -30,9 +30,9 @@ import numpy as np
 
 from tl_gym.tltl.ast import Formula
 
-from .feedback import deviation, matching_components
+from .feedback import matching_components
 from .policy import LinearGaussianPolicy
-from .sampling import Rollouts
+from .sampling import Rollouts, env_attribute
 from .trust_region import projected_ascent, smooth_value_and_grad, torch_threads
 
 
@@ -56,6 +56,7 @@ class Repair:
     Attributes:
         feedforward: the repaired feed-forwards k̄^i, ``(N, T, act_dim)``.
         observations: the re-simulated states under k̄^i, ``(N, T+1, obs_dim)``.
+        actions: the re-simulated actions (before the env's clipping), ``(N, T, act_dim)``.
         traces: the formula's signals read from them, name -> ``(N, T+1)``.
         smooth_before: ρ̂ of the sampled episodes, ``(N,)``.
         smooth_after: ρ̂ of the repaired ones, ``(N,)``.
@@ -63,6 +64,7 @@ class Repair:
 
     feedforward: np.ndarray
     observations: np.ndarray
+    actions: np.ndarray
     traces: dict[str, np.ndarray]
     smooth_before: np.ndarray
     smooth_after: np.ndarray
@@ -91,8 +93,8 @@ def closed_loop(model: DynamicsModel, policy: LinearGaussianPolicy, start: np.nd
     states = np.empty((n, horizon + 1, start.shape[-1]))
     actions = np.empty((n, horizon, act_dim))
     states[:, 0] = start
-    for t in range(horizon):  # the feedback term of `LinearGaussianPolicy.feedback_term`, for one step's rows
-        actions[:, t] = feedforward[:, t] + deviation(states[:, t], policy.centre[t], policy.angles) @ policy.gains[t].T
+    for t in range(horizon):
+        actions[:, t] = feedforward[:, t] + policy.feedback_term(t, states[:, t])
         states[:, t + 1] = model.step(states[:, t], actions[:, t], noise[:, t])
     return states, actions
 
@@ -138,13 +140,18 @@ def repair_feedforward(model: DynamicsModel, policy: LinearGaussianPolicy, batch
 
     Raises:
         RuntimeError: an episode ended before the horizon (its later states are not simulated).
-        ValueError: a signal is not an observation component.
+        ValueError: a signal is not an observation component (known after the first batch), or the
+            model does not replay the batch's episodes (a wrapper changed observations or actions).
     """
     if np.any(batch.lengths != feedforward.shape[1]):
         raise RuntimeError("action_repair='model' needs episodes of the full horizon; one ended early")
     columns = signal_columns(batch, formula.signals)
     names, index = tuple(columns), list(columns.values())
     start, noise = batch.observations[:, 0], model.noise(batch.observations, batch.actions)
+    replay, _ = closed_loop(model, policy, start, noise, np.asarray(feedforward, dtype=np.float64))
+    if not np.allclose(replay, batch.observations, rtol=1e-6, atol=1e-6):
+        raise ValueError("action_repair='model': the env's dynamics_model does not reproduce its episodes (a wrapper "
+                         "that changes observations or actions?); the repair would follow a wrong model")
 
     def evaluate(k: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         states, actions = closed_loop(model, policy, start[rows], noise[rows], k)
@@ -155,13 +162,11 @@ def repair_feedforward(model: DynamicsModel, policy: LinearGaussianPolicy, batch
 
     with torch_threads(threads):
         result = projected_ascent(evaluate, np.asarray(feedforward, dtype=np.float64), epsilon, steps, decay)
-    observations, _ = closed_loop(model, policy, start, noise, result.updated)
+    observations, actions = closed_loop(model, policy, start, noise, result.updated)
     traces = {n: observations[..., j] for n, j in columns.items()}
-    return Repair(result.updated, observations, traces, result.smooth_before, result.smooth_after)
+    return Repair(result.updated, observations, actions, traces, result.smooth_before, result.smooth_after)
 
 
 def find_model(env: Any) -> DynamicsModel | None:
     """The env's ``dynamics_model`` (on the vector env or its first sub-env), or None."""
-    from .sampling import env_attribute
-
     return env_attribute(env, "dynamics_model")

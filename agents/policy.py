@@ -151,6 +151,8 @@ class LinearGaussianPolicy:
     def feedback_term(self, t: int | np.ndarray, obs: np.ndarray) -> np.ndarray:
         """``K_t (s ⊖ s̄_t)`` for a batch of observations ``(n, obs_dim)`` at step(s) ``t`` (an int or ``(n,)``)."""
         t = np.minimum(t, self.horizon - 1)
+        if np.ndim(t) == 0:  # one step for all rows (the samplers, the model repair): one matrix product
+            return deviation(obs, self.centre[t], self.angles) @ self.gains[t].T
         gains = np.broadcast_to(self.gains[t], (obs.shape[0], self.act_dim, self.obs_dim))
         return np.einsum("nij,nj->ni", gains, deviation(obs, self.centre[t], self.angles))
 

@@ -115,6 +115,9 @@ class TLPSConfig(EpisodicSearchConfig):
         check_positive("action_epsilon", self.action_epsilon)
         if self.action_repair == "model" and self.solver != "projected":
             raise ValueError(f"action_repair='model' runs the projected solver; got solver={self.solver!r}")
+        if self.action_repair == "model" and (self.weights, self.hybrid_mix) != ("hybrid", 1.0):
+            raise ValueError("action_repair='model' ranks the repaired episodes by their ρ̂ (weights='hybrid', "
+                             f"hybrid_mix=1.0); got weights={self.weights!r}, hybrid_mix={self.hybrid_mix!r}")
         if self.alpha is not None:
             check_positive("alpha", self.alpha)
         check_positive("regularization", self.regularization)
@@ -146,7 +149,7 @@ class TLPS(AbstractEpisodicSearch):
         self._model = find_model(self.env) if self.config.action_repair == "model" else None
         if self.config.action_repair == "model" and self._model is None:
             raise ValueError(f"action_repair='model' needs an env with a differentiable `dynamics_model` "
-                             f"(TLCarNav-v0 has one); {_env_name(self.env)!r} has none")
+                             f"(TLCarNav-v0 has one); {self._env_source['id'] or type(self.env).__name__!r} has none")
 
     @property
     def signal_names(self) -> tuple[str, ...]:
@@ -175,7 +178,9 @@ class TLPS(AbstractEpisodicSearch):
                                         cfg.smoothing, cfg.threads)
             updated = np.stack([repair.traces[name] for name in self.signal_names], axis=-1)
             smooth_before, smooth_after = repair.smooth_before, repair.smooth_after
-            batch = dataclasses.replace(batch, observations=repair.observations, traces=repair.traces)
+            sent = np.clip(repair.actions, self.action_space.low, self.action_space.high)  # as the env clips them
+            batch = dataclasses.replace(batch, observations=repair.observations, traces=repair.traces,
+                                        actions=sent)  # robustness and success stay the sampled ones
             feedforward = repair.feedforward
         solved_at = time.perf_counter()
 
@@ -208,8 +213,3 @@ class TLPS(AbstractEpisodicSearch):
             "time_trust_region": solved_at - sampled_at,
             **refit,
         }
-
-
-def _env_name(env: Any) -> str:
-    spec = getattr(env, "spec", None)
-    return getattr(spec, "id", None) or type(env).__name__

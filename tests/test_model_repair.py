@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import gymnasium as gym
@@ -49,18 +50,20 @@ def test_the_adjoint_is_the_closed_loop_s_gradient():
     rng = np.random.default_rng(2)
     horizon, n = 6, 3
     policy = LinearGaussianPolicy(horizon, 6, 2, init_std=0.3, angles=np.array([0, 0, 1, 0, 0, 0], dtype=bool))
-    policy.gains = rng.normal(0, 0.05, (horizon, 2, 6))
-    policy.centre = rng.normal(0, 2.0, (horizon, 6))
+    policy.gains = rng.normal(0, 0.005, (horizon, 2, 6))
     model = CarModel(CarParams())
     start = np.concatenate([rng.uniform(0, 100, (n, 2)), rng.uniform(-1, 1, (n, 1)), np.zeros((n, 3))], 1)
-    noise, feedforward = rng.normal(0, 0.1, (n, horizon, 3)), rng.uniform(-0.8, 0.8, (n, horizon, 2))
+    policy.centre = start.mean(axis=0) + rng.normal(0, 2.0, (horizon, 6))  # the feedback acts, the actions rarely clip
+    noise, feedforward = rng.normal(0, 0.1, (n, horizon, 3)), rng.uniform(-0.6, 0.6, (n, horizon, 2))
     weights = rng.normal(size=(n, horizon + 1, 6))  # the function: Σ weights · states
 
     def value(k):
         return np.sum(weights * closed_loop(model, policy, start, noise, k)[0], axis=(1, 2))
 
     states, actions = closed_loop(model, policy, start, noise, feedforward)
+    assert np.mean(np.abs(actions) < 1) > 0.9 and np.abs(actions - feedforward).max() > 0.01
     grad = feedforward_gradient(model, policy, states, actions, weights)
+    assert np.mean(grad != 0) > 0.9  # zero only along the few clipped components
     eps = 1e-6
     for t in range(horizon):
         for j in range(2):
@@ -128,6 +131,7 @@ def test_tlps_with_model_repair_learns_saves_and_loads(tmp_path):
         ("TLCarNav-v0", {"action_repair": "fitted"}, "action_repair must be one of"),
         ("TLCarNav-v0", {"action_repair": "model", "solver": "slsqp"}, "projected solver"),
         ("TLCarNav-v0", {"action_epsilon": 0.0}, "action_epsilon"),
+        ("TLCarNav-v0", {"action_repair": "model", "weights": "importance"}, "ranks the repaired episodes"),
         ("TLPendulum-v0", {"action_repair": "model"}, "'TLPendulum-v0' has none"),
     ],
 )
@@ -138,3 +142,46 @@ def test_bad_repair_settings_are_refused_at_construction(env, kwargs, match):
 
 def test_an_env_without_a_model_has_none():
     assert find_model(make_vector_env(gym.make("TLPendulum-v0"), 2)) is None
+
+
+def test_a_batch_the_model_cannot_replay_is_refused_with_a_clear_error():
+    policy = LinearGaussianPolicy(HORIZON, 6, 2, init_std=0.5)
+    venv, feedforward, batch = _batch(policy, task=1, n=3)
+    formula, model = find_formula(venv), find_model(venv)
+
+    def repair(b):
+        return repair_feedforward(model, policy, b, feedforward, formula, epsilon=0.5, beta=9.0, steps=1)
+
+    with pytest.raises(RuntimeError, match="full horizon"):
+        repair(dataclasses.replace(batch, lengths=batch.lengths - 1))
+    with pytest.raises(ValueError, match="signal 'x' is not one"):
+        repair(dataclasses.replace(batch, traces={**batch.traces, "x": batch.traces["x"] + 1.0}))
+    scaled = batch.actions * 3.0  # what a RescaleAction wrapper would have sent, unknown to the model
+    with pytest.raises(ValueError, match="does not reproduce its episodes"):
+        repair(dataclasses.replace(batch, actions=scaled))
+
+
+def test_the_repaired_episodes_are_what_the_policy_is_refit_to():
+    agent = TLPS("TLCarNav-v0", seed=0, env_kwargs={"task": 1, "horizon": HORIZON}, n_episodes=6, solver_steps=3,
+                 action_repair="model", action_epsilon=0.5, feedback="open")
+    seen = {}
+    original = agent._refit
+
+    def spy(batch, feedforward, weights, floor):
+        seen.update(batch=batch, feedforward=feedforward, weights=weights)
+        return original(batch, feedforward, weights, floor)
+
+    agent._refit = spy
+    agent.learn(1)
+    batch, feedforward, weights = seen["batch"], seen["feedforward"], seen["weights"]
+    # open loop: the new mean is the weighted mean of the repaired feed-forwards, not of the drawn ones
+    np.testing.assert_allclose(agent.policy.mean, np.einsum("n,ntj->tj", weights, feedforward), atol=1e-12)
+    # the batch it saw is the repaired one, played by the model: its states are the repaired actions' states
+    model = find_model(agent.env)
+    replay, _ = closed_loop(model, agent.policy, batch.observations[:, 0],  # open loop: no gains
+                            model.noise(batch.observations, batch.actions), feedforward)
+    np.testing.assert_allclose(replay, batch.observations, atol=1e-6)
+    # the history reports the sampled episodes' exact robustness, not the repaired ones'
+    repaired = agent.formula.robustness({"x": batch.traces["x"], "y": batch.traces["y"]})
+    assert agent.history[0]["mean_robustness"] == pytest.approx(float(np.mean(batch.robustness)))
+    assert agent.history[0]["mean_robustness"] < float(np.mean(repaired))
