@@ -148,7 +148,8 @@ def repair_feedforward(model: DynamicsModel, policy: LinearGaussianPolicy, batch
     columns = signal_columns(batch, formula.signals)
     names, index = tuple(columns), list(columns.values())
     start, noise = batch.observations[:, 0], model.noise(batch.observations, batch.actions)
-    replay, _ = closed_loop(model, policy, start, noise, np.asarray(feedforward, dtype=np.float64))
+    feedforward = np.asarray(feedforward, dtype=np.float64)
+    replay, _ = closed_loop(model, policy, start, noise, feedforward)
     if not np.allclose(replay, batch.observations, rtol=1e-6, atol=1e-6):
         raise ValueError("action_repair='model': the env's dynamics_model does not reproduce its episodes (a wrapper "
                          "that changes observations or actions?); the repair would follow a wrong model")
@@ -161,7 +162,7 @@ def repair_feedforward(model: DynamicsModel, policy: LinearGaussianPolicy, batch
         return values, feedforward_gradient(model, policy, states, actions, state_grad)
 
     with torch_threads(threads):
-        result = projected_ascent(evaluate, np.asarray(feedforward, dtype=np.float64), epsilon, steps, decay)
+        result = projected_ascent(evaluate, feedforward, epsilon, steps, decay)
     observations, actions = closed_loop(model, policy, start, noise, result.updated)
     traces = {n: observations[..., j] for n, j in columns.items()}
     return Repair(result.updated, observations, actions, traces, result.smooth_before, result.smooth_after)
