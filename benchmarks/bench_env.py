@@ -73,11 +73,6 @@ def best(timings: Iterable[Timing]) -> Timing:
     return min(cpu), min(wall)
 
 
-def best_of(repeats: int, fn: Callable[[], Timing]) -> Timing:
-    """Smallest CPU and smallest wall time over ``repeats`` runs of ``fn``."""
-    return best(fn() for _ in range(repeats))
-
-
 def time_episodes(env: Any, actions: np.ndarray, episodes: int, terminal: bool = True) -> Timing:
     """Seconds for ``episodes`` episodes of ``actions``, resets untimed; without ``terminal``, per non-terminal step."""
     env.reset(seed=0)
@@ -125,10 +120,10 @@ def main() -> None:
 
     # --- car steps per second ----------------------------------------------------------------
     single = gym.make("TLCarNav-v0", disable_env_checker=True)
-    t_single = best_of(repeats, lambda: time_episodes(single, actions, episodes))
+    t_single = best(time_episodes(single, actions, episodes) for _ in range(repeats))
 
     def vector_time(envs: gym.vector.VectorEnv, n: int) -> Timing:  # n episodes of every car
-        return best_of(repeats, lambda: time_episodes(envs, batch_actions, n))
+        return best(time_episodes(envs, batch_actions, n) for _ in range(repeats))
 
     t_sync = vector_time(gym.make_vec("TLCarNav-v0", num_envs=NUM_ENVS, vectorization_mode="sync"), half)
     t_batched = {task: vector_time(CarNavVectorEnv(num_envs=NUM_ENVS, task=task), episodes) for task in (1, 2)}
@@ -153,7 +148,7 @@ def main() -> None:
     for task in (1, 2):
         trace = {"x": np.linspace(0, 300, HORIZON + 1), "y": np.linspace(0, 300, HORIZON + 1)}
         formula = task_formula(task)
-        t_eval = best_of(repeats, lambda f=formula, tr=trace: _time_calls(lambda: f.robustness(tr), 20))
+        t_eval = best(_time_calls(formula.robustness, trace) for _ in range(repeats))
         rows.append((f"terminal evaluation, task {task} (201 states)", _micro(t_eval)))
     fallback = parse("G(x > 210 -> F(y > 225)) & F G(y > 200)")  # outside the incremental fragment
     for name, formula in (("task 1", task_formula(1)), ("task 2", task_formula(2)),
@@ -184,10 +179,10 @@ def main() -> None:
     _report(rows, args.quick, args.out)
 
 
-def _time_calls(fn: Callable[[], object], n: int) -> Timing:
+def _time_calls(fn: Callable[..., object], *args: object, n: int = 20) -> Timing:
     with Clock() as clock:
         for _ in range(n):
-            fn()
+            fn(*args)
     return clock.cpu / n, clock.wall / n
 
 

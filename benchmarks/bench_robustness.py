@@ -128,7 +128,6 @@ class Row:
     library: str
     mode: str
     per_second: float | None = None  # trajectories per second
-    timed_on: int = 0  # trajectories the time was taken on
     note: str = ""
     ratio: float | None = None  # tl_gym's throughput / this library's (same mode)
 
@@ -200,7 +199,7 @@ def measure(evaluator: Evaluator, row: Row, x: np.ndarray, y: np.ndarray, refere
         if problem:
             row.note = problem
             return None
-    row.per_second, row.timed_on = k / seconds, k
+    row.per_second = k / seconds
     row.note = "; ".join(filter(None, [evaluator.expressed, f"timed on {k:,} of {n:,}" if k < n else ""]))
     return values
 
@@ -257,10 +256,9 @@ def machine() -> str:
             f"Python {platform.python_version()}; load average at the end {load}; " + ", ".join(versions))
 
 
-def _rate(rows: list[Row], task: str, n: int, length: int, library: str, mode: str = "exact") -> float | None:
-    """The trajectories per second of that row (None: no such row, or it has no time)."""
-    key = (task, n, length, library, mode)
-    return next((r.per_second for r in rows if (r.task, r.n, r.length, r.library, r.mode) == key), None)
+def _rates(rows: list[Row]) -> dict[tuple[str, int, int, str, str], float | None]:
+    """Trajectories per second by (task, N, T, library, mode) (None: the row has no time)."""
+    return {(r.task, r.n, r.length, r.library, r.mode): r.per_second for r in rows}
 
 
 def interleaved(task: Task, x: np.ndarray, y: np.ndarray, beta: float, rounds: int) -> tuple[float, ...]:
@@ -295,9 +293,10 @@ def targets(rows: list[Row], alternated: tuple[float, ...] | None = None,
     ``linear_alternated``: (smoothed linear s, hand-written exact s) of φ2 at N = 40, `alternate`d.
     """
     n_big = max((r.n for r in rows if r.length == 200), default=0)
+    rates = _rates(rows)
 
     def rate(task: str, library: str, mode: str = "exact", n: int = n_big) -> float | None:
-        return _rate(rows, task, n, 200, library, mode)
+        return rates.get((task, n, 200, library, mode))
 
     lines = []
     for task in ("phi1", "phi2"):
@@ -357,20 +356,21 @@ def targets(rows: list[Row], alternated: tuple[float, ...] | None = None,
 def linearity(rows: list[Row]) -> list[str]:
     """Time per trajectory step of tl_gym across T at the largest N measured at every T."""
     lines = []
+    rates = _rates(rows)
     lengths = sorted({r.length for r in rows})
     if len(lengths) < 2:
         return lines
     for mode in ("exact", "smooth+grad", SMOOTH_LINEAR):
         for task in sorted({r.task for r in rows}):
             sizes = sorted({r.n for r in rows if (r.task, r.library, r.mode) == (task, TL_GYM, mode)})
-            common = [n for n in sizes if all(_rate(rows, task, n, t, TL_GYM, mode) for t in lengths)]
+            common = [n for n in sizes if all(rates.get((task, n, t, TL_GYM, mode)) for t in lengths)]
             if not common:
                 continue
             n = common[-1]
-            per_step = [1e9 / (_rate(rows, task, n, t, TL_GYM, mode) * t) for t in lengths]
+            per_step = [1e9 / (rates[task, n, t, TL_GYM, mode] * t) for t in lengths]
             growth = per_step[-1] / per_step[0]
             # Large arrays leave the caches: the hand-written numpy pays that too, so compare growths.
-            hand = [_rate(rows, task, n, t, HANDWRITTEN) for t in lengths]
+            hand = [rates.get((task, n, t, HANDWRITTEN, "exact")) for t in lengths]
             hand_growth = hand[0] * lengths[0] / (hand[-1] * lengths[-1]) if mode == "exact" and all(hand) else None
             linear = growth <= 2.0 or (hand_growth is not None and growth <= 1.5 * hand_growth)
             versus = "" if hand_growth is None else f"; hand-written numpy ×{hand_growth:.2f}"
@@ -380,10 +380,8 @@ def linearity(rows: list[Row]) -> list[str]:
     return lines
 
 
-def write_results(rows: list[Row], path: Path, command: str, skipped: list[str],
-                  alternated: tuple[float, ...] | None = None,
-                  linear_alternated: tuple[float, float] | None = None) -> None:
-    """Write the table, the targets and the machine to ``path`` (markdown)."""
+def write_results(rows: list[Row], path: Path, command: str, skipped: list[str], target_lines: list[str]) -> None:
+    """Write the table, the `targets` lines and the machine to ``path`` (markdown)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     parts = [
         "# Robustness speed: tl_gym vs hand-written numpy and peer libraries", "",
@@ -392,7 +390,7 @@ def write_results(rows: list[Row], path: Path, command: str, skipped: list[str],
         "`traj/s`: trajectories per second (best of a few repeats); `tl_gym ×`: tl_gym's throughput in the same",
         "mode divided by this row's (above 1: tl_gym is faster). How to read it: `docs/speed.md`.", "",
         "## Targets (issue 3)", "",
-        *(targets(rows, alternated, linear_alternated) or ["- (the grid run does not include the targets' sizes)"]),
+        *(target_lines or ["- (the grid run does not include the targets' sizes)"]),
         "",
         "## Table", "", table(rows), "",
     ]
@@ -407,7 +405,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--tasks", nargs="+", default=list(TASKS), choices=TASKS)
     parser.add_argument("--n", nargs="+", type=int, default=[1, 40, 1_000, 10_000], help="batch sizes")
     parser.add_argument("--t", nargs="+", type=int, default=[200, 2_000, 20_000], help="trajectory lengths")
-    parser.add_argument("--peers", nargs="*", default=list(peers.PEER_MODULES), choices=peers.PEER_MODULES)
+    parser.add_argument("--peers", nargs="*", default=list(peers.PEERS), choices=peers.PEERS)
     parser.add_argument("--beta", type=float, default=9.0, help="smoothing sharpness β (the paper's 9)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--repeats", type=int, default=3)
@@ -475,7 +473,7 @@ def main(argv: list[str] | None = None) -> list[Row]:
         argv = sys.argv[1:] if argv is None else argv
         shown = [a for i, a in enumerate(argv) if a != "--out" and (i == 0 or argv[i - 1] != "--out")]
         command = " ".join(["python -m benchmarks.bench_robustness", *shown]) + f" (torch threads: {args.threads})"
-        write_results(rows, args.out, command, skipped, alternated, linear_alternated)
+        write_results(rows, args.out, command, skipped, lines)
         print(f"\nwritten to {args.out}")
     return rows
 

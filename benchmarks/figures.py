@@ -60,22 +60,12 @@ def plot_trajectory_distribution(run: RunResult, path: str | Path | None = None,
     if not iterations:
         raise ValueError(f"run {run.path.name} recorded no trajectories")
     snapshots = [(it, {"x": traces[f"it{it}_x"], "y": traces[f"it{it}_y"]}) for it in iterations]
-    env = gym.make(run.spec.env, **run.spec.env_kwargs)  # built once, for its task layout
-    try:
+    with gym.make(run.spec.env, **run.spec.env_kwargs) as env:  # built once, for its task layout
         layout = env.unwrapped.layout
-    finally:
-        env.close()
-
-    layout_patches = []
-
-    def background(ax: Any) -> None:
-        draw_layout(ax, layout)
-        layout_patches.extend(ax.patches)
-
-    fig = plot_trajectories(snapshots, background=background, title=title)
+    fig = plot_trajectories(snapshots, background=lambda ax: draw_layout(ax, layout), title=title)
     ax = fig.axes[0]
-    # early iterations spread over the whole arena: fainter bands, and the layout drawn again on top
-    for patch in ax.patches[len(layout_patches):]:
+    # early iterations spread over the whole arena: fainter bands (the snapshots' patches), the layout again on top
+    for patch in ax.patches[-len(snapshots):]:
         patch.set_alpha(0.15)
     before = len(ax.patches)
     draw_layout(ax, layout, labels=False, alpha=0.45)

@@ -69,9 +69,7 @@ class RunSpec:
 
     def to_json(self) -> dict[str, Any]:
         """The spec as a JSON-able dict (`from_json` inverts it)."""
-        return {**dataclasses.asdict(self), "env_kwargs": dict(self.env_kwargs),
-                "hyperparameters": dict(self.hyperparameters),
-                "trajectory_iterations": list(self.trajectory_iterations)}
+        return json.loads(json.dumps(dataclasses.asdict(self)))
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any]) -> RunSpec:

@@ -18,10 +18,6 @@ import numpy as np
 #: Each peer's module and the name the table prints, by the name the benchmark's ``--peers`` takes.
 PEERS = {"rtamt": ("text", "rtamt"), "argus": ("text", "argus"), "stlrom": ("text", "stlrom"),
          "stlcgpp": ("tensor", "stlcg++"), "stljax": ("tensor", "stljax")}
-PEER_MODULES = tuple(PEERS)
-
-Batch = Callable[[np.ndarray, np.ndarray], np.ndarray]
-
 
 @dataclass(frozen=True)
 class Evaluator:
@@ -29,7 +25,7 @@ class Evaluator:
 
     library: str
     mode: str
-    run: Batch  # (x, y) signals (N, T) -> (N,) robustness; in mode "smooth+grad" also the backward pass of their sum
+    run: Callable[[np.ndarray, np.ndarray], np.ndarray]  # x, y (N, T) -> ρ (N,); "smooth+grad": + the sum's backward
     expressed: str = ""  # how the library writes the formula, when not literally
     per_trajectory: bool = True  # then timed on a prefix of the batch, sized by a time budget
     max_length: int | None = None  # the longest T it takes here (too_long says why)
@@ -54,13 +50,8 @@ class Peer(NamedTuple):
 
 
 def load(name: str) -> Peer:
-    """The adapter of peer ``name`` (one of `PEER_MODULES`)."""
+    """The adapter of peer ``name`` (one of `PEERS`)."""
     if name not in PEERS:
-        raise ValueError(f"unknown peer {name!r}; expected one of {', '.join(PEER_MODULES)}")
+        raise ValueError(f"unknown peer {name!r}; expected one of {', '.join(PEERS)}")
     home, shown = PEERS[name]
     return Peer(shown, getattr(importlib.import_module(f"benchmarks.peers.{home}"), f"{name}_evaluators"))
-
-
-def per_trajectory(run_one: Callable[[np.ndarray, np.ndarray], float]) -> Batch:
-    """Lift a one-trajectory evaluation ``(x[T], y[T]) -> float`` to a batch ``(N, T) -> (N,)``."""
-    return lambda x, y: np.array([run_one(xi, yi) for xi, yi in zip(x, y)], dtype=np.float64)
