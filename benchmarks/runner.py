@@ -96,35 +96,29 @@ class Sweep:
 
 
 def load_config(path: str | Path, variant: str | None = None, overrides: Mapping[str, Any] | None = None) -> Sweep:
-    """Read a TOML config and expand it into runs (`expand_config`); `ConfigError` if it cannot be read."""
+    """Read a TOML config and expand it into runs (`expand_config`); a `ConfigError` names the file."""
     try:
-        data = tomllib.loads(Path(path).read_text())
+        return expand_config(tomllib.loads(Path(path).read_text()), variant=variant, overrides=overrides)
     except (OSError, tomllib.TOMLDecodeError) as exc:
         raise ConfigError(f"cannot read config {path}: {exc}") from exc
-    return expand_config(data, variant=variant, source=str(path), overrides=overrides)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
 
 
-def expand_config(data: Mapping[str, Any], variant: str | None = None, source: str = "<config>",
+def expand_config(data: Mapping[str, Any], variant: str | None = None,
                   overrides: Mapping[str, Any] | None = None) -> Sweep:
     """Expand a parsed config into its runs, checking every field first.
 
     ``variant`` applies ``[variants.<variant>]`` and each agent's ``variants.<variant>``; ``overrides`` are
-    top-level keys set after it (e.g. ``{"seeds": 3}``). A `ConfigError` names ``source`` and the culprit.
+    top-level keys set after it (e.g. ``{"seeds": 3}``). A `ConfigError` names the culprit.
     """
-    try:
-        return _expand(data, variant, overrides or {})
-    except ConfigError as exc:
-        raise ConfigError(f"{source}: {exc}") from None
-
-
-def _expand(data: Mapping[str, Any], variant: str | None, overrides: Mapping[str, Any]) -> Sweep:
     _check_keys(data, TOP_KEYS, "top level")
     variants = _table(data.get("variants", {}), "variants")
     for name, table in variants.items():  # all checked, not only the one asked for
         _check_keys(table, VARIANT_KEYS, f"variants.{name}")
     if variant is not None and variant not in variants:
         raise ConfigError(f"no variant {variant!r}; the config has {sorted(variants)}")
-    _check_keys(overrides, VARIANT_KEYS, "overrides")
+    overrides = _check_keys(overrides or {}, VARIANT_KEYS, "overrides")
     top = {**INHERITED, "env_kwargs": {}, **data, **variants.get(variant, {}), **overrides}
     for key in ("name", "env"):
         if not isinstance(top.get(key), str) or not top[key]:
