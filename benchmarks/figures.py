@@ -17,19 +17,17 @@ def plot_learning_curves(runs: Sequence[RunResult], path: str | Path | None = No
     """Mean exact robustness of the sampled episodes (top) and success rate per iteration, by task, with 95% bands."""
     groups = group_runs(runs)
     tasks = list(dict.fromkeys(task for task, _ in groups))
-    order = list(dict.fromkeys(label for _, label in groups))
-    colors = {label: colormaps["tab10"](i % 10) for i, label in enumerate(order)}
+    colors = {label: colormaps["tab10"](i % 10) for i, label in enumerate(dict.fromkeys(key[1] for key in groups))}
     fig = Figure(figsize=(5.2 * len(tasks), 7), constrained_layout=True)
     axes = np.asarray(fig.subplots(2, len(tasks), sharex="col", squeeze=False))
     for column, task in enumerate(tasks):
         top, bottom = axes[0, column], axes[1, column]
-        for label in order:
+        for label, color in colors.items():
             members = groups.get((task, label))
             if not members:
                 continue
             for ax, key in ((top, "mean_robustness"), (bottom, "success_rate")):
-                plot_band(ax, *stack(members, key), colors[label], f"{label} ({len(members)})",
-                          rate=key == "success_rate")
+                plot_band(ax, *stack(members, key), color, f"{label} ({len(members)})", rate=key == "success_rate")
         top.axhline(0.0, color="0.4", lw=0.8, ls="--")
         top.set(title=f"task {task}" if task is not None else "", ylabel="mean exact robustness")
         bottom.set(ylabel="success rate (ρ > 0)", ylim=(-0.02, 1.02), xlabel="iteration (8,000 env steps each)")

@@ -102,7 +102,6 @@ def _page(title: str, context: str, body: Sequence[str], images: str, intro: Seq
 
 def write_paper(runs: Sequence[results.RunResult], docs: Path, context: str) -> list[Path]:
     """Write the per-task tables, the claims, Figure 3 and the Figure-2 plots; return the paths."""
-    docs.mkdir(parents=True, exist_ok=True)
     written = [docs / "fig3_learning_curves.png"]
     figures.plot_learning_curves(runs, written[0], title="Exact robustness of the sampled episodes (Figure 3)")
     for task, rows in results.summaries_by_task(runs).items():
@@ -123,7 +122,6 @@ def write_paper(runs: Sequence[results.RunResult], docs: Path, context: str) -> 
 
 def write_ablations(runs: Sequence[results.RunResult], docs: Path, context: str) -> list[Path]:
     """Write the ablation tables and curves; return the paths."""
-    docs.mkdir(parents=True, exist_ok=True)
     figure = docs / "ablations_learning_curves.png"
     figures.plot_learning_curves(runs, figure, title="TLPS ablations (exact robustness of sampled episodes)")
     sections = [f"## Task {task}\n\n{results.markdown_table(rows)}"

@@ -98,8 +98,7 @@ def mean_band(values: np.ndarray, confidence: float = 0.95) -> tuple[np.ndarray,
 def stack(runs: Sequence[RunResult], key: str) -> tuple[np.ndarray, np.ndarray]:
     """``(iterations, values)``: history column ``key`` of every run as ``(seeds, iterations)``, cut to the shortest."""
     length = min(len(run.history[key]) for run in runs)
-    values = np.stack([run.history[key][:length] for run in runs])
-    return runs[0].history["iteration"][:length], values
+    return runs[0].history["iteration"][:length], np.stack([run.history[key][:length] for run in runs])
 
 
 def first_iteration(iterations: np.ndarray, values: np.ndarray, threshold: float, strict: bool = True) -> int | None:
@@ -130,8 +129,7 @@ def summarise(task: Any, label: str, runs: Sequence[RunResult]) -> GroupSummary:
     """Aggregate the seeds of one curve into a `GroupSummary`."""
     iterations, robustness = stack(runs, "mean_robustness")
     _, success = stack(runs, "success_rate")
-    final = robustness[:, -1]
-    mean, low, _ = mean_band(final[:, None])
+    mean, low, _ = mean_band(robustness[:, -1:])  # the final values, as one point
     evals = [run.summary.get("eval_deterministic", {}).get("success_rate") for run in runs]
     return GroupSummary(
         task=task, label=label, seeds=len(runs), iterations=int(iterations[-1]),
