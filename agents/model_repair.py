@@ -22,12 +22,15 @@ This is deliverable 2 of issue 16 with the known model in place of one fitted to
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
 
+from tl_gym.tltl import fused
 from tl_gym.tltl.ast import Formula
 
 from .feedback import matching_components
@@ -37,7 +40,12 @@ from .trust_region import projected_ascent, smooth_value_and_grad, torch_threads
 
 
 class DynamicsModel(Protocol):
-    """What ``action_repair="model"`` needs from an env's ``dynamics_model`` (the car's: `CarModel`)."""
+    """What ``action_repair="model"`` needs from an env's ``dynamics_model`` (the car's: `CarModel`).
+
+    A model may also offer ``closed_loop(start, noise, feedforward, gains, centre, angles)``, the
+    whole loop of `closed_loop` in one call (the car's is compiled by numba), returning None
+    where it cannot; `closed_loop` then steps the model itself.
+    """
 
     def step(self, state: np.ndarray, action: np.ndarray, noise: np.ndarray) -> np.ndarray:
         """Next states ``(n, obs_dim)`` from states, actions as sent to the env and additive noise."""
@@ -88,7 +96,16 @@ def signal_columns(batch: Rollouts, names: tuple[str, ...]) -> dict[str, int]:
 
 def closed_loop(model: DynamicsModel, policy: LinearGaussianPolicy, start: np.ndarray, noise: np.ndarray,
                 feedforward: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """States ``(N, T+1, obs_dim)``, actions ``(N, T, act_dim)`` of ``a_t = k_t + K_t (s_t ⊖ s̄_t)``, noise fixed."""
+    """States ``(N, T+1, obs_dim)``, actions ``(N, T, act_dim)`` of ``a_t = k_t + K_t (s_t ⊖ s̄_t)``, noise fixed.
+
+    A model with a compiled ``closed_loop`` (the car's, with numba) runs the whole loop; else it is
+    stepped here.
+    """
+    compiled = getattr(model, "closed_loop", None)
+    simulated = None if compiled is None else compiled(start, noise, feedforward, policy.gains, policy.centre,
+                                                        policy.angles)
+    if simulated is not None:
+        return simulated
     n, horizon, act_dim = feedforward.shape
     states = np.empty((n, horizon + 1, start.shape[-1]))
     actions = np.empty((n, horizon, act_dim))
@@ -112,11 +129,51 @@ def feedforward_gradient(model: DynamicsModel, policy: LinearGaussianPolicy, sta
     d_state, d_action = model.jacobians(states[:, :-1].reshape(-1, obs_dim), actions.reshape(-1, act_dim))  # all steps
     d_state, d_action = d_state.reshape(n, horizon, obs_dim, obs_dim), d_action.reshape(n, horizon, obs_dim, act_dim)
     grad = np.empty_like(actions)
+    kernel = _adjoint_kernel()
+    if kernel is not None:
+        kernel(d_state, d_action, np.ascontiguousarray(state_gradient, dtype=np.float64),
+               np.ascontiguousarray(policy.gains, dtype=np.float64), grad)
+        return grad
     adjoint = state_gradient[:, horizon].copy()
     for t in range(horizon - 1, -1, -1):
         grad[:, t] = np.einsum("nij,ni->nj", d_action[:, t], adjoint)
         adjoint = state_gradient[:, t] + np.einsum("nij,ni->nj", d_state[:, t], adjoint) + grad[:, t] @ policy.gains[t]
     return grad
+
+
+def _adjoint(d_state, d_action, state_gradient, gains, grad):  # pragma: no cover - compiled by numba
+    """`feedforward_gradient`'s backward loop, one episode at a time."""
+    n, horizon, obs_dim, act_dim = d_action.shape
+    adjoint = np.empty(obs_dim)
+    carried = np.empty(obs_dim)
+    for e in range(n):
+        for i in range(obs_dim):
+            adjoint[i] = state_gradient[e, horizon, i]
+        for t in range(horizon - 1, -1, -1):
+            for a in range(act_dim):
+                total = 0.0
+                for i in range(obs_dim):
+                    total += d_action[e, t, i, a] * adjoint[i]
+                grad[e, t, a] = total
+            for j in range(obs_dim):
+                total = 0.0
+                for i in range(obs_dim):
+                    total += d_state[e, t, i, j] * adjoint[i]
+                for a in range(act_dim):
+                    total += grad[e, t, a] * gains[t, a, j]
+                carried[j] = state_gradient[e, t, j] + total
+            for j in range(obs_dim):
+                adjoint[j] = carried[j]
+
+
+@functools.cache
+def _adjoint_kernel() -> Callable[..., None] | None:
+    """`_adjoint` compiled by numba (cached on disk), or None when numba is not installed (``tl_gym[fast]``)."""
+    if not fused.available():
+        return None
+    import numba
+
+    return numba.njit(cache=True)(_adjoint)
 
 
 def repair_feedforward(model: DynamicsModel, policy: LinearGaussianPolicy, batch: Rollouts, feedforward: np.ndarray,

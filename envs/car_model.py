@@ -1,7 +1,8 @@
 """The car's dynamics as a model with Jacobians, for agents that use a known model.
 
-`CarModel` wraps `tl_gym.envs.dynamics.car_step` (the env's own step) with its Jacobians
-and the inverse that recovers each step's additive noise from a recorded episode. With that
+`CarModel` wraps `tl_gym.envs.dynamics.car_step` (the env's own step) with its Jacobians,
+the inverse that recovers each step's additive noise from a recorded episode, and, with numba
+installed (``tl_gym[fast]``), a compiled closed loop under a time-varying linear feedback. With that
 noise held fixed, an episode's states are a differentiable function of its actions: TLPS's
 ``action_repair="model"`` (docs/tlps.md, H19) climbs the smoothed robustness along that
 function. `CarNavEnv` and `CarNavVectorEnv` expose one as ``dynamics_model``.
@@ -19,8 +20,14 @@ Example:
 
 from __future__ import annotations
 
+import functools
+import math
+from collections.abc import Callable
+
 import numpy as np
 from tl_gym.envs.dynamics import NOISE_SIZE, STATE_SIZE, CarParams, car_step, wrap_angle
+
+from tl_gym.tltl import fused
 
 
 class CarModel:
@@ -82,3 +89,69 @@ class CarModel:
         noise = observations[:, 1:, :3] - noiseless[..., :3]
         noise[..., 2] = wrap_angle(noise[..., 2])
         return noise
+
+    def closed_loop(self, start: np.ndarray, noise: np.ndarray, feedforward: np.ndarray, gains: np.ndarray,
+                    centre: np.ndarray, angles: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """States ``(N, T+1, 6)`` and actions ``(N, T, 2)`` of ``a_t = k_t + K_t (s_t ⊖ s̄_t)``, noise fixed.
+
+        The loop `tl_gym.agents.model_repair.closed_loop` runs step by step in Python, compiled
+        into one numba loop (the same numbers to rounding, tested): 200 steps of 40 cars cost
+        well under a millisecond instead of tens of numpy calls per step. None without numba.
+
+        Args:
+            start: ``(N, 6)`` start states.
+            noise: ``(N, T, 3)`` each step's additive noise (`noise`).
+            feedforward: ``(N, T, 2)`` the feed-forwards k_t.
+            gains: ``(T, 2, 6)`` the feedback gains K_t.
+            centre: ``(T, 6)`` the states s̄_t the feedback is centred on.
+            angles: ``(6,)`` bool, the components whose deviation is wrapped to ``[-π, π)``.
+        """
+        kernel = _closed_loop_kernel()
+        if kernel is None:
+            return None
+        n, horizon, act_dim = feedforward.shape
+        states, actions = np.empty((n, horizon + 1, STATE_SIZE)), np.empty((n, horizon, act_dim))
+        p = self.params
+        kernel(np.asarray(start, dtype=np.float64), np.asarray(noise, dtype=np.float64),
+               np.asarray(feedforward, dtype=np.float64), np.asarray(gains, dtype=np.float64),
+               np.asarray(centre, dtype=np.float64), np.asarray(angles, dtype=np.bool_),
+               p.dt, p.wheelbase, p.max_speed, p.max_steer, states, actions)
+        return states, actions
+
+
+def _closed_loop(start, noise, feedforward, gains, centre, angles, dt, wheelbase, max_speed, max_steer,
+                 states, actions):  # pragma: no cover - compiled by numba
+    """`CarModel.closed_loop`'s loop, operation for operation as `car_step` and `CarParams.physical_action`."""
+    n, horizon, act_dim = feedforward.shape
+    obs_dim = start.shape[1]
+    two_pi = 2.0 * math.pi
+    for i in range(n):
+        for j in range(obs_dim):
+            states[i, 0, j] = start[i, j]
+        for t in range(horizon):
+            for a in range(act_dim):
+                feedback = 0.0
+                for j in range(obs_dim):
+                    deviation = states[i, t, j] - centre[t, j]
+                    if angles[j]:
+                        deviation = (deviation + math.pi) % two_pi - math.pi
+                    feedback += gains[t, a, j] * deviation
+                actions[i, t, a] = feedforward[i, t, a] + feedback
+            speed = (min(max(actions[i, t, 0], -1.0), 1.0) + 1.0) * (0.5 * max_speed)
+            steer = min(max(actions[i, t, 1], -1.0), 1.0) * max_steer
+            theta = states[i, t, 2]
+            rates = (speed * math.cos(theta), speed * math.sin(theta), speed / wheelbase * math.tan(steer))
+            for j in range(3):
+                states[i, t + 1, 3 + j] = rates[j]
+                states[i, t + 1, j] = rates[j] * dt + states[i, t, j] + noise[i, t, j]
+            states[i, t + 1, 2] = (states[i, t + 1, 2] + math.pi) % two_pi - math.pi
+
+
+@functools.cache
+def _closed_loop_kernel() -> Callable[..., None] | None:
+    """`_closed_loop` compiled by numba (cached on disk), or None when numba is not installed."""
+    if not fused.available():
+        return None
+    import numba
+
+    return numba.njit(cache=True)(_closed_loop)

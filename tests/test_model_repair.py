@@ -79,6 +79,38 @@ def _batch(policy, seed=3, n=6, task=2):
     return venv, feedforward, rollout(venv, feedforward, policy.feedback, seed=seed)
 
 
+class _SteppedModel:
+    """The car's model without its compiled loop: `closed_loop` and the adjoint then run step by step in numpy."""
+
+    def __init__(self, model: CarModel):
+        self.step, self.jacobians, self.noise = model.step, model.jacobians, model.noise
+
+
+def test_the_compiled_loop_and_adjoint_give_the_stepped_numbers(monkeypatch):
+    pytest.importorskip("numba")
+    from tl_gym.agents import model_repair
+
+    rng = np.random.default_rng(3)
+    horizon, n = 40, 8
+    policy = LinearGaussianPolicy(horizon, 6, 2, init_std=0.3, angles=np.array([0, 0, 1, 0, 0, 0], dtype=bool))
+    policy.gains = rng.normal(0, 0.01, (horizon, 2, 6))
+    policy.centre = rng.normal(0, 20.0, (horizon, 6))
+    policy.centre[:, 2] = rng.uniform(-3, 3, horizon)  # headings far apart: the deviation's wrap acts
+    model = CarModel(CarParams())
+    start = np.concatenate([rng.uniform(0, 100, (n, 2)), rng.uniform(-3, 3, (n, 1)), np.zeros((n, 3))], 1)
+    noise, feedforward = rng.normal(0, 0.2, (n, horizon, 3)), rng.uniform(-1.3, 1.3, (n, horizon, 2))  # some clip
+    compiled = closed_loop(model, policy, start, noise, feedforward)
+    stepped = closed_loop(_SteppedModel(model), policy, start, noise, feedforward)
+    assert model.closed_loop(start, noise, feedforward, policy.gains, policy.centre, policy.angles) is not None
+    for fast, slow in zip(compiled, stepped):
+        np.testing.assert_allclose(fast, slow, rtol=1e-12, atol=1e-9)
+    state_gradient = rng.normal(size=compiled[0].shape)
+    fast = feedforward_gradient(model, policy, *compiled, state_gradient)
+    monkeypatch.setattr(model_repair, "_adjoint_kernel", lambda: None)
+    slow = feedforward_gradient(model, policy, *compiled, state_gradient)
+    np.testing.assert_allclose(fast, slow, rtol=1e-10, atol=1e-9)
+
+
 @pytest.mark.parametrize("with_gains", [False, True])
 def test_recovered_noise_replays_the_episodes_through_the_closed_loop(with_gains):
     rng = np.random.default_rng(1)
