@@ -35,6 +35,7 @@ not the literal softmax of densities, which does not learn (see `TLPSConfig.weig
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -47,6 +48,7 @@ from tl_gym.checks import check_positive
 from .episodic import AbstractEpisodicSearch, EpisodicSearchConfig
 from .model_repair import find_model, repair_feedforward
 from .sampling import rollout
+from .trust_radius import AdaptiveRadius
 from .trust_region import check_trust_region, improve_trajectories
 from .weights import WEIGHTINGS, adapt_alpha, kl_to_uniform, sample_logits, softmax_weights
 
@@ -100,6 +102,11 @@ class TLPSConfig(EpisodicSearchConfig):
     """With ``action_repair="model"``: trust region ``‖k̄^i − k^i‖² ≤ action_epsilon`` in squared
     normalised action units, summed over steps and action components (> 0); 1.0 moves a 200-step
     car episode's actions by 0.05 per component on average (docs/tlps.md, H19)."""
+    trust_adapt: bool = False
+    """Adapt the trust region's size (``epsilon``, or ``action_epsilon`` with the repair) from the
+    ratio of the next batch's realised gain in mean ρ̂ to the gain the update promised: halve it
+    below 0.25, double it above 0.75 (`tl_gym.agents.trust_radius`; docs/tlps.md, H21)."""
+
     def __post_init__(self) -> None:
         super().__post_init__()
         check_trust_region(self.epsilon, self.beta, self.solver, self.solver_steps, self.solver_decay)
@@ -121,6 +128,8 @@ class TLPSConfig(EpisodicSearchConfig):
         if self.alpha is not None:
             check_positive("alpha", self.alpha)
         check_positive("regularization", self.regularization)
+        if not isinstance(self.trust_adapt, bool):
+            raise ValueError(f"trust_adapt must be True or False, got {self.trust_adapt!r}")
         if self.threads is not None and (not isinstance(self.threads, int) or self.threads < 1):
             raise ValueError(f"threads must be a positive int or None, got {self.threads!r}")
 
@@ -150,6 +159,16 @@ class TLPS(AbstractEpisodicSearch):
         if self.config.action_repair == "model" and self._model is None:
             raise ValueError(f"action_repair='model' needs an env with a differentiable `dynamics_model` "
                              f"(TLCarNav-v0 has one); {self._env_source['id'] or type(self.env).__name__!r} has none")
+        self._radius = AdaptiveRadius()
+
+    def _state_arrays(self) -> dict[str, np.ndarray]:
+        arrays = super()._state_arrays()
+        return {**arrays, "trust_radius": self._radius.to_array()} if self.config.trust_adapt else arrays
+
+    def _load_state(self, arrays: dict[str, np.ndarray], files: dict[str, bytes]) -> None:
+        super()._load_state(arrays, files)
+        if "trust_radius" in arrays:
+            self._radius = AdaptiveRadius.from_array(arrays["trust_radius"])
 
     @property
     def signal_names(self) -> tuple[str, ...]:
@@ -165,16 +184,20 @@ class TLPS(AbstractEpisodicSearch):
         batch = rollout(self.env, feedforward, self.policy.feedback, seed=seed)  # l.4-7: N episodes, batched
         tau = np.stack([batch.traces[name] for name in self.signal_names], axis=-1)  # τ^i: (N, T+1, S)
         sampled_at = time.perf_counter()
+        scale = 1.0
+        if cfg.trust_adapt:  # the last update's promise against this batch, sampled from its refit
+            sampled = self.formula.smooth_robustness(batch.traces, cfg.beta, math.inf, cfg.smoothing)
+            scale = self._radius.adapt(float(np.mean(sampled)))
 
         if self._model is None:
             result = improve_trajectories(  # l.8: τ̄^i = argmax ρ̂ s.t. ‖τ̄^i − τ^i‖² ≤ ε
-                self.formula, self.signal_names, tau, cfg.beta, cfg.epsilon, solver=cfg.solver,
+                self.formula, self.signal_names, tau, cfg.beta, cfg.epsilon * scale, solver=cfg.solver,
                 steps=cfg.solver_steps, decay=cfg.solver_decay, form=cfg.smoothing, threads=cfg.threads,
             )
             updated, smooth_before, smooth_after = result.updated, result.smooth_before, result.smooth_after
         else:  # l.8 through the model: k̄^i = argmax ρ̂(τ(k)) s.t. ‖k − k^i‖² ≤ ε_a; refit to the repaired episodes
             repair = repair_feedforward(self._model, self.policy, batch, feedforward, self.formula,
-                                        cfg.action_epsilon, cfg.beta, cfg.solver_steps, cfg.solver_decay,
+                                        cfg.action_epsilon * scale, cfg.beta, cfg.solver_steps, cfg.solver_decay,
                                         cfg.smoothing, cfg.threads)
             updated = np.stack([repair.traces[name] for name in self.signal_names], axis=-1)
             smooth_before, smooth_after = repair.smooth_before, repair.smooth_after
@@ -183,6 +206,8 @@ class TLPS(AbstractEpisodicSearch):
                                         actions=sent)  # robustness and success stay the sampled ones
             feedforward = repair.feedforward
         solved_at = time.perf_counter()
+        if cfg.trust_adapt:
+            self._radius.record(float(np.mean(smooth_before)), float(np.mean(smooth_after)))
 
         # l.9: fit (μ̄, Σ̄) to the updated τ̄ (Eq. 12); l.10-11: log N(τ^i | μ̄, Σ̄), and the
         # importance / hybrid corrections (see weights.py); l.12: w^i ∝ exp(α logit^i)
@@ -211,5 +236,6 @@ class TLPS(AbstractEpisodicSearch):
             "std_floor": floor,
             "time_sampling": sampled_at - start,
             "time_trust_region": solved_at - sampled_at,
+            **({"trust_scale": scale} if cfg.trust_adapt else {}),
             **refit,
         }

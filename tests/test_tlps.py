@@ -27,6 +27,7 @@ from tl_gym.agents.tlps import TLPS, TLPSConfig
         (dict(exploration_floor=-0.1), "exploration_floor"),
         (dict(exploration_halflife=0.0), "exploration_halflife"),
         (dict(threads=0), "threads"),
+        (dict(trust_adapt=1), "trust_adapt"),
     ],
 )
 def test_bad_hyperparameters_raise_at_construction(hyperparameters, culprit):
@@ -113,3 +114,21 @@ def test_fixed_feedback_gains_are_used_saved_and_checked(tmp_path):
     np.testing.assert_array_equal(loaded.policy.gains, agent.policy.gains)
     with pytest.raises(ValueError, match="gains must have shape"):
         TLPS("TLCarNav-v0", n_episodes=4, gains=np.zeros((3, 3)), feedback="open")
+
+
+def test_the_adapted_trust_region_follows_realised_gains_and_is_saved(tmp_path):
+    agent = TLPS("TLCarNav-v0", seed=1, n_episodes=6, solver_steps=3, trust_adapt=True).learn(3)
+    rows = agent.history
+    assert rows[0]["trust_scale"] == 1.0  # nothing promised yet
+    for before, after in zip(rows, rows[1:]):  # each scale is the rule applied to the previous update's promise
+        promised = before["smooth_updated"] - before["smooth_robustness"]
+        ratio = (after["smooth_robustness"] - before["smooth_robustness"]) / promised
+        factor = 0.5 if ratio < 0.25 else 2.0 if ratio > 0.75 else 1.0
+        assert after["trust_scale"] == before["trust_scale"] * factor
+    loaded = TLPS.load(agent.save(tmp_path / "adapt.zip"))
+    assert loaded._radius == agent._radius
+    agent.learn(1)
+    loaded.learn(1)
+    assert loaded.history[-1]["trust_scale"] == agent.history[-1]["trust_scale"]
+    assert loaded.history[-1]["mean_robustness"] == agent.history[-1]["mean_robustness"]
+    assert "trust_scale" not in TLPS("TLCarNav-v0", seed=1, n_episodes=6, solver_steps=3).learn(1).history[0]
