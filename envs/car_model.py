@@ -56,6 +56,12 @@ class CarModel:
         """
         p = self.params
         n = state.shape[0]
+        kernel = _jacobians_kernel()
+        if kernel is not None:  # the same entries, filled row by row without temporaries
+            A, B = np.zeros((n, STATE_SIZE, STATE_SIZE)), np.zeros((n, STATE_SIZE, 2))
+            kernel(np.asarray(state, dtype=np.float64), np.asarray(action, dtype=np.float64),
+                   p.dt, p.wheelbase, p.max_speed, p.max_steer, A, B)
+            return A, B
         clipped = np.clip(action, -1.0, 1.0)
         inside = (np.abs(action) <= 1.0).astype(np.float64)
         speed = (clipped[:, 0] + 1.0) * (0.5 * p.max_speed)
@@ -155,3 +161,35 @@ def _closed_loop_kernel() -> Callable[..., None] | None:
     import numba
 
     return numba.njit(cache=True)(_closed_loop)
+
+
+def _jacobians(state, action, dt, wheelbase, max_speed, max_steer, A, B):  # pragma: no cover - compiled by numba
+    """`CarModel.jacobians`' entries, row by row (``A``, ``B`` zero on entry)."""
+    for r in range(state.shape[0]):
+        u0, u1 = action[r, 0], action[r, 1]
+        speed = (min(max(u0, -1.0), 1.0) + 1.0) * (0.5 * max_speed)
+        steer = min(max(u1, -1.0), 1.0) * max_steer
+        cos, sin, tan = math.cos(state[r, 2]), math.sin(state[r, 2]), math.tan(steer)
+        d_theta = (-speed * sin, speed * cos, 0.0)  # the rates' slopes in θ
+        d_speed = (cos, sin, tan / wheelbase)  # ... and in the physical speed
+        for j in range(3):
+            A[r, j, j] = 1.0
+            A[r, j, 2] += dt * d_theta[j]
+            A[r, 3 + j, 2] = d_theta[j]
+            if abs(u0) <= 1.0:
+                B[r, 3 + j, 0] = d_speed[j] * (0.5 * max_speed)
+        if abs(u1) <= 1.0:
+            B[r, 5, 1] = speed / wheelbase / math.cos(steer) ** 2 * max_steer
+        for j in range(3):
+            B[r, j, 0] = dt * B[r, 3 + j, 0]
+            B[r, j, 1] = dt * B[r, 3 + j, 1]
+
+
+@functools.cache
+def _jacobians_kernel() -> Callable[..., None] | None:
+    """`_jacobians` compiled by numba (cached on disk), or None when numba is not installed."""
+    if not fused.available():
+        return None
+    import numba
+
+    return numba.njit(cache=True)(_jacobians)

@@ -86,9 +86,10 @@ class _SteppedModel:
         self.step, self.jacobians, self.noise = model.step, model.jacobians, model.noise
 
 
-def test_the_compiled_loop_and_adjoint_give_the_stepped_numbers(monkeypatch):
+def test_the_compiled_loop_jacobians_and_adjoint_give_the_numpy_numbers(monkeypatch):
     pytest.importorskip("numba")
     from tl_gym.agents import model_repair
+    from tl_gym.envs import car_model
 
     rng = np.random.default_rng(3)
     horizon, n = 40, 8
@@ -105,8 +106,12 @@ def test_the_compiled_loop_and_adjoint_give_the_stepped_numbers(monkeypatch):
     for fast, slow in zip(compiled, stepped):
         np.testing.assert_allclose(fast, slow, rtol=1e-12, atol=1e-9)
     state_gradient = rng.normal(size=compiled[0].shape)
-    fast = feedforward_gradient(model, policy, *compiled, state_gradient)
+    rows = compiled[0][:, :-1].reshape(-1, 6), compiled[1].reshape(-1, 2)
+    fast_jacobians, fast = model.jacobians(*rows), feedforward_gradient(model, policy, *compiled, state_gradient)
     monkeypatch.setattr(model_repair, "_adjoint_kernel", lambda: None)
+    monkeypatch.setattr(car_model, "_jacobians_kernel", lambda: None)
+    for compiled_jacobian, numpy_jacobian in zip(fast_jacobians, model.jacobians(*rows)):
+        np.testing.assert_allclose(compiled_jacobian, numpy_jacobian, rtol=1e-14, atol=1e-14)
     slow = feedforward_gradient(model, policy, *compiled, state_gradient)
     np.testing.assert_allclose(fast, slow, rtol=1e-10, atol=1e-9)
 
