@@ -105,12 +105,14 @@ def smooth_value_and_grad(
         ``(values (N,), gradients (N, T, S))``; trajectories do not interact, so the
         gradient of the sum is each trajectory's own gradient.
     """
-    x = torch.tensor(trajectories, dtype=torch.float64, requires_grad=True)
-    values = formula.smooth_robustness({name: x[:, :, j] for j, name in enumerate(names)}, beta, rho_max, form)
-    values.sum().backward()
-    grad = x.grad.numpy()
+    trace = {name: trajectories[:, :, j] for j, name in enumerate(names)}
+    values, grads = formula.smooth_robustness_and_gradient(trace, beta, rho_max, form)
+    grad = np.zeros(trajectories.shape)
+    for j, name in enumerate(names):
+        if name in grads:
+            grad[:, :, j] = grads[name]
     # A saturated (±∞) value has no gradient; report zeros rather than NaN.
-    return values.detach().numpy().copy(), np.nan_to_num(grad, nan=0.0, posinf=0.0, neginf=0.0)
+    return values, np.nan_to_num(grad, nan=0.0, posinf=0.0, neginf=0.0)
 
 
 def improve_trajectories(

@@ -362,3 +362,28 @@ def test_eq18_is_not_the_smoothing_of_phi1():
         assert phi1.smooth_robustness(trace, beta) == pytest.approx(eq17, abs=10 / beta)
         assert eq18(beta) == pytest.approx(min_over_time, abs=10 / beta)
     assert phi1.satisfied(trace) and eq18(1e3) < 0  # Eq. 18 would call a satisfying run a failure
+
+
+@settings(max_examples=min(settings().max_examples, 40))
+@given(smooth_formulas, S.batched_traces(max_length=6, max_batch=3, rescale=False),
+       st.sampled_from([0.5, 1.0, 9.0]), st.sampled_from(["nested", "linear"]), st.sampled_from([5.0, math.inf]))
+def test_the_numpy_gradient_is_autograd_s(formula, trace, beta, form, rho_max):
+    """`smooth_robustness_and_gradient` gives autograd's values and gradients, without tensors."""
+    assume(ref.is_defined(formula, trace))
+    values, grads = formula.smooth_robustness_and_gradient(trace, beta, rho_max, form)
+    tensors = {name: torch.tensor(trace[name], requires_grad=True) for name in S.SIGNALS}
+    expected = formula.smooth_robustness(tensors, beta, rho_max, form=form)
+    np.testing.assert_array_equal(values, expected.detach().numpy())
+    if not expected.requires_grad:  # no signal read
+        assert grads == {}
+        return
+    expected.sum().backward()
+    assert set(grads) == set(formula.signals)
+    for name in formula.signals:
+        autograd = np.nan_to_num(tensors[name].grad.numpy(), nan=0.0, posinf=0.0, neginf=0.0)
+        np.testing.assert_array_equal(np.nan_to_num(grads[name], nan=0.0, posinf=0.0, neginf=0.0), autograd)
+    single = {name: np.asarray(trace[name])[0] for name in S.SIGNALS}  # one trajectory: a float and (T,) arrays
+    value, grad = formula.smooth_robustness_and_gradient(single, beta, rho_max, form)
+    assert value == values[0] or (math.isnan(value) and math.isnan(values[0]))
+    for name in formula.signals:
+        np.testing.assert_array_equal(grad[name], grads[name][0])

@@ -398,6 +398,41 @@ class Formula:
 
         return smooth.smooth_robustness(self, trace, beta, rho_max, form, backend)
 
+    def smooth_robustness_and_gradient(self, trace: Trace, beta: float, rho_max: float = math.inf,
+                                       form: str = "nested", backend: str = "auto") -> tuple[Any, dict[str, Any]]:
+        """`smooth_robustness` of numpy signals and its gradient, without autograd.
+
+        Returns ``(values, gradients)``: the values as `smooth_robustness` gives them (a float,
+        or ``(N,)`` for a batch) and, per signal the formula reads, the gradient of each value
+        with respect to its own trajectory (the signal's shape; zero where a value is ±∞). The
+        same numbers as torch's autograd through `smooth_robustness` (tested), without a
+        tensor round trip: about 3× faster on the car's task-2 batch of 40 × 201 steps, where
+        TLPS's trust region asks for it 21 times an iteration.
+
+        Example:
+            >>> import numpy as np
+            >>> from tl_gym import parse
+            >>> value, grad = parse("F(s > 5)").smooth_robustness_and_gradient({"s": np.array([1.0, 6.0])}, 9.0)
+            >>> round(value, 4), np.round(grad["s"], 4).tolist()
+            (1.0, [0.0, 1.0])
+        """
+        import numpy as np
+
+        from tl_gym.tltl import smooth
+        from tl_gym.tltl.trace import prepare
+
+        smooth._check(beta, rho_max, form)
+        if backend not in smooth.BACKENDS:
+            raise ValueError(f"backend must be one of {smooth.BACKENDS}, got {backend!r}")
+        prepared = prepare(self.signals, trace)
+        z, jac = smooth._at_position_zero(self, prepared.signals, prepared.n, prepared.length, beta, rho_max, form,
+                                          prepared.magnitudes, jacobian=True, backend=backend)
+        values = smooth._to_rho(z, beta)[0]
+        grads = {name: jac.get(name, np.zeros((prepared.n, prepared.length))) for name in prepared.signals}
+        if prepared.batched:
+            return values.copy(), grads
+        return float(values[0]), {name: grad[0] for name, grad in grads.items()}
+
     def smooth_robustness_over_time(
         self, trace: Trace, beta: float, rho_max: float = math.inf, form: str = "nested"
     ) -> Any:
