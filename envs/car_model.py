@@ -57,8 +57,8 @@ class CarModel:
         p = self.params
         n = state.shape[0]
         kernel = _jacobians_kernel()
-        if kernel is not None:  # the same entries, filled row by row without temporaries
-            A, B = np.zeros((n, STATE_SIZE, STATE_SIZE)), np.zeros((n, STATE_SIZE, 2))
+        if kernel is not None:  # the same entries, written row by row without temporaries
+            A, B = np.empty((n, STATE_SIZE, STATE_SIZE)), np.empty((n, STATE_SIZE, 2))
             kernel(np.asarray(state, dtype=np.float64), np.asarray(action, dtype=np.float64),
                    p.dt, p.wheelbase, p.max_speed, p.max_steer, A, B)
             return A, B
@@ -164,8 +164,10 @@ def _closed_loop_kernel() -> Callable[..., None] | None:
 
 
 def _jacobians(state, action, dt, wheelbase, max_speed, max_steer, A, B):  # pragma: no cover - compiled by numba
-    """`CarModel.jacobians`' entries, row by row (``A``, ``B`` zero on entry)."""
+    """`CarModel.jacobians`' entries, row by row (every entry of ``A`` and ``B`` written)."""
     for r in range(state.shape[0]):
+        A[r] = 0.0
+        B[r] = 0.0
         u0, u1 = action[r, 0], action[r, 1]
         speed = (min(max(u0, -1.0), 1.0) + 1.0) * (0.5 * max_speed)
         steer = min(max(u1, -1.0), 1.0) * max_steer

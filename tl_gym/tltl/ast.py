@@ -428,7 +428,8 @@ class Formula:
         z, jac = smooth._at_position_zero(self, prepared.signals, prepared.n, prepared.length, beta, rho_max, form,
                                           prepared.magnitudes, jacobian=True, backend=backend)
         values = smooth._to_rho(z, beta)[0]
-        grads = {name: jac.get(name, np.zeros((prepared.n, prepared.length))) for name in prepared.signals}
+        shape = (prepared.n, prepared.length)
+        grads = {name: jac[name] if name in jac else np.zeros(shape) for name in prepared.signals}
         if prepared.batched:
             return values.copy(), grads
         return float(values[0]), {name: grad[0] for name, grad in grads.items()}
