@@ -36,7 +36,7 @@ from tl_gym.tltl.ast import Formula
 from .feedback import matching_components
 from .policy import LinearGaussianPolicy
 from .sampling import Rollouts, env_attribute
-from .trust_region import projected_ascent, smooth_value_and_grad, torch_threads
+from .trust_region import projected_ascent, smooth_value_and_grad
 
 
 class DynamicsModel(Protocol):
@@ -178,7 +178,7 @@ def _adjoint_kernel() -> Callable[..., None] | None:
 
 def repair_feedforward(model: DynamicsModel, policy: LinearGaussianPolicy, batch: Rollouts, feedforward: np.ndarray,
                        formula: Formula, epsilon: float, beta: float, steps: int = 20, decay: float = 0.5,
-                       form: str = "linear", threads: int | None = 1) -> Repair:
+                       form: str = "linear") -> Repair:
     """Repair every episode's feed-forward through the model (module docstring, steps 1–3).
 
     Args:
@@ -193,7 +193,6 @@ def repair_feedforward(model: DynamicsModel, policy: LinearGaussianPolicy, batch
         steps: iterations of the projected solver.
         decay: its step-length factor after a step that did not improve.
         form: the engine's smoothing form, ``"nested"`` or ``"linear"``.
-        threads: torch threads (None keeps the process setting).
 
     Raises:
         RuntimeError: an episode ended before the horizon (its later states are not simulated).
@@ -218,8 +217,7 @@ def repair_feedforward(model: DynamicsModel, policy: LinearGaussianPolicy, batch
         state_grad[..., index] = signal_grad
         return values, feedforward_gradient(model, policy, states, actions, state_grad)
 
-    with torch_threads(threads):
-        result = projected_ascent(evaluate, feedforward, epsilon, steps, decay)
+    result = projected_ascent(evaluate, feedforward, epsilon, steps, decay)
     observations, actions = closed_loop(model, policy, start, noise, result.updated)
     traces = {n: observations[..., j] for n, j in columns.items()}
     return Repair(result.updated, observations, actions, traces, result.smooth_before, result.smooth_after)

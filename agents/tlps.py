@@ -92,8 +92,9 @@ class TLPSConfig(EpisodicSearchConfig):
     solver_decay: float = 0.5
     """Step-length factor of the projected solver after a step that did not improve, in (0, 1)."""
     threads: int | None = 1
-    """Torch threads during the trust-region solve (one is fastest for these small tensors);
-    ``None`` keeps the process setting."""
+    """Torch threads during the trust-region solve, when it ran through torch's autograd. Since the
+    solve takes the engine's gradient without torch (`Formula.smooth_robustness_and_gradient`), it
+    has no effect; kept (and checked) so that saved agents and scripts that set it still load."""
     action_repair: str = "none"
     """``"none"``: the paper's update in signal space (line 8). ``"model"``: repair each episode's
     feed-forward through the env's differentiable ``dynamics_model`` and refit to the repaired
@@ -192,13 +193,13 @@ class TLPS(AbstractEpisodicSearch):
         if self._model is None:
             result = improve_trajectories(  # l.8: τ̄^i = argmax ρ̂ s.t. ‖τ̄^i − τ^i‖² ≤ ε
                 self.formula, self.signal_names, tau, cfg.beta, cfg.epsilon * scale, solver=cfg.solver,
-                steps=cfg.solver_steps, decay=cfg.solver_decay, form=cfg.smoothing, threads=cfg.threads,
+                steps=cfg.solver_steps, decay=cfg.solver_decay, form=cfg.smoothing,
             )
             updated, smooth_before, smooth_after = result.updated, result.smooth_before, result.smooth_after
         else:  # l.8 through the model: k̄^i = argmax ρ̂(τ(k)) s.t. ‖k − k^i‖² ≤ ε_a; refit to the repaired episodes
             repair = repair_feedforward(self._model, self.policy, batch, feedforward, self.formula,
                                         cfg.action_epsilon * scale, cfg.beta, cfg.solver_steps, cfg.solver_decay,
-                                        cfg.smoothing, cfg.threads)
+                                        cfg.smoothing)
             updated = np.stack([repair.traces[name] for name in self.signal_names], axis=-1)
             smooth_before, smooth_after = repair.smooth_before, repair.smooth_after
             sent = np.clip(repair.actions, self.action_space.low, self.action_space.high)  # as the env clips them

@@ -36,13 +36,11 @@ Example:
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-import torch
 from scipy.optimize import minimize
 
 from tl_gym.checks import check_positive
@@ -67,20 +65,6 @@ class TrustRegionResult:
     updated: np.ndarray
     smooth_before: np.ndarray
     smooth_after: np.ndarray
-
-
-@contextmanager
-def torch_threads(n: int | None) -> Iterator[None]:
-    """Run the block with ``n`` torch intra-op threads (unchanged when ``n`` is None)."""
-    if n is None:
-        yield
-        return
-    old = torch.get_num_threads()
-    torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(old)
 
 
 def smooth_value_and_grad(
@@ -126,7 +110,6 @@ def improve_trajectories(
     decay: float = 0.5,
     rho_max: float = math.inf,
     form: str = "nested",
-    threads: int | None = None,
 ) -> TrustRegionResult:
     """Solve the trust-region problem for every trajectory (Algorithm 1, line 8).
 
@@ -142,7 +125,6 @@ def improve_trajectories(
             improve a trajectory, in (0, 1) (a step that did grows the length by 1.2).
         rho_max: the value of ``true`` passed to the engine.
         form: the engine's smoothing form, ``"nested"`` (the paper's) or ``"linear"``.
-        threads: torch threads while solving (None keeps the process setting).
 
     Returns:
         A `TrustRegionResult`.
@@ -158,10 +140,9 @@ def improve_trajectories(
     def evaluate(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return smooth_value_and_grad(formula, names, x, beta, rho_max, form)
 
-    with torch_threads(threads):
-        if solver == "projected":
-            return projected_ascent(lambda x, rows: evaluate(x), trajectories, epsilon, steps, decay)
-        return _slsqp(evaluate, trajectories, epsilon, 5 * steps)
+    if solver == "projected":
+        return projected_ascent(lambda x, rows: evaluate(x), trajectories, epsilon, steps, decay)
+    return _slsqp(evaluate, trajectories, epsilon, 5 * steps)
 
 
 def check_trust_region(epsilon: float, beta: float, solver: str, steps: int, decay: float) -> None:

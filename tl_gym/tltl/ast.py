@@ -421,9 +421,7 @@ class Formula:
         from tl_gym.tltl import smooth
         from tl_gym.tltl.trace import prepare
 
-        smooth._check(beta, rho_max, form)
-        if backend not in smooth.BACKENDS:
-            raise ValueError(f"backend must be one of {smooth.BACKENDS}, got {backend!r}")
+        smooth._check(beta, rho_max, form, backend)
         prepared = prepare(self.signals, trace)
         z, jac = smooth._at_position_zero(self, prepared.signals, prepared.n, prepared.length, beta, rho_max, form,
                                           prepared.magnitudes, jacobian=True, backend=backend)

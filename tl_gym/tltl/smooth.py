@@ -487,12 +487,14 @@ def _to_rho(z: np.ndarray, beta: float) -> np.ndarray:
         return np.where(np.abs(z) >= _INF / 2, np.sign(z) * np.inf, z / beta)
 
 
-def _check(beta: float, rho_max: float, form: str) -> None:
+def _check(beta: float, rho_max: float, form: str, backend: str = "numpy") -> None:
     if isinstance(beta, bool) or not (isinstance(beta, (int, float)) and math.isfinite(beta) and beta > 0):
         raise ValueError(f"beta must be a positive finite number, got {beta!r}")
     check_rho_max(rho_max)
     if form not in FORMS:
         raise ValueError(f"form must be one of {FORMS}, got {form!r}")
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
 
 
 def _evaluate(formula: Formula, signals: dict[str, np.ndarray], n: int, length: int, beta: float, rho_max: float,
@@ -554,9 +556,7 @@ def _at_position_zero(formula: Formula, signals: dict[str, np.ndarray], n: int, 
 def _smooth(formula: Formula, trace: Trace, beta: float, rho_max: float, form: str, first_only: bool,
             backend: str = "numpy") -> Any:
     """Shared entry: numpy in → numpy out; torch in → a differentiable torch tensor out."""
-    _check(beta, rho_max, form)
-    if backend not in BACKENDS:
-        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    _check(beta, rho_max, form, backend)
     prepared = prepare(formula.signals, trace, torch_ok=True)
     names = tuple(prepared.signals)
     tensors = [prepared.signals[k] for k in names]
