@@ -36,7 +36,7 @@ from tl_gym.tltl.ast import Formula
 from .feedback import matching_components
 from .policy import LinearGaussianPolicy
 from .sampling import Rollouts, env_attribute
-from .trust_region import projected_ascent, smooth_value_and_grad
+from .trust_region import Gradient, projected_ascent, smooth_value_and_grad
 
 
 class DynamicsModel(Protocol):
@@ -178,7 +178,7 @@ def _adjoint_kernel() -> Callable[..., None] | None:
 
 def repair_feedforward(model: DynamicsModel, policy: LinearGaussianPolicy, batch: Rollouts, feedforward: np.ndarray,
                        formula: Formula, epsilon: float, beta: float, steps: int = 20, decay: float = 0.5,
-                       form: str = "linear") -> Repair:
+                       form: str = "linear", first_step: float | None = None) -> Repair:
     """Repair every episode's feed-forward through the model (module docstring, steps 1–3).
 
     Args:
@@ -193,6 +193,7 @@ def repair_feedforward(model: DynamicsModel, policy: LinearGaussianPolicy, batch
         steps: iterations of the projected solver.
         decay: its step-length factor after a step that did not improve.
         form: the engine's smoothing form, ``"nested"`` or ``"linear"``.
+        first_step: the solver's first step length (at most √epsilon, the default).
 
     Raises:
         RuntimeError: an episode ended before the horizon (its later states are not simulated).
@@ -210,14 +211,18 @@ def repair_feedforward(model: DynamicsModel, policy: LinearGaussianPolicy, batch
         raise ValueError("action_repair='model': the env's dynamics_model does not reproduce its episodes (a wrapper "
                          "that changes observations or actions?); the repair would follow a wrong model")
 
-    def evaluate(k: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def evaluate(k: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, Gradient]:
         states, actions = closed_loop(model, policy, start[rows], noise[rows], k)
         values, signal_grad = smooth_value_and_grad(formula, names, states[..., index], beta, math.inf, form)
-        state_grad = np.zeros_like(states)
-        state_grad[..., index] = signal_grad
-        return values, feedforward_gradient(model, policy, states, actions, state_grad)
 
-    result = projected_ascent(evaluate, feedforward, epsilon, steps, decay)
+        def gradient(chosen: np.ndarray) -> np.ndarray:  # the adjoint of the chosen episodes only
+            state_grad = np.zeros(states[chosen].shape)
+            state_grad[..., index] = signal_grad[chosen]
+            return feedforward_gradient(model, policy, states[chosen], actions[chosen], state_grad)
+
+        return values, gradient
+
+    result = projected_ascent(evaluate, feedforward, epsilon, steps, decay, first_step)
     observations, actions = closed_loop(model, policy, start, noise, result.updated)
     traces = {n: observations[..., j] for n, j in columns.items()}
     return Repair(result.updated, observations, actions, traces, result.smooth_before, result.smooth_after)

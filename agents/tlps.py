@@ -91,6 +91,10 @@ class TLPSConfig(EpisodicSearchConfig):
     """Iterations of the projected solver (>= 1); SLSQP gets five times as many at most."""
     solver_decay: float = 0.5
     """Step-length factor of the projected solver after a step that did not improve, in (0, 1)."""
+    solver_warm_start: bool = False
+    """Start the projected solver's steps at the median distance the last update moved its points
+    instead of at the trust region's radius, which later updates overshoot several times over
+    (docs/tlps.md, H22)."""
     threads: int | None = 1
     """Torch threads during the trust-region solve, when it ran through torch's autograd. Since the
     solve takes the engine's gradient without torch (`Formula.smooth_robustness_and_gradient`), it
@@ -129,8 +133,9 @@ class TLPSConfig(EpisodicSearchConfig):
         if self.alpha is not None:
             check_positive("alpha", self.alpha)
         check_positive("regularization", self.regularization)
-        if not isinstance(self.trust_adapt, bool):
-            raise ValueError(f"trust_adapt must be True or False, got {self.trust_adapt!r}")
+        for name in ("trust_adapt", "solver_warm_start"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
         if self.threads is not None and (not isinstance(self.threads, int) or self.threads < 1):
             raise ValueError(f"threads must be a positive int or None, got {self.threads!r}")
 
@@ -161,15 +166,22 @@ class TLPS(AbstractEpisodicSearch):
             raise ValueError(f"action_repair='model' needs an env with a differentiable `dynamics_model` "
                              f"(TLCarNav-v0 has one); {self._env_source['id'] or type(self.env).__name__!r} has none")
         self._radius = AdaptiveRadius()
+        self._moved = math.nan  # median distance the last update moved its points (solver_warm_start)
 
     def _state_arrays(self) -> dict[str, np.ndarray]:
         arrays = super()._state_arrays()
-        return {**arrays, "trust_radius": self._radius.to_array()} if self.config.trust_adapt else arrays
+        if self.config.trust_adapt:
+            arrays["trust_radius"] = self._radius.to_array()
+        if self.config.solver_warm_start:
+            arrays["solver_moved"] = np.array([self._moved])
+        return arrays
 
     def _load_state(self, arrays: dict[str, np.ndarray], files: dict[str, bytes]) -> None:
         super()._load_state(arrays, files)
         if "trust_radius" in arrays:
             self._radius = AdaptiveRadius.from_array(arrays["trust_radius"])
+        if "solver_moved" in arrays:
+            self._moved = float(arrays["solver_moved"][0])
 
     @property
     def signal_names(self) -> tuple[str, ...]:
@@ -189,17 +201,20 @@ class TLPS(AbstractEpisodicSearch):
         if cfg.trust_adapt:  # the last update's promise against this batch, sampled from its refit
             sampled = self.formula.smooth_robustness(batch.traces, cfg.beta, math.inf, cfg.smoothing)
             scale = self._radius.adapt(float(np.mean(sampled)))
+        first_step = self._moved if cfg.solver_warm_start and self._moved > 0 else None
 
         if self._model is None:
             result = improve_trajectories(  # l.8: τ̄^i = argmax ρ̂ s.t. ‖τ̄^i − τ^i‖² ≤ ε
                 self.formula, self.signal_names, tau, cfg.beta, cfg.epsilon * scale, solver=cfg.solver,
-                steps=cfg.solver_steps, decay=cfg.solver_decay, form=cfg.smoothing,
+                steps=cfg.solver_steps, decay=cfg.solver_decay, form=cfg.smoothing, first_step=first_step,
             )
             updated, smooth_before, smooth_after = result.updated, result.smooth_before, result.smooth_after
+            moved = np.sqrt(np.sum((updated - tau) ** 2, axis=(1, 2)))
         else:  # l.8 through the model: k̄^i = argmax ρ̂(τ(k)) s.t. ‖k − k^i‖² ≤ ε_a; refit to the repaired episodes
             repair = repair_feedforward(self._model, self.policy, batch, feedforward, self.formula,
                                         cfg.action_epsilon * scale, cfg.beta, cfg.solver_steps, cfg.solver_decay,
-                                        cfg.smoothing)
+                                        cfg.smoothing, first_step)
+            moved = np.sqrt(np.sum((repair.feedforward - feedforward) ** 2, axis=(1, 2)))
             updated = np.stack([repair.traces[name] for name in self.signal_names], axis=-1)
             smooth_before, smooth_after = repair.smooth_before, repair.smooth_after
             sent = np.clip(repair.actions, self.action_space.low, self.action_space.high)  # as the env clips them
@@ -207,6 +222,7 @@ class TLPS(AbstractEpisodicSearch):
                                         actions=sent)  # robustness and success stay the sampled ones
             feedforward = repair.feedforward
         solved_at = time.perf_counter()
+        self._moved = float(np.median(moved))
         if cfg.trust_adapt:
             self._radius.record(float(np.mean(smooth_before)), float(np.mean(smooth_after)))
 

@@ -124,6 +124,8 @@ def sample_logits(
     """
     if weighting not in WEIGHTINGS:
         raise ValueError(f"weighting must be one of {WEIGHTINGS}, got {weighting!r}")
+    if weighting == "hybrid" and mix == 1.0 and updated_smooth is not None:
+        return standardise(updated_smooth)  # the importance share is zero: skip its two Gaussian fits
     improved = fit_gaussian(updated, regularization)  # Eq. 12 on τ̄ (l.9)
     log_bar = improved.log_density(sampled)  # l.11, in log space
     if weighting == "paper":

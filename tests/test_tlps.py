@@ -1,6 +1,7 @@
 """Tests of the TLPS agent (agents/tlps.py) on the car env."""
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -28,6 +29,7 @@ from tl_gym.agents.tlps import TLPS, TLPSConfig
         (dict(exploration_halflife=0.0), "exploration_halflife"),
         (dict(threads=0), "threads"),
         (dict(trust_adapt=1), "trust_adapt"),
+        (dict(solver_warm_start="yes"), "solver_warm_start"),
     ],
 )
 def test_bad_hyperparameters_raise_at_construction(hyperparameters, culprit):
@@ -132,3 +134,17 @@ def test_the_adapted_trust_region_follows_realised_gains_and_is_saved(tmp_path):
     assert loaded.history[-1]["trust_scale"] == agent.history[-1]["trust_scale"]
     assert loaded.history[-1]["mean_robustness"] == agent.history[-1]["mean_robustness"]
     assert "trust_scale" not in TLPS("TLCarNav-v0", seed=1, n_episodes=6, solver_steps=3).learn(1).history[0]
+
+
+def test_the_warm_started_solver_starts_where_the_last_update_stopped_and_is_saved(tmp_path):
+    kwargs = dict(seed=2, n_episodes=6, solver_steps=3, action_repair="model")
+    agent = TLPS("TLCarNav-v0", solver_warm_start=True, **kwargs).learn(2)
+    assert 0 < agent._moved < math.sqrt(agent.config.action_epsilon)
+    loaded = TLPS.load(agent.save(tmp_path / "warm.zip"))
+    assert loaded._moved == agent._moved
+    agent.learn(1)
+    loaded.learn(1)
+    assert loaded.history[-1]["smooth_updated"] == agent.history[-1]["smooth_updated"]
+    cold = TLPS("TLCarNav-v0", **kwargs).learn(2)
+    assert cold.history[0]["smooth_updated"] == agent.history[0]["smooth_updated"]  # same first update
+    assert cold.history[1]["smooth_updated"] != agent.history[1]["smooth_updated"]  # then a warm start

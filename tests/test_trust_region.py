@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 import pytest
-from tl_gym.agents.trust_region import improve_trajectories, smooth_value_and_grad
+from tl_gym.agents.trust_region import improve_trajectories, projected_ascent, smooth_value_and_grad
 
 from tl_gym import parse
 
@@ -45,6 +45,45 @@ def test_projected_reaches_slsqp_within_one_percent_of_the_gain():
     gain_slsqp = np.mean(slsqp.smooth_after - slsqp.smooth_before)
     gain_projected = np.mean(projected.smooth_after - projected.smooth_before)
     assert gain_projected >= 0.99 * gain_slsqp
+
+
+def test_the_projected_solver_asks_gradients_only_of_the_points_it_moves_to():
+    # f(x) = −‖x − c‖² per row: some steps overshoot and are undone; their gradients are never asked for
+    centre = np.array([0.3, -0.2, 0.05])[:, None, None] * np.ones((3, 4, 2))
+    asked, moved_to = [], []
+
+    def evaluate(x, rows):
+        values = -np.sum((x - centre[rows]) ** 2, axis=(1, 2))
+
+        def gradient(chosen):
+            asked.append(rows[chosen])
+            return -2.0 * (x[chosen] - centre[rows][chosen])
+
+        moved_to.append((rows, values))
+        return values, gradient
+
+    tau = np.zeros((3, 4, 2))
+    result = projected_ascent(evaluate, tau, epsilon=4.0, steps=8, decay=0.5)
+    best = moved_to[0][1].copy()
+    np.testing.assert_array_equal(asked[0], np.arange(3))  # the start: every point
+    for (rows, values), chosen in zip(moved_to[1:], asked[1:] + [None] * len(moved_to)):
+        improved = rows[values > best[rows]]
+        best[improved] = values[values > best[rows]]
+        if improved.size:
+            np.testing.assert_array_equal(chosen, improved)
+    assert sum(len(a) for a in asked) < sum(len(rows) for rows, _ in moved_to)  # some were rejected
+    np.testing.assert_allclose(result.updated, centre, atol=0.05)
+
+
+def test_the_first_step_length_can_be_given():
+    phi = parse("x + y > 0")
+    tau = np.zeros((2, 3, 2))
+    cold = improve_trajectories(phi, ("x", "y"), tau, beta=5.0, epsilon=1.0, steps=1)
+    warm = improve_trajectories(phi, ("x", "y"), tau, beta=5.0, epsilon=1.0, steps=1, first_step=0.1)
+    np.testing.assert_allclose(np.sqrt(np.sum((cold.updated - tau) ** 2, axis=(1, 2))), 1.0)
+    np.testing.assert_allclose(np.sqrt(np.sum((warm.updated - tau) ** 2, axis=(1, 2))), 0.1)
+    capped = improve_trajectories(phi, ("x", "y"), tau, beta=5.0, epsilon=1.0, steps=1, first_step=7.0)
+    np.testing.assert_allclose(capped.updated, cold.updated)  # never beyond √ε
 
 
 def test_gradient_matches_finite_differences():
