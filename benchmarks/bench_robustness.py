@@ -110,11 +110,10 @@ def peer_evaluators(names: Iterable[str], task: Task, beta: float, log: Callable
     """Evaluators (and `Unsupported` notes) of every peer in ``names`` that imports."""
     out: list[Evaluator | Unsupported] = []
     for name in names:
-        adapter = peers.load(name)
         try:
-            out.extend(adapter.evaluators(task, beta))
+            out.extend(peers.load(name)(task, beta))
         except ImportError as exc:
-            log(f"{adapter.NAME}: not installed ({exc.name}); skipped")
+            log(f"{name}: not installed ({exc.name}); skipped")
     return out
 
 

@@ -96,10 +96,10 @@ def test_handwritten_smooth_phi1_equals_tl_gym():
 
 def test_peer_formula_texts():
     """The text peers' formulas: assembled from one clause list; X only where the library can write it."""
-    from benchmarks.peers import load
+    from benchmarks.peers import load, tensor, text
     from benchmarks.peers.text import ARGUS, RTAMT, specification, stlrom_syntax
 
-    assert load("rtamt").NAME == "rtamt" and load("stlcgpp").NAME == "stlcg++"
+    assert load("rtamt") is text.rtamt_evaluators and load("stlcgpp") is tensor.stlcgpp_evaluators
     with pytest.raises(ValueError, match="unknown peer"):
         load("nope")
     phi2, strict = benchmark_task("phi2"), benchmark_task("phi2-strict")
@@ -119,7 +119,7 @@ def test_rtamt_translation_equals_tl_gym(key):
 
     task = benchmark_task(key)
     x, y = bench.trajectories(6, 12, seed=4, tasks=[task])
-    (exact, _) = load("rtamt").evaluators(task, 9.0)
+    (exact, _) = load("rtamt")(task, 9.0)
     np.testing.assert_allclose(exact.run(x, y), task.formula.robustness({"x": x, "y": y}), rtol=1e-12)
 
 

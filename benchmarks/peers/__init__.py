@@ -1,6 +1,6 @@
 """Adapters that evaluate the benchmark's task formulas with peer robustness libraries (docs/speed.md).
 
-`load` gives a peer's adapter; its ``evaluators(task, beta)`` imports the library (ImportError when it is not
+`load` gives a peer's ``evaluators(task, beta)``, which imports the library (ImportError when it is not
 installed) and returns an `Evaluator` per mode it offers (exact, smoothed with gradient) and an `Unsupported` note
 per mode it cannot express. The text-parsing peers are in `benchmarks.peers.text`, the tensor ones in
 `benchmarks.peers.tensor`; they live in their own virtualenv (``benchmarks/requirements-peers.txt``).
@@ -11,13 +11,11 @@ from __future__ import annotations
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 
-#: Each peer's module and the name the table prints, by the name the benchmark's ``--peers`` takes.
-PEERS = {"rtamt": ("text", "rtamt"), "argus": ("text", "argus"), "stlrom": ("text", "stlrom"),
-         "stlcgpp": ("tensor", "stlcg++"), "stljax": ("tensor", "stljax")}
+#: Each peer's module, by the name the benchmark's ``--peers`` takes.
+PEERS = {"rtamt": "text", "argus": "text", "stlrom": "text", "stlcgpp": "tensor", "stljax": "tensor"}
 
 @dataclass(frozen=True)
 class Evaluator:
@@ -42,16 +40,8 @@ class Unsupported:
     reason: str
 
 
-class Peer(NamedTuple):
-    """A peer's adapter: the name the table prints and ``evaluators(task, beta)``."""
-
-    NAME: str
-    evaluators: Callable[..., list[Evaluator | Unsupported]]
-
-
-def load(name: str) -> Peer:
-    """The adapter of peer ``name`` (one of `PEERS`)."""
+def load(name: str) -> Callable[..., list[Evaluator | Unsupported]]:
+    """The ``evaluators(task, beta)`` of peer ``name`` (one of `PEERS`)."""
     if name not in PEERS:
         raise ValueError(f"unknown peer {name!r}; expected one of {', '.join(PEERS)}")
-    home, shown = PEERS[name]
-    return Peer(shown, getattr(importlib.import_module(f"benchmarks.peers.{home}"), f"{name}_evaluators"))
+    return getattr(importlib.import_module(f"benchmarks.peers.{PEERS[name]}"), f"{name}_evaluators")
