@@ -8,6 +8,7 @@ cores) and in wall-clock time. Prints the table and writes it to ``--out`` (defa
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import platform
 import time
@@ -49,22 +50,16 @@ class Idle(gym.Env):
         return self._obs, 0.0, False, self._t >= HORIZON, {}
 
 
-class Clock:
-    """Accumulates wall-clock and CPU seconds over the timed sections."""
-
-    wall = cpu = 0.0
-
-    def __enter__(self) -> Clock:
-        self._start = (time.perf_counter(), time.process_time())
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.wall += time.perf_counter() - self._start[0]
-        self.cpu += time.process_time() - self._start[1]
-
-
 Timing = tuple[float, float]  # (cpu seconds, wall seconds)
 XY = {"x": 0, "y": 1}
+
+
+def clocked(work: Callable[[], object], calls: int = 1) -> Timing:
+    """CPU and wall-clock seconds of ``calls`` calls of ``work``."""
+    cpu, wall = time.process_time(), time.perf_counter()
+    for _ in range(calls):
+        work()
+    return time.process_time() - cpu, time.perf_counter() - wall
 
 
 def best(timings: Iterable[Timing]) -> Timing:
@@ -75,17 +70,18 @@ def best(timings: Iterable[Timing]) -> Timing:
 
 def time_episodes(env: Any, actions: np.ndarray, episodes: int, terminal: bool = True) -> Timing:
     """Seconds for ``episodes`` episodes of ``actions``, resets untimed; without ``terminal``, per non-terminal step."""
-    env.reset(seed=0)
-    clock, timed = Clock(), HORIZON if terminal else HORIZON - 1
-    for _ in range(episodes):
-        with clock:
-            for t in range(timed):
-                env.step(actions[t])
-        for t in range(timed, HORIZON):
+    timed, spent = HORIZON if terminal else HORIZON - 1, np.zeros(2)
+
+    def steps(first: int, end: int) -> None:
+        for t in range(first, end):
             env.step(actions[t])
+
+    env.reset(seed=0)
+    for _ in range(episodes):
+        spent += clocked(lambda: steps(0, timed))
+        steps(timed, HORIZON)
         env.step(actions[0]) if isinstance(env, gym.vector.VectorEnv) else env.reset()  # NEXT_STEP autoreset
-    steps = 1 if terminal else episodes * timed
-    return clock.cpu / steps, clock.wall / steps
+    return tuple(spent / (1 if terminal else episodes * timed))
 
 
 def interleaved_steps(envs: dict[str, Any], actions: np.ndarray, rounds: int, episodes: int) -> dict[str, Timing]:
@@ -148,8 +144,8 @@ def main() -> None:
     for task in (1, 2):
         trace = {"x": np.linspace(0, 300, HORIZON + 1), "y": np.linspace(0, 300, HORIZON + 1)}
         formula = task_formula(task)
-        t_eval = best(_time_calls(formula.robustness, trace) for _ in range(repeats))
-        rows.append((f"terminal evaluation, task {task} (201 states)", _micro(t_eval)))
+        t_eval = best(clocked(functools.partial(formula.robustness, trace), 20) for _ in range(repeats))
+        rows.append((f"terminal evaluation, task {task} (201 states)", _micro(t_eval, scale=1 / 20)))
     fallback = parse("G(x > 210 -> F(y > 225)) & F G(y > 200)")  # outside the incremental fragment
     for name, formula in (("task 1", task_formula(1)), ("task 2", task_formula(2)),
                           ("task 2 strict", task_formula(2, "strict")), (str(fallback), fallback)):
@@ -177,13 +173,6 @@ def main() -> None:
                  (f"Markov view {where}, over the dense mode", _micro(car["view"], car["dense"], per_car_step))]
 
     _report(rows, args.quick, args.out)
-
-
-def _time_calls(fn: Callable[..., object], *args: object, n: int = 20) -> Timing:
-    with Clock() as clock:
-        for _ in range(n):
-            fn(*args)
-    return clock.cpu / n, clock.wall / n
 
 
 def _report(rows: list[tuple[str, str]], quick: bool, out: Path) -> None:
