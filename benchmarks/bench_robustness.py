@@ -19,7 +19,6 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -34,6 +33,7 @@ TL_GYM = "tl_gym"
 HANDWRITTEN = "numpy (hand-written)"
 FUSED, TL_GYM_NUMBA = "numba (hand-written, fused)", "tl_gym, backend='numba'"  # with the numba extra (issue 17)
 SMOOTH_LINEAR = "smooth+grad, linear form"
+PHI1_ALTERNATED = ((TL_GYM, "exact"), (TL_GYM, "smooth+grad"), (HANDWRITTEN, "smooth+grad"))  # (library, mode)
 NESTED_MAX_LENGTH = 2_000
 NESTED_TOO_LONG = "nested smoothing is O(T²) per trajectory; one at T = 20,000 ran > 14 min"
 RESULTS = Path("docs/results/speed.md")
@@ -260,21 +260,15 @@ def _rates(rows: list[Row]) -> dict[tuple[str, int, int, str, str], float | None
     return {(r.task, r.n, r.length, r.library, r.mode): r.per_second for r in rows}
 
 
-def interleaved(task: Task, x: np.ndarray, y: np.ndarray, beta: float, rounds: int) -> tuple[float, ...]:
-    """Best times of tl_gym's exact and smoothed φ1 and the hand-written smoothed φ1, alternated (docs/speed.md)."""
-    by_mode = {e.mode: e for e in tl_gym_evaluators(task, beta)}
-    return alternate((by_mode["exact"].run, by_mode["smooth+grad"].run,
-                      lambda x, y: handwritten.smooth_phi1(task, x, y, beta)), x, y, rounds)
-
-
-def alternate(calls: Sequence[Callable[[np.ndarray, np.ndarray], Any]], x: np.ndarray, y: np.ndarray,
-              rounds: int) -> tuple[float, ...]:
-    """Best time of each call on ``(x, y)``, the calls taking turns ``rounds`` times in one loop (after a warm-up)."""
+def interleaved(task: Task, x: np.ndarray, y: np.ndarray, beta: float, rounds: int,
+                calls: Sequence[tuple[str, str]] = PHI1_ALTERNATED) -> tuple[float, ...]:
+    """Best time of each (library, mode) of ``task``, the calls taking turns ``rounds`` times in one loop (speed.md)."""
+    runs = {(e.library, e.mode): e.run for e in [*tl_gym_evaluators(task, beta), *handwritten_evaluators(task, beta)]}
     best = [math.inf] * len(calls)
     for round_index in range(rounds + 1):  # round 0 warms up
         for i, call in enumerate(calls):
             start = time.perf_counter()
-            call(x, y)
+            runs[call](x, y)
             if round_index:
                 best[i] = min(best[i], time.perf_counter() - start)
     return tuple(best)
@@ -289,7 +283,7 @@ def targets(rows: list[Row], alternated: tuple[float, ...] | None = None,
     """The issues' speed targets (docs/speed.md), each with the measured numbers at T = 200 and whether it is met.
 
     ``alternated``: (N, exact s, smoothed s, hand-written smoothed s) of `interleaved` for φ1, if measured;
-    ``linear_alternated``: (smoothed linear s, hand-written exact s) of φ2 at N = 40, `alternate`d.
+    ``linear_alternated``: (smoothed linear s, hand-written exact s) of φ2 at N = 40, `interleaved`.
     """
     n_big = max((r.n for r in rows if r.length == 200), default=0)
     rates = _rates(rows)
@@ -457,11 +451,9 @@ def main(argv: list[str] | None = None) -> list[Row]:
         x_alt, y_alt = trajectories(n_alt, 200, args.seed + 200, tasks)
         alternated = (n_alt, *interleaved(by_key["phi1"], x_alt, y_alt, args.beta, args.alternate))
     if args.alternate and "phi2" in by_key and 200 in args.t and 40 in args.n:
-        # TLPS's call (smoothed φ2, linear form, with gradient) against the hand-written exact φ2
-        ours = next(e for e in tl_gym_evaluators(by_key["phi2"], args.beta) if e.mode == SMOOTH_LINEAR)
-        hand = next(e for e in handwritten_evaluators(by_key["phi2"], args.beta) if e.mode == "exact")
-        x_40, y_40 = trajectories(40, 200, args.seed + 200, tasks)
-        linear_alternated = alternate((ours.run, hand.run), x_40, y_40, 5 * args.alternate)
+        x_40, y_40 = trajectories(40, 200, args.seed + 200, tasks)  # TLPS's call against the hand-written exact φ2
+        linear_alternated = interleaved(by_key["phi2"], x_40, y_40, args.beta, 5 * args.alternate,
+                                        ((TL_GYM, SMOOTH_LINEAR), (HANDWRITTEN, "exact")))
     print(table(rows))
     lines = targets(rows, alternated, linear_alternated)
     if lines:
