@@ -24,6 +24,7 @@ from tl_gym.envs.tasks import task_formula
 from tl_gym.envs.vector import CarNavVectorEnv
 
 import tl_gym  # noqa: F401  (registers TLCarNav-v0)
+from benchmarks.results import table
 from tl_gym import TLTLRewardWrapper, parse
 
 NUM_ENVS = 40
@@ -155,9 +156,9 @@ def main() -> None:
         rows.append((f"dense mode per step, {name} ({kind})", _micro(dense_step)))
 
     # --- the Markov view (observe_monitor=True) --------------------------------------------------
+    views = {"terminal": {}, "dense": {"reward_mode": "dense"},  # the view's scale is the car's default
+             "view": {"reward_mode": "dense", "observe_monitor": True, "monitor_scale": 100.0}}
     for task in (1, 2):
-        views = {"terminal": {}, "dense": {"reward_mode": "dense"},
-                 "view": {"reward_mode": "dense", "observe_monitor": True, "monitor_scale": 100.0}}
         envs = {name: TLTLRewardWrapper(Idle(), task_formula(task), signals=XY, horizon=HORIZON, **kwargs)
                 for name, kwargs in views.items()}
         step = interleaved_steps(envs, actions, 3 * repeats, half)
@@ -166,8 +167,7 @@ def main() -> None:
                          _micro(step["view"], step[base])))
         per_car_step, where = 1 / (half * HORIZON * NUM_ENVS), f"per car step, CarNavVectorEnv({NUM_ENVS}) task {task}"
         car = {name: vector_time(CarNavVectorEnv(num_envs=NUM_ENVS, task=task, **kwargs), half)
-               for name, kwargs in (("terminal", {}), ("dense", {"reward_mode": "dense"}),
-                                    ("view", {"observe_monitor": True, "reward_mode": "dense"}))}
+               for name, kwargs in views.items()}
         rows += [(f"dense mode {where}, over the terminal mode", _micro(car["dense"], car["terminal"], per_car_step)),
                  (f"Markov view {where}", _micro(car["view"], car["terminal"], per_car_step)),
                  (f"Markov view {where}, over the dense mode", _micro(car["view"], car["dense"], per_car_step))]
@@ -180,8 +180,6 @@ def _report(rows: list[tuple[str, str]], quick: bool, out: Path) -> None:
     print("\n".join(f"{name:<{width}}  {value}" for name, value in [("measurement", "CPU time | wall clock"), *rows]))
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     out.parent.mkdir(parents=True, exist_ok=True)
-    table = ["| measurement | CPU time | wall clock |", "|---|---|---|"]
-    table += [f"| {name.strip()} | {value} |" for name, value in rows]
     command = f"python -m benchmarks.bench_env{' --quick' if quick else ''}"
     out.write_text(
         "# TLCarNav-v0 and TLTLRewardWrapper speed\n\n"
@@ -190,7 +188,7 @@ def _report(rows: list[tuple[str, str]], quick: bool, out: Path) -> None:
         f"gymnasium {gym.__version__}; 1-minute load average {load:.1f} at the end (other jobs shared the cores "
         "when it is above the core count: the CPU-time column is then the fair one). Best of several repeats; "
         "episodes of 200 steps with random actions, terminal robustness included.\n\n"
-        + "\n".join(table) + "\n"
+        + table(["measurement", "CPU time", "wall clock"], [(name.strip(), value) for name, value in rows]) + "\n"
     )
     print(f"wrote {out}")
 
