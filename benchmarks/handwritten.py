@@ -48,12 +48,6 @@ def _until_at_zero(left: np.ndarray, right: np.ndarray) -> np.ndarray:
     return np.minimum(right, before).max(axis=1)
 
 
-def _then_over_time(left: np.ndarray, right_over_time: np.ndarray) -> np.ndarray:
-    """ρ(φ T ψ, t) = max_{s ≥ t} min(φ(s), max_{t' > s} ψ(t')), shape ``(N, T)``."""
-    later = _shift_left(_suffix(np.maximum, right_over_time), -np.inf)
-    return _suffix(np.maximum, np.minimum(left, later))
-
-
 def phi1(task: Task, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Robustness of φ1 = F ψ_g & G(d_o > r_o) for ``(N, T)`` signals, shape ``(N,)``."""
     reach = _box(task.goals[0], x, y).max(axis=1)
@@ -63,8 +57,9 @@ def phi1(task: Task, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 def phi2(task: Task, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Robustness of φ2 (default or strict no-revisit, per ``task``) for ``(N, T)`` signals, shape ``(N,)``."""
     g1, g2, g3 = (_box(goal, x, y) for goal in task.goals)
-    # (g1 T (g2 T g3)) at 0: the inner T over time, then the outer at 0 only.
-    inner = _then_over_time(g2, g3)
+    # (g1 T (g2 T g3)) at 0: the inner T over time, ρ(φ T ψ, t) = max_{s ≥ t} min(φ(s), max_{t' > s} ψ(t')),
+    # then the outer at 0 only.
+    inner = _suffix(np.maximum, np.minimum(g2, _shift_left(_suffix(np.maximum, g3), -np.inf)))
     order = np.minimum(g1[:, :-1], inner[:, 1:]).max(axis=1, initial=-np.inf)
     first = _until_at_zero(-np.maximum(g2, g3), g1)
     second = _until_at_zero(-g3, g2)
