@@ -158,7 +158,6 @@ def _time(run: Callable[[], np.ndarray], repeats: int, budget: float, warm: bool
 
 def _mismatch(values: np.ndarray, reference: np.ndarray) -> str:
     """Empty when ``values`` equal ``reference`` to `RTOL`, else what differs."""
-    values = np.asarray(values, dtype=np.float64).reshape(-1)
     if values.shape != reference.shape:
         return f"returned shape {values.shape}, expected {reference.shape}"
     bad = ~(np.abs(values - reference) <= RTOL * np.maximum(1.0, np.abs(reference)))
@@ -255,11 +254,6 @@ def machine() -> str:
             f"Python {platform.python_version()}; load average at the end {load}; " + ", ".join(versions))
 
 
-def _rates(rows: list[Row]) -> dict[tuple[str, int, int, str, str], float | None]:
-    """Trajectories per second by (task, N, T, library, mode) (None: the row has no time)."""
-    return {(r.task, r.n, r.length, r.library, r.mode): r.per_second for r in rows}
-
-
 def interleaved(task: Task, x: np.ndarray, y: np.ndarray, beta: float, rounds: int,
                 calls: Sequence[tuple[str, str]] = PHI1_ALTERNATED) -> tuple[float, ...]:
     """Best time of each (library, mode) of ``task``, the calls taking turns ``rounds`` times in one loop (speed.md)."""
@@ -286,7 +280,7 @@ def targets(rows: list[Row], alternated: tuple[float, ...] | None = None,
     ``linear_alternated``: (smoothed linear s, hand-written exact s) of φ2 at N = 40, `interleaved`.
     """
     n_big = max((r.n for r in rows if r.length == 200), default=0)
-    rates = _rates(rows)
+    rates = {(r.task, r.n, r.length, r.library, r.mode): r.per_second for r in rows}  # traj/s, None: not timed
 
     def rate(task: str, library: str, mode: str = "exact", n: int = n_big) -> float | None:
         return rates.get((task, n, 200, library, mode))
@@ -343,13 +337,12 @@ def targets(rows: list[Row], alternated: tuple[float, ...] | None = None,
         lines.append(f"- the same, the two calls alternated in one loop (N = 40, best of each): smoothed phi2 (linear "
                      f"form) + gradient {ours_s * 1e3:.2f} ms, hand-written exact phi2 {hand_s * 1e3:.2f} ms: "
                      f"**{ours_s / hand_s:.2f}×** its time (issue 17 target ≤ 5×: {_met(ours_s / hand_s <= 5)}).")
-    return lines + linearity(rows)
+    return lines + linearity(rows, rates)
 
 
-def linearity(rows: list[Row]) -> list[str]:
-    """Time per trajectory step of tl_gym across T at the largest N measured at every T."""
+def linearity(rows: list[Row], rates: dict[tuple[str, int, int, str, str], float | None]) -> list[str]:
+    """Time per trajectory step of tl_gym across T at the largest N measured at every T (``rates``: `targets`')."""
     lines = []
-    rates = _rates(rows)
     lengths = sorted({r.length for r in rows})
     if len(lengths) < 2:
         return lines
