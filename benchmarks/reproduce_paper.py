@@ -19,7 +19,8 @@ from typing import Any
 from benchmarks import figures, results
 from benchmarks.runner import Sweep, add_sweep_options, default_out_dir, git, load_config, run_with_options, variant_of
 
-CONFIGS = Path(__file__).parent / "configs"
+ROOT = Path(__file__).resolve().parents[1]
+CONFIGS = ROOT / "benchmarks" / "configs"
 PAPER, ABLATIONS = CONFIGS / "paper.toml", CONFIGS / "ablations.toml"
 #: The TLPS curve the Figure-2 plots and the claims are about (the paper's default β).
 DEFAULT_TLPS = "TLPS β=9"
@@ -74,7 +75,7 @@ def provenance(sweep: Sweep, config: Path, out_dir: Path, command: str, runs: Se
                "the full benchmark (`python -m benchmarks.reproduce_paper`); see the table below for what ran.\n")
     return "\n".join([
         reduced if variant else "",
-        f"Produced by `{command}` from `{_relative(config)}` (sweep `{sweep.name}`, "
+        f"Produced by `{command}` from `{config.relative_to(ROOT)}` (sweep `{sweep.name}`, "
         f"results in `{out_dir}`), tl_gym at commit `{git('rev-parse', '--short', 'HEAD') or 'unknown'}`, on "
         f"{os.cpu_count()} CPU cores ({platform.machine()}, Python {platform.python_version()}), "
         f"written {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC. "
@@ -209,13 +210,6 @@ def _beta(label: str) -> float | None:
         return float(label.removeprefix("TLPS β=")) if label.startswith("TLPS β=") else None
     except ValueError:
         return None
-
-
-def _relative(path: Path) -> str:
-    try:
-        return str(path.resolve().relative_to(Path.cwd()))
-    except ValueError:
-        return str(path)
 
 
 if __name__ == "__main__":
