@@ -131,19 +131,17 @@ def _closed_loop(start, noise, feedforward, gains, centre, angles, dt, wheelbase
     n, horizon, act_dim = feedforward.shape
     obs_dim = start.shape[1]
     two_pi = 2.0 * math.pi
-    deviation = np.empty(obs_dim)
     for i in range(n):
         for j in range(obs_dim):
             states[i, 0, j] = start[i, j]
         for t in range(horizon):
-            for j in range(obs_dim):  # once per step, for every action component
-                deviation[j] = states[i, t, j] - centre[t, j]
-                if angles[j]:
-                    deviation[j] = (deviation[j] + math.pi) % two_pi - math.pi
             for a in range(act_dim):
                 feedback = 0.0
                 for j in range(obs_dim):
-                    feedback += gains[t, a, j] * deviation[j]
+                    deviation = states[i, t, j] - centre[t, j]
+                    if angles[j]:
+                        deviation = (deviation + math.pi) % two_pi - math.pi
+                    feedback += gains[t, a, j] * deviation
                 actions[i, t, a] = feedforward[i, t, a] + feedback
             speed = (min(max(actions[i, t, 0], -1.0), 1.0) + 1.0) * (0.5 * max_speed)
             steer = min(max(actions[i, t, 1], -1.0), 1.0) * max_steer
