@@ -131,25 +131,22 @@ class Row:
     ratio: float | None = None  # tl_gym's throughput / this library's (same mode)
 
 
-def _time(run: Callable[[], np.ndarray], repeats: int, budget: float, warm: bool,
-          must_warm: bool = False) -> tuple[float, np.ndarray]:
+def _time(run: Callable[[], np.ndarray], repeats: int, budget: float, warm: bool) -> tuple[float, np.ndarray]:
     """Best wall time of ``run`` over a few repeats, and its values; unless ``warm``, an untimed first call warms up.
 
-    That first call is the time when it alone is too slow to repeat, unless ``must_warm`` (a JIT compiles on it).
+    That first call is the time when it alone is too slow to repeat.
     """
-    values = None
-    if not warm or must_warm:
+    if not warm:
         start = time.perf_counter()
         values = run()
         first = time.perf_counter() - start
-        if first > 3 * budget and not must_warm:
+        if first > 3 * budget:
             return first, values
     best, spent = math.inf, 0.0
     for _ in range(max(1, repeats)):
         start = time.perf_counter()
-        out = run()
+        values = run()
         elapsed = time.perf_counter() - start
-        values = out if values is None else values
         best, spent = min(best, elapsed), spent + elapsed
         if spent > 3 * budget:
             break
@@ -185,8 +182,10 @@ def measure(evaluator: Evaluator, row: Row, x: np.ndarray, y: np.ndarray, refere
         limit = settings.budget if evaluator.per_trajectory else settings.max_seconds  # on a batch: a cap
         k = int(min(n, max(1, limit // max(per_one, 1e-9))))
     try:
-        seconds, values = _time(lambda: evaluator.run(x[:k], y[:k]), settings.repeats, settings.budget, k == probe,
-                                evaluator.compiles)
+        if evaluator.compiles:  # a JIT compiles on the first call of a shape: that call is not timed
+            evaluator.run(x[:k], y[:k])
+        seconds, values = _time(lambda: evaluator.run(x[:k], y[:k]), settings.repeats, settings.budget,
+                                k == probe or evaluator.compiles)
     except Exception as exc:  # a peer crashing on valid input is a result, not a benchmark failure
         row.note = f"error: {type(exc).__name__}: {exc}"[:120]
         return None
