@@ -234,9 +234,8 @@ def is_done(run_dir: str | Path) -> bool:
     return (Path(run_dir) / DONE).is_file()
 
 
-def execute_run(spec: RunSpec | Mapping[str, Any], run_dir: str | Path) -> dict[str, Any]:
+def execute_run(spec: RunSpec, run_dir: str | Path) -> dict[str, Any]:
     """Run ``spec`` into ``run_dir`` unless it is finished there (else from scratch); return ``done.json``'s content."""
-    spec = spec if isinstance(spec, RunSpec) else RunSpec.from_json(spec)
     run_dir = Path(run_dir)
     if is_done(run_dir):
         return json.loads((run_dir / DONE).read_text())
@@ -359,7 +358,7 @@ def write_atomic(path: str | Path, data: bytes) -> None:
         raise
 
 
-def run_files(spec: Mapping[str, Any]) -> dict[str, bytes]:
+def run_files(spec: RunSpec) -> dict[str, bytes]:
     """Run ``spec`` in a scratch folder and return its files (the Ray path: no shared filesystem)."""
     with tempfile.TemporaryDirectory(prefix="tl_gym_run_") as scratch:
         execute_run(spec, Path(scratch) / "run")
@@ -426,8 +425,7 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, workers: int | None = None, ray
         # spawn: a fresh interpreter per worker, no torch/thread state inherited through fork
         with futures.ProcessPoolExecutor(min(workers or os.cpu_count() or 1, len(pending)),
                                          mp_context=multiprocessing.get_context("spawn")) as pool:
-            jobs = {pool.submit(execute_run, run.to_json(), str(out_dir / "runs" / run.run_id)): run
-                    for run in pending}
+            jobs = {pool.submit(execute_run, run, out_dir / "runs" / run.run_id): run for run in pending}
             for done, job in enumerate(futures.as_completed(jobs), 1):
                 report.attempt(jobs[job], job.result)
                 print(f"{sweep.name}: {done}/{len(pending)} runs", file=sys.stderr, flush=True)
@@ -445,7 +443,7 @@ def _run_on_ray(pending: Sequence[RunSpec], out_dir: Path, address: str, report:
         ray.init(address=None if address == "local" else address,
                  runtime_env={"env_vars": {"PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}})
     remote = ray.remote(num_cpus=1, max_retries=0)(run_files)
-    refs = {remote.remote(run.to_json()): run for run in pending}
+    refs = {remote.remote(run): run for run in pending}
     while refs:
         (ref,), _ = ray.wait(list(refs), num_returns=1)
         run = refs.pop(ref)

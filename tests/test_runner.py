@@ -237,7 +237,7 @@ def test_killed_sweep_leaves_no_half_result_and_rerun_completes(tmp_path):
 def test_run_files_round_trip_installs_done_last(tmp_path):
     spec = RunSpec(env="TLCarNav-v0", env_kwargs={"task": 1}, agent=STAND_IN, label="s", hyperparameters={},
                    seed=0, iterations=2)
-    files = run_files(spec.to_json())
+    files = run_files(spec)
     assert set(files) == {DONE, HISTORY, "spec.json"}
     install_files(files, tmp_path / "run")
     assert json.loads((tmp_path / "run" / DONE).read_text())["iterations"] == 2
