@@ -34,8 +34,9 @@ def test_every_suite_config_expands_in_every_variant_with_one_budget_per_task():
         sb3 = [run for run in full.runs if run.agent in ("ppo", "sac")]
         assert {run.hyperparameters["steps_per_iteration"] for run in sb3} == {
             40 * (250 if path.stem == "mountaincar" else 100 if path.stem == "parking" else 200)}
-    with pytest.raises(ValueError, match="no suite config"):
-        suite.config_paths(["nope"])
+    assert [p.stem for p in suite.config_paths(["pendulum", "car1"])] == ["car1", "pendulum"]
+    with pytest.raises(SystemExit):  # the command line names the configs there are
+        suite.main(["--tasks", "nope"])
 
 
 def test_runs_evaluate_along_training_and_the_report_reads_them(tmp_path):
