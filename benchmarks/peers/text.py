@@ -60,8 +60,12 @@ def specification(task: Task, s: Syntax) -> str:
     return s.wrap(s.join.join(f"({c})" for c in clauses))
 
 
-def _exact(name: str, run_one: Callable[[np.ndarray, np.ndarray], float], expressed: str) -> list:
-    return [Evaluator(name, "exact", lambda x, y: np.array([run_one(a, b) for a, b in zip(x, y)]), expressed),
+def _exact(name: str, task: Task, run_one: Callable[[np.ndarray, np.ndarray], float], rewrites: str,
+           d_signal: bool = True) -> list:
+    """One trajectory at a time; the note says if ``d_o`` is passed as a signal and, beyond φ1, the ``rewrites``."""
+    expressed = ["d_o passed as a signal (no sqrt)" if d_signal else "", "" if task.key == "phi1" else rewrites]
+    return [Evaluator(name, "exact", lambda x, y: np.array([run_one(a, b) for a, b in zip(x, y)]),
+                      "; ".join(filter(None, expressed))),
             Unsupported(name, "smooth+grad", "no smoothed semantics")]
 
 
@@ -97,7 +101,7 @@ def rtamt_evaluators(task: Task, beta: float) -> list[Evaluator | Unsupported]:
     def run_one(x: np.ndarray, y: np.ndarray) -> float:
         return float(spec.evaluate({"time": list(range(len(x))), "x": x.tolist(), "y": y.tolist()})[0][1])
 
-    return _exact("rtamt", run_one, "" if task.key == "phi1" else "T as F(φ & X F ψ); X as not next not (exact)")
+    return _exact("rtamt", task, run_one, "T as F(φ & X F ψ); X as not next not (exact)", d_signal=False)
 
 
 ARGUS = Syntax(
@@ -127,10 +131,7 @@ def argus_evaluators(task: Task, beta: float) -> list[Evaluator | Unsupported]:
         trace = argus.Trace({"x": signal(times, x), "y": signal(times, y), "d": signal(times, d)})
         return float(argus.eval_robust_semantics(expr, trace, interpolation_method="constant").at(0.0))
 
-    expressed = "d_o passed as a signal (no sqrt)"
-    if task.key != "phi1":
-        expressed += "; X G as G[1,], T as F(φ & F[1,] ψ) (its X is broken)"
-    return _exact("argus", run_one, expressed)
+    return _exact("argus", task, run_one, "X G as G[1,], T as F(φ & F[1,] ψ) (its X is broken)")
 
 
 def stlrom_syntax(length: int) -> Syntax:
@@ -166,7 +167,4 @@ def stlrom_evaluators(task: Task, beta: float) -> list[Evaluator | Unsupported]:
             monitor.add_sample(sample)
         return float(monitor.eval_rob(0.0))
 
-    expressed = "d_o passed as a signal (no sqrt)"
-    if task.key != "phi1":
-        expressed += "; X as ev_[1,1.5], T as ev(φ and ev_[1,T] ψ) (no next)"
-    return _exact("stlrom", run_one, expressed)
+    return _exact("stlrom", task, run_one, "X as ev_[1,1.5], T as ev(φ and ev_[1,T] ψ) (no next)")
