@@ -6,10 +6,8 @@ Every evaluator of the speed benchmark builds its formula from one `Task`: all j
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
 
-from tl_gym.envs.tasks import Goal, Obstacle, make_layout
-from tl_gym.envs.tasks import task_formula as tl_gym_task_formula
+from tl_gym.envs.tasks import Goal, Obstacle, make_layout, task_formula
 
 from tl_gym import Formula
 
@@ -25,21 +23,19 @@ class Task:
     key: str
     goals: tuple[Goal, ...]
     obstacle: Obstacle
+    formula: Formula  # the env's tl_gym formula for this task (compiled once, evaluated many times)
 
     @property
     def strict(self) -> bool:
         """Whether the no-revisit clause is Eq. 19's literal ``G(g -> X G !g)``."""
         return self.key == "phi2-strict"
 
-    @cached_property
-    def formula(self) -> Formula:
-        """The env's tl_gym formula for this task (compiled once, evaluated many times)."""
-        return tl_gym_task_formula(1 if self.key == "phi1" else 2, "strict" if self.strict else "leave")
-
 
 def benchmark_task(key: str) -> Task:
     """The benchmark task ``key`` (one of `TASKS`, else ValueError) on the env's layout."""
     if key not in TASKS:
         raise ValueError(f"unknown task {key!r}; expected one of {', '.join(TASKS)}")
-    layout = make_layout(1 if key == "phi1" else 2)
-    return Task(key, tuple(layout.goals), layout.obstacle)
+    number = 1 if key == "phi1" else 2
+    layout = make_layout(number)
+    formula = task_formula(number, "strict" if key == "phi2-strict" else "leave")
+    return Task(key, layout.goals, layout.obstacle, formula)
