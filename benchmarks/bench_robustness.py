@@ -21,6 +21,7 @@ from importlib import metadata
 from pathlib import Path
 
 import numpy as np
+from scipy.interpolate import interp1d
 
 from benchmarks import handwritten, peers
 from benchmarks.formulas import ARENA, TASKS, Task, benchmark_task
@@ -57,10 +58,7 @@ def trajectories(n: int, length: int, seed: int, tasks: Iterable[Task] = ()) -> 
     in_order = rng.random(n) < 0.25
     picks[in_order] = np.arange(3) % len(centres) + (len(centres) > 3)  # φ2's goals come after φ1's
     waypoints = np.concatenate([start[:, None, :], np.asarray(centres)[picks]], axis=1)  # (n, 4, 2)
-    s = np.linspace(0, 3, length)
-    seg = np.minimum(s.astype(int), 2)
-    frac = (s - seg)[None, :, None]
-    route = waypoints[:, seg] + frac * (waypoints[:, seg + 1] - waypoints[:, seg])  # (n, length, 2)
+    route = interp1d(np.arange(4), waypoints, axis=1)(np.linspace(0, 3, length))  # (n, length, 2)
     base = np.where(routed[:, None, None], route, start[:, None, :])
     noise = np.where(routed[None, :, None], 0.1, 1.0) * walk
     x, y = np.clip(np.moveaxis(base, -1, 0) + noise, 0, ARENA)
