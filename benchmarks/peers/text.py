@@ -134,9 +134,8 @@ def argus_evaluators(task: Task, beta: float) -> list[Evaluator | Unsupported]:
     return _exact("argus", task, run_one, "X G as G[1,], T as F(φ & F[1,] ψ) (its X is broken)")
 
 
-def stlrom_syntax(length: int) -> Syntax:
-    """STLRom's syntax for trajectories of ``length`` samples (+1 duplicate): the horizon is in every operator."""
-    h = length
+def stlrom_syntax(h: int) -> Syntax:
+    """STLRom's syntax for trajectories of ``h`` samples (+1 duplicate): the horizon ``h`` is in every operator."""
     return Syntax(
         name="stlrom", box="(x[t] > {0.x_low:.1f} and x[t] < {0.x_high:.1f} and y[t] > {0.y_low:.1f} "
                            "and y[t] < {0.y_high:.1f})".format,
