@@ -104,17 +104,6 @@ def handwritten_evaluators(task: Task, beta: float) -> list[Evaluator]:
     return out
 
 
-def peer_evaluators(names: Iterable[str], task: Task, beta: float, log: Callable[[str], None]) -> list:
-    """Evaluators (and `Unsupported` notes) of every peer in ``names`` that imports."""
-    out: list[Evaluator | Unsupported] = []
-    for name in names:
-        try:
-            out.extend(peers.load(name)(task, beta))
-        except ImportError as exc:
-            log(f"{name}: not installed ({exc.name}); skipped")
-    return out
-
-
 @dataclass
 class Row:
     """One line of the table."""
@@ -430,9 +419,13 @@ def main(argv: list[str] | None = None) -> list[Row]:
             continue
         x_all, y_all = trajectories(sizes[-1], length, args.seed + length, tasks)
         for task in tasks:
-            say = log if length == min(args.t) else lambda _: None  # which peers are missing: once
-            evaluators = [*tl_gym_evaluators(task, args.beta), *handwritten_evaluators(task, args.beta),
-                          *peer_evaluators(args.peers, task, args.beta, say)]
+            evaluators = [*tl_gym_evaluators(task, args.beta), *handwritten_evaluators(task, args.beta)]
+            for name in args.peers:  # every peer that imports
+                try:
+                    evaluators += peers.load(name)(task, args.beta)
+                except ImportError as exc:
+                    if length == min(args.t):  # which peers are missing: once
+                        log(f"{name}: not installed ({exc.name}); skipped")
             for n in sizes:
                 rows += run_cell(task, x_all[:n], y_all[:n], evaluators, args, log)
     by_key, alternated, linear_alternated = {t.key: t for t in tasks}, None, None
