@@ -20,14 +20,10 @@ def plot_learning_curves(runs: Sequence[RunResult], path: str | Path | None = No
     colors = {label: colormaps["tab10"](i % 10) for i, label in enumerate(dict.fromkeys(key[1] for key in groups))}
     fig = Figure(figsize=(5.2 * len(tasks), 7), constrained_layout=True)
     axes = np.asarray(fig.subplots(2, len(tasks), sharex="col", squeeze=False))
-    for column, task in enumerate(tasks):
-        top, bottom = axes[0, column], axes[1, column]
-        for label, color in colors.items():
-            members = groups.get((task, label))
-            if not members:
-                continue
-            for ax, key in ((top, "mean_robustness"), (bottom, "success_rate")):
-                plot_band(ax, *stack(members, key), color, f"{label} ({len(members)})", rate=key == "success_rate")
+    for (task, label), members in groups.items():
+        for ax, key in zip(axes[:, tasks.index(task)], ("mean_robustness", "success_rate")):
+            plot_band(ax, *stack(members, key), colors[label], f"{label} ({len(members)})", rate=key == "success_rate")
+    for top, bottom, task in zip(axes[0], axes[1], tasks):
         top.axhline(0.0, color="0.4", lw=0.8, ls="--")
         top.set(title=f"task {task}" if task is not None else "", ylabel="mean exact robustness")
         bottom.set(ylabel="success rate (ρ > 0)", ylim=(-0.02, 1.02), xlabel="iteration (8,000 env steps each)")
