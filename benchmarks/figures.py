@@ -85,7 +85,6 @@ def saved(fig: Figure, path: str | Path | None, dpi: int = 110) -> Figure:
 def plot_seed_panels(runs: Sequence[RunResult], task: Any, out: str | Path) -> list[Path]:
     """Per-seed curves of ``task`` for the research report (docs/benchmarks.md); return the paths written."""
     groups = {label: members for (t, label), members in group_runs(runs).items() if t == task}
-    medians: dict[str, dict[str, np.ndarray]] = {}
     paths = []
     for key, name in (("success_rate", "success"), ("mean_robustness", "robustness")):
         cols = min(5, len(groups))
@@ -96,8 +95,7 @@ def plot_seed_panels(runs: Sequence[RunResult], task: Any, out: str | Path) -> l
             iterations, values = stack(members, key)
             for run in members:
                 ax.plot(run.history["iteration"], run.history[key], lw=0.8, alpha=0.6)
-            medians.setdefault(label, {})[key] = np.median(values, axis=0)
-            ax.plot(iterations, medians[label][key], color="k", lw=2)
+            ax.plot(iterations, np.median(values, axis=0), color="k", lw=2)
             ax.axhline(0.8 if key == "success_rate" else 0.0, color="gray", ls="--", lw=0.8)
             ax.set_title(f"{label} ({len(members)} seeds)", fontsize=9)
             if key == "mean_robustness":
@@ -111,10 +109,11 @@ def plot_seed_panels(runs: Sequence[RunResult], task: Any, out: str | Path) -> l
         saved(fig, paths[-1], dpi=80)
     fig = Figure(figsize=(12, 4.5), layout="tight")
     axes = fig.subplots(1, 2)
-    for i, (label, median) in enumerate(medians.items()):
+    for i, (label, members) in enumerate(groups.items()):
         for ax, key in zip(axes, ("success_rate", "mean_robustness")):
+            median = np.median(stack(members, key)[1], axis=0)
             # the first four labels (the baselines, by the config's order) drawn thick
-            ax.plot(np.arange(1, len(median[key]) + 1), median[key], label=label, lw=2.5 if i < 4 else 1.0,
+            ax.plot(np.arange(1, len(median) + 1), median, label=label, lw=2.5 if i < 4 else 1.0,
                     color=colormaps["tab10"](i % 10) if i < 4 else None)
     axes[0].set(ylabel="median success rate", xlabel="iteration")
     axes[1].set(ylabel="median mean exact robustness", xlabel="iteration")
