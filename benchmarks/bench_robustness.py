@@ -69,15 +69,13 @@ def tl_gym_evaluators(task: Task, beta: float) -> list[Evaluator]:
     """tl_gym's exact evaluators and its smoothed-with-gradient ones (torch float64; φ2 also in the linear form)."""
     import torch
 
-    formula = task.formula
-
     def exact(x: np.ndarray, y: np.ndarray, backend: str = "numpy") -> np.ndarray:
-        return np.asarray(formula.robustness({"x": x, "y": y}, backend=backend))
+        return np.asarray(task.formula.robustness({"x": x, "y": y}, backend=backend))
 
     def smooth(form: str) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
         def run(x: np.ndarray, y: np.ndarray) -> np.ndarray:
             xt, yt = (torch.from_numpy(v).requires_grad_(True) for v in (x, y))
-            values = formula.smooth_robustness({"x": xt, "y": yt}, beta, form=form)
+            values = task.formula.smooth_robustness({"x": xt, "y": yt}, beta, form=form)
             values.sum().backward()
             return values.detach().numpy()
 
