@@ -62,11 +62,9 @@ def plot_trajectory_distribution(run: RunResult, path: str | Path | None = None,
     for patch in ax.patches[-len(snapshots):]:
         patch.set_alpha(0.15)
     before = len(ax.patches)
-    draw_layout(ax, layout, labels=False, alpha=0.45)
+    draw_layout(ax, layout, labels=False, alpha=0.45)  # which also sets the whole arena as the limits
     for patch in ax.patches[before:]:
         patch.set_zorder(5)
-    ax.set_aspect("equal", adjustable="box")  # the whole arena, whatever the paths' extent
-    ax.set(xlim=(0.0, layout.arena[0]), ylim=(0.0, layout.arena[1]))
     legend = ax.get_legend()
     for text, it in zip(legend.get_texts() if legend else (), iterations):
         success = float(np.mean(traces[f"it{it}_robustness"] > 0))
