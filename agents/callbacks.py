@@ -16,11 +16,11 @@ from __future__ import annotations
 import abc
 import csv
 import io
-import os
-import tempfile
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any, Union
+
+from .serialization import write_atomic
 
 Row = dict[str, Any]
 
@@ -130,11 +130,7 @@ def write_history(rows: Iterable[Row], path: str | Path) -> None:
     writer = csv.DictWriter(text, fieldnames=list(columns), lineterminator="\n")
     writer.writeheader()
     writer.writerows(rows)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.NamedTemporaryFile("w", dir=path.parent, prefix=f".{path.name}.", delete=False) as handle:
-        handle.write(text.getvalue())
-    os.replace(handle.name, path)
+    write_atomic(path, text.getvalue().encode())
 
 
 CallbackLike = Union[AbstractCallback, Callable[[Any, Row], Any], Sequence[Any], None]

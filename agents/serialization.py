@@ -42,22 +42,33 @@ def write_archive(
     Returns:
         The path written.
     """
-    path = Path(path)
     reserved = {META, ARRAYS} & set(files)
     if reserved:
         raise ValueError(f"extra member names {sorted(reserved)} are reserved")
     buffer = io.BytesIO()
     np.savez(buffer, **{k: np.asarray(v) for k, v in arrays.items()})
+    archive_bytes = io.BytesIO()
+    with zipfile.ZipFile(archive_bytes, "w", compression=zipfile.ZIP_DEFLATED) as archive:
+        archive.writestr(META, json.dumps(meta, indent=1, allow_nan=True))
+        archive.writestr(ARRAYS, buffer.getvalue())
+        for name, data in files.items():
+            archive.writestr(name, data)
+    return write_atomic(path, archive_bytes.getvalue())
+
+
+def write_atomic(path: str | Path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` all or nothing (the module docstring's way); the path written.
+
+    The one atomic writer of tl_gym: saved agents, history CSVs and the benchmark runner's run
+    files. The file gets the permissions a plain ``open(path, "w")`` would give.
+    """
+    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         os.chmod(tmp, _file_mode(path))
         with os.fdopen(fd, "wb") as handle:
-            with zipfile.ZipFile(handle, "w", compression=zipfile.ZIP_DEFLATED) as archive:
-                archive.writestr(META, json.dumps(meta, indent=1, allow_nan=True))
-                archive.writestr(ARRAYS, buffer.getvalue())
-                for name, data in files.items():
-                    archive.writestr(name, data)
+            handle.write(data)
             handle.flush()
             os.fsync(handle.fileno())
         os.replace(tmp, path)

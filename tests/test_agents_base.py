@@ -515,3 +515,22 @@ def test_episodes_of_different_lengths_ending_on_one_step_keep_their_traces():
         assert rho == max(values) - 4
     batch = agent.learn(1)  # and the batched sampler reads them too
     assert batch.history[-1]["env_steps"] < 3 * 6
+
+
+def test_files_are_written_atomically_with_plain_permissions(tmp_path, monkeypatch):
+    from tl_gym.agents import serialization
+
+    plain = tmp_path / "plain.txt"
+    plain.write_text("x")
+    target = serialization.write_atomic(tmp_path / "sub" / "file.bin", b"new")
+    assert target.read_bytes() == b"new"
+    assert target.stat().st_mode & 0o777 == plain.stat().st_mode & 0o777  # not mkstemp's owner-only 0o600
+
+    def crash(*args):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(serialization.os, "replace", crash)
+    with pytest.raises(OSError, match="disk full"):
+        serialization.write_atomic(target, b"newer")
+    assert target.read_bytes() == b"new"  # the old file, whole
+    assert [p.name for p in target.parent.iterdir()] == ["file.bin"]  # no temporary file left behind
