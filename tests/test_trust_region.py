@@ -50,28 +50,28 @@ def test_projected_reaches_slsqp_within_one_percent_of_the_gain():
 def test_the_projected_solver_asks_gradients_only_of_the_points_it_moves_to():
     # f(x) = −‖x − c‖² per row: some steps overshoot and are undone; their gradients are never asked for
     centre = np.array([0.3, -0.2, 0.05])[:, None, None] * np.ones((3, 4, 2))
-    asked, moved_to = [], []
+    calls = []  # per evaluation: [rows, values, the selection its gradient was asked for (None: never)]
 
     def evaluate(x, rows):
         values = -np.sum((x - centre[rows]) ** 2, axis=(1, 2))
+        call = [rows, values.copy(), None]  # the solver updates its best values in place
+        calls.append(call)
 
         def gradient(chosen):
-            asked.append(rows[chosen])
+            call[2] = rows[chosen]
             return -2.0 * (x[chosen] - centre[rows][chosen])
 
-        moved_to.append((rows, values))
         return values, gradient
 
     tau = np.zeros((3, 4, 2))
     result = projected_ascent(evaluate, tau, epsilon=4.0, steps=8, decay=0.5)
-    best = moved_to[0][1].copy()
-    np.testing.assert_array_equal(asked[0], np.arange(3))  # the start: every point
-    for (rows, values), chosen in zip(moved_to[1:], asked[1:] + [None] * len(moved_to)):
+    (_, best, asked), *moves = calls
+    np.testing.assert_array_equal(asked, np.arange(3))  # the start: every point
+    for rows, values, asked in moves:
         improved = rows[values > best[rows]]
         best[improved] = values[values > best[rows]]
-        if improved.size:
-            np.testing.assert_array_equal(chosen, improved)
-    assert sum(len(a) for a in asked) < sum(len(rows) for rows, _ in moved_to)  # some were rejected
+        np.testing.assert_array_equal(asked if asked is not None else [], improved)
+    assert sum(len(a) for _, _, a in moves if a is not None) < sum(len(rows) for rows, _, _ in moves)
     np.testing.assert_allclose(result.updated, centre, atol=0.05)
 
 
