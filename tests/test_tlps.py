@@ -144,7 +144,8 @@ def test_the_warm_started_solver_starts_where_the_last_update_stopped_and_is_sav
     assert loaded._moved == agent._moved
     agent.learn(1)
     loaded.learn(1)
-    assert loaded.history[-1]["smooth_updated"] == agent.history[-1]["smooth_updated"]
+    # (approx: the engine may switch from its numpy smoother to its compiled one between two calls)
+    assert loaded.history[-1]["smooth_updated"] == pytest.approx(agent.history[-1]["smooth_updated"], rel=1e-9)
     cold = TLPS("TLCarNav-v0", **kwargs).learn(2)
-    assert cold.history[0]["smooth_updated"] == agent.history[0]["smooth_updated"]  # same first update
-    assert cold.history[1]["smooth_updated"] != agent.history[1]["smooth_updated"]  # then a warm start
+    assert cold.history[0]["smooth_updated"] == pytest.approx(agent.history[0]["smooth_updated"], rel=1e-9)
+    assert cold.history[1]["smooth_updated"] != pytest.approx(agent.history[1]["smooth_updated"], rel=1e-6)
