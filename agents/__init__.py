@@ -17,6 +17,7 @@ from .callbacks import (
     AbstractCallback,
     CallbackList,
     CheckpointCallback,
+    EvalCallback,
     HistoryCSV,
     StopOnRobustness,
     StopOnSuccessRate,
@@ -35,6 +36,7 @@ def __getattr__(name: str) -> Any:
 
 
 __all__ = [
-    "AbstractCallback", "Agent", "CallbackList", "CheckpointCallback", "HistoryCSV", "LinearGaussianPolicy", "REPS",
-    "REPSConfig", "SB3Agent", "StopOnRobustness", "StopOnSuccessRate", "TLPS", "TLPSConfig", "evaluate_policy",
+    "AbstractCallback", "Agent", "CallbackList", "CheckpointCallback", "EvalCallback", "HistoryCSV",
+    "LinearGaussianPolicy", "REPS", "REPSConfig", "SB3Agent", "StopOnRobustness", "StopOnSuccessRate", "TLPS",
+    "TLPSConfig", "evaluate_policy",
 ]

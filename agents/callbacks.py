@@ -93,6 +93,40 @@ class CheckpointCallback(AbstractCallback):
         return True
 
 
+class EvalCallback(AbstractCallback):
+    """Evaluates the deterministic policy every ``every`` iterations and keeps the best one, as SB3's ``EvalCallback``.
+
+    Each evaluation runs ``n_episodes`` fresh episodes (`Agent.evaluate`, reset seeds ``seed``,
+    ``seed + 1``, …, the same every time, so that evaluations compare like with like) and is
+    appended to ``evaluations`` as ``(iteration, success_rate, mean_robustness)``. When one beats
+    every earlier one (success rate first, then mean robustness), the agent is saved to
+    ``best_path`` (if given), as rl-baselines3-zoo keeps ``best_model.zip``: where a policy's
+    success swings between evaluations (docs/results/ppo_car2.md), the best one is what to deploy,
+    reported on other fresh episodes. Evaluation episodes are not counted in ``env_steps``.
+    """
+
+    def __init__(self, every: int, n_episodes: int = 100, best_path: str | Path | None = None, seed: int = 20_000_033):
+        if every < 1:
+            raise ValueError(f"every must be >= 1, got {every}")
+        if n_episodes < 1:
+            raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
+        self.every, self.n_episodes, self.seed = every, n_episodes, seed
+        self.best_path = None if best_path is None else Path(best_path)
+        self.evaluations: list[tuple[int, float, float]] = []
+        self.best: tuple[int, float, float] | None = None
+
+    def on_iteration(self, agent: Any, row: Row) -> bool:
+        if row["iteration"] % self.every == 0:
+            result = agent.evaluate(n_episodes=self.n_episodes, seed=self.seed)
+            evaluation = (int(row["iteration"]), float(result["success_rate"]), float(result["mean_robustness"]))
+            self.evaluations.append(evaluation)
+            if self.best is None or evaluation[1:] > self.best[1:]:
+                self.best = evaluation
+                if self.best_path is not None:
+                    agent.save(self.best_path)
+        return True
+
+
 class HistoryCSV(AbstractCallback):
     """Writes the history rows seen so far to a CSV file after every iteration (live progress).
 

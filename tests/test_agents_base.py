@@ -534,3 +534,21 @@ def test_files_are_written_atomically_with_plain_permissions(tmp_path, monkeypat
         serialization.write_atomic(target, b"newer")
     assert target.read_bytes() == b"new"  # the old file, whole
     assert [p.name for p in target.parent.iterdir()] == ["file.bin"]  # no temporary file left behind
+
+
+def test_eval_callback_keeps_the_best_evaluated_policy(tmp_path):
+    from tl_gym.agents import EvalCallback
+
+    best = tmp_path / "best.zip"
+    callback = EvalCallback(every=2, n_episodes=4, best_path=best, seed=7)
+    make_agent().learn(6, callback=[CheckpointCallback(2, tmp_path), callback])
+    assert [e[0] for e in callback.evaluations] == [2, 4, 6]
+    for iteration, success, mean_rho in callback.evaluations:  # the same episodes, the agent as it was then
+        again = REPS.load(tmp_path / f"agent_{iteration}.zip").evaluate(n_episodes=4, seed=7)
+        assert (again["success_rate"], again["mean_robustness"]) == pytest.approx((success, mean_rho))
+    assert callback.best == max(callback.evaluations, key=lambda e: (e[1], e[2]))
+    assert len(REPS.load(best).history) == callback.best[0]  # saved at its best evaluation
+    with pytest.raises(ValueError, match="every"):
+        EvalCallback(every=0)
+    with pytest.raises(ValueError, match="n_episodes"):
+        EvalCallback(every=1, n_episodes=0)
