@@ -119,6 +119,10 @@ def build_parser(with_hyperparameters: bool = False) -> argparse.ArgumentParser:
     train.add_argument("--snapshots", default=None,
                        help="iterations whose sampled trajectories are plotted, e.g. 1,10,30 (default: spread)")
     train.add_argument("--quiet", action="store_true", help="no progress bar")
+    train.add_argument("--eval-every", type=int, default=None, metavar="N",
+                       help="every N iterations, evaluate the deterministic policy and keep the best agent as "
+                            "best_agent.zip (rl-baselines3-zoo's --eval-freq and best_model.zip)")
+    train.add_argument("--eval-episodes", type=int, default=100, help="episodes of each --eval-every evaluation")
 
     evaluate = commands.add_parser("eval", help="evaluate a trained run")
     evaluate.add_argument("run", type=Path, help="run folder written by `tl-gym train`")
@@ -126,4 +130,5 @@ def build_parser(with_hyperparameters: bool = False) -> argparse.ArgumentParser:
     evaluate.add_argument("--seed", type=int, default=12345, help="seed of the first episode (default: 12345)")
     evaluate.add_argument("--stochastic", action="store_true", help="sample actions instead of the mean")
     evaluate.add_argument("--gif", type=Path, default=None, help="also save a GIF of one episode here")
+    evaluate.add_argument("--best", action="store_true", help="the run's best_agent.zip (train --eval-every)")
     return parser

@@ -6,12 +6,13 @@ folder::
     runs/NAME/
         run.json            how the run was made (env, formula, agent, hyperparameters, seed)
         agent.zip           the trained agent (`tl_gym.agents.Agent.load`)
+        best_agent.zip      with --eval-every N: the agent at its best evaluation (`EvalCallback`)
         history.csv         one row per iteration (mean exact robustness, success rate, env steps, ...)
         learning_curve.png  mean robustness and success rate per iteration
         trajectories.png    sampled trajectories at selected iterations (over the task layout for the car)
 
-``tl-gym eval runs/NAME`` reloads the agent, prints its mean robustness and success rate
-over fresh episodes and can save a GIF of one episode.
+``tl-gym eval runs/NAME`` reloads the agent (``--best``: the best one), prints its mean robustness
+and success rate over fresh episodes and can save a GIF of one episode.
 
 Examples::
 
@@ -38,7 +39,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from tl_gym.agents import Agent
-from tl_gym.agents.callbacks import HistoryCSV, as_callback
+from tl_gym.agents.callbacks import EvalCallback, HistoryCSV, as_callback
 from tl_gym.agents.evaluation import as_vector_env, collect_episodes, predictor_controller
 from tl_gym.agents.registry import is_episodic, make_agent
 from tl_gym.agents.sampling import env_attribute, run_episodes
@@ -50,6 +51,7 @@ from .arguments import build_parser, parse_hyperparameters
 
 RUN_FILE = "run.json"
 AGENT_FILE = "agent.zip"
+BEST_FILE = "best_agent.zip"
 
 
 # Building the env and the agent --------------------------------------------------------------------
@@ -121,6 +123,8 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
     }
     if args.iterations is not None and args.iterations < 1:
         raise ValueError(f"--iterations must be >= 1, got {args.iterations}")
+    if args.eval_every is not None and (args.eval_every < 1 or args.eval_episodes < 1):
+        raise ValueError(f"--eval-every and --eval-episodes must be >= 1, got {args.eval_every}, {args.eval_episodes}")
     agent = agent_for_run(run)
     run["iterations"] = iterations = default_iterations(agent) if args.iterations is None else args.iterations
     snapshots_at = (sorted({int(s) for s in args.snapshots.split(",")}) if args.snapshots
@@ -141,14 +145,17 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
 
     # history.csv is written after every iteration (all of this fresh agent's rows), so a long run can be
     # watched and a killed one keeps its rows
-    agent.learn(iterations, callback=as_callback([record, HistoryCSV(out / "history.csv")]),
-                progress_bar=not args.quiet)
+    callbacks = [record, HistoryCSV(out / "history.csv")]
+    if args.eval_every is not None:
+        callbacks.append(EvalCallback(args.eval_every, args.eval_episodes, best_path=out / BEST_FILE))
+    agent.learn(iterations, callback=as_callback(callbacks), progress_bar=not args.quiet)
     agent.save(out / AGENT_FILE)
     write_plots(agent, run, snapshots, out)
     last = agent.history[-1]
     print(f"iteration {last['iteration']}: mean robustness {last['mean_robustness']:.4g}, "
           f"success rate {last['success_rate']:.1%}, {last['env_steps']} env steps, {last['wall_time']:.1f} s")
-    print(f"wrote {out}/{{{RUN_FILE}, {AGENT_FILE}, history.csv, learning_curve.png, trajectories.png}}")
+    best = f", {BEST_FILE}" if args.eval_every is not None else ""
+    print(f"wrote {out}/{{{RUN_FILE}, {AGENT_FILE}{best}, history.csv, learning_curve.png, trajectories.png}}")
     return 0
 
 
@@ -181,7 +188,10 @@ def evaluate(args: argparse.Namespace) -> int:
         raise FileNotFoundError(f"{run_file} not found: is {args.run} a folder written by `tl-gym train`?")
     run = json.loads(run_file.read_text())
     env = build_env(run)
-    agent = Agent.load(args.run / AGENT_FILE, env=None if isinstance(env, str) else env)
+    saved = args.run / (BEST_FILE if args.best else AGENT_FILE)
+    if args.best and not saved.exists():
+        raise FileNotFoundError(f"{saved} not found: the run was trained without --eval-every")
+    agent = Agent.load(saved, env=None if isinstance(env, str) else env)
     result = agent.evaluate(n_episodes=args.episodes, seed=args.seed, deterministic=not args.stochastic)
     print(f"{run['agent']} on {run['env']} {run['env_kwargs'] or ''}: {args.episodes} episodes, "
           f"mean robustness {result['mean_robustness']:.4g}, success rate {result['success_rate']:.1%}")

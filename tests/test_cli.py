@@ -87,6 +87,7 @@ def test_spec_and_signals_train_on_any_env(tmp_path, capsys):
         (["--agent", "reps", "--bogus", "3"], "bogus"),
         (["--agent", "reps", "--epsilon", "-1"], "epsilon"),
         (["--agent", "reps", "--iterations", "0"], "--iterations"),
+        (["--agent", "reps", "--eval-every", "0"], "--eval-every"),
         (["--env", "Pendulum-v1", "--spec", "F(x > 1", "--signals", "x=0", "--agent", "reps"], "column"),
     ],
 )
@@ -145,3 +146,21 @@ def test_sb3_with_spec_gets_the_markov_view_on_the_wrapper(tmp_path, capsys):
     assert agent.model.gamma == 0.9  # the Pendulum-v1 entry of the hyperparameter file
     assert main(["eval", str(out), "--episodes", "2"]) == 0
     assert "2 episodes" in capsys.readouterr().out
+
+
+def test_eval_every_keeps_the_best_agent_and_eval_best_reads_it(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["train", "--env", "TLCarNav-v0", "--env-kwargs", '{"horizon": 10}', "--agent", "reps",
+                 "--iterations", "4", "--n-episodes", "4", "--eval-every", "2", "--eval-episodes", "3",
+                 "--out", str(out), "--quiet"]) == 0
+    assert "best_agent.zip" in capsys.readouterr().out
+    best = Agent.load(out / "best_agent.zip")
+    assert len(best.history) in (2, 4)  # saved at an evaluation
+    assert main(["eval", str(out), "--best", "--episodes", "3"]) == 0
+    assert "3 episodes" in capsys.readouterr().out
+    assert main(["eval", str(tmp_path / "run"), "--episodes", "3"]) == 0  # the final agent still there
+
+
+def test_eval_best_of_a_run_without_it(car_run, capsys):
+    assert main(["eval", str(car_run), "--best"]) == 2
+    assert "without --eval-every" in capsys.readouterr().err
