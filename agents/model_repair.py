@@ -216,9 +216,10 @@ def repair_feedforward(model: DynamicsModel, policy: LinearGaussianPolicy, batch
         values, signal_grad = smooth_value_and_grad(formula, names, states[..., index], beta, math.inf, form)
 
         def gradient(chosen: np.ndarray) -> np.ndarray:  # the adjoint of the chosen episodes only
-            state_grad = np.zeros(states[chosen].shape)
+            picked = states[chosen]
+            state_grad = np.zeros_like(picked)
             state_grad[..., index] = signal_grad[chosen]
-            return feedforward_gradient(model, policy, states[chosen], actions[chosen], state_grad)
+            return feedforward_gradient(model, policy, picked, actions[chosen], state_grad)
 
         return values, gradient
 

@@ -207,12 +207,12 @@ def projected_ascent(
         length = np.sqrt(np.sum(offset**2, axis=(1, 2), keepdims=True))
         x = tau[active] + offset * np.minimum(1.0, radius / np.maximum(length, 1e-300))
         value, gradient = evaluate(x, active)
-        better = np.flatnonzero(value > best_value[active])
+        better = value > best_value[active]
         improved = active[better]
         if improved.size:
             best_x[improved], best_value[improved], grad[improved] = x[better], value[better], gradient(better)
         step[improved] *= _GROWTH
-        step[np.setdiff1d(active, improved, assume_unique=True)] *= decay
+        step[active[~better]] *= decay
     return TrustRegionResult(best_x, before, best_value)
 
 
