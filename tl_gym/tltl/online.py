@@ -287,9 +287,11 @@ class _Window:
         return [Slot(SIGNAL)] * (self.size * len(self.names))
 
     def export(self, out: list[float]) -> None:
-        for state in self.states:
-            out.extend(float(state[n]) for n in self.names)
-        out.extend([0.0] * ((self.size - len(self.states)) * len(self.names)))
+        for state in self.states:  # map over a bound method: the fastest way in Python, a step's hot path
+            out.extend(map(float, map(state.__getitem__, self.names)))
+        missing = self.size - len(self.states)
+        if missing:
+            out.extend([0.0] * (missing * len(self.names)))
 
     def load(self, values: list[float], pos: int, count: int) -> int:
         width = len(self.names)
