@@ -40,6 +40,7 @@ import inspect
 import io
 import math
 import pickle
+import warnings
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -91,6 +92,9 @@ ENTRY_KEYS = ("n_envs", "policy", "n_timesteps", "normalize", "noise_type", "noi
 
 #: Exploration noise of off-policy algorithms, by the zoo's ``noise_type`` names.
 NOISE_TYPES = ("normal", "ornstein-uhlenbeck")
+
+#: Constructor arguments that may be the zoo's ``"lin_<x>"``, a value decaying linearly to 0 over ``n_timesteps``.
+SCHEDULE_KEYS = ("learning_rate", "clip_range")
 
 _ALGO_MODULES = ("stable_baselines3", "sb3_contrib")
 # constructor arguments that SB3Agent sets itself
@@ -291,6 +295,11 @@ class SB3Config:
         if self.noise_type is not None and self.noise_type not in NOISE_TYPES:
             raise ValueError(f"noise_type must be None or one of {NOISE_TYPES}, got {self.noise_type!r}")
         check_positive("noise_std", self.noise_std, allow_zero=True)
+        for key, value in self.algo_kwargs.items():
+            if isinstance(value, str) and value.startswith("lin_"):
+                linear_start(key, value)
+                if self.n_timesteps is None:
+                    raise ValueError(f"{key}={value!r} decays over n_timesteps, which is not set; give n_timesteps")
 
 
 # The hyperparameter file --------------------------------------------------------------------------
@@ -357,7 +366,7 @@ def _canonical(settings: Mapping[str, Any]) -> dict[str, Any]:
     out = dict(settings)
     for key, value in out.items():
         if isinstance(value, str) and value.startswith("lin_"):
-            raise ValueError(f"{key}={value!r}: the zoo's 'lin_' schedules are not supported; give a number")
+            linear_start(key, value)  # checked here, built by the agent
     if "n_timesteps" in out:
         value = float(out["n_timesteps"])
         if not math.isfinite(value) or value < 1 or value != int(value):
@@ -425,6 +434,51 @@ def merge_hyperparameters(entry: Mapping[str, Any], explicit: Mapping[str, Any],
     if on_policy and "n_steps" not in explicit and {"steps_per_iteration", "n_envs"} & set(explicit):
         merged.pop("n_steps", None)
     return merged
+
+
+def linear_start(key: str, value: str) -> float:
+    """The start value of the zoo's ``"lin_<x>"`` schedule ``value`` given for ``key``.
+
+    Raises:
+        ValueError: ``key`` is not one of `SCHEDULE_KEYS`, or ``<x>`` is not a number > 0.
+
+    Example:
+        >>> linear_start("learning_rate", "lin_3e-4")
+        0.0003
+    """
+    if key not in SCHEDULE_KEYS:
+        raise ValueError(f"{key}={value!r}: a 'lin_' schedule is only for {list(SCHEDULE_KEYS)}")
+    try:
+        start = float(value.removeprefix("lin_"))
+    except ValueError:
+        raise ValueError(f"{key}={value!r}: expected 'lin_<number>', e.g. 'lin_3e-4'") from None
+    if not math.isfinite(start) or start <= 0:
+        raise ValueError(f"{key}={value!r}: the start value must be a finite number > 0")
+    return start
+
+
+class LinearSchedule:
+    """rl-baselines3-zoo's ``lin_<start>``: ``start`` decaying linearly to 0 over ``budget`` env steps.
+
+    SB3 calls a schedule with the progress remaining of the current ``learn`` call, counted
+    against the call's last env step. The agent learns in iterations (a ``learn`` call each), so
+    it sets `span` to that step before each call, and the schedule turns SB3's progress back into
+    the budget's: ``start * (1 - steps / budget)``, the zoo's decay over its ``n_timesteps``, 0
+    after the budget.
+
+    Example:
+        >>> schedule = LinearSchedule(1e-3, budget=1000)
+        >>> schedule.span = 500  # a learn call from step 0 to step 500
+        >>> schedule(1.0), schedule(0.0)  # at its start, and at its end (step 500: half the budget)
+        (0.001, 0.0005)
+    """
+
+    def __init__(self, start: float, budget: int):
+        self.start, self.budget, self.span = float(start), int(budget), int(budget)
+
+    def __call__(self, progress_remaining: float) -> float:
+        steps = (1.0 - progress_remaining) * self.span
+        return self.start * max(0.0, 1.0 - steps / self.budget)
 
 
 # The agent ------------------------------------------------------------------------------------------
@@ -533,6 +587,9 @@ class SB3Agent(Agent):
         from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
         kwargs = dict(self.config.algo_kwargs)
+        self._schedules = {key: LinearSchedule(linear_start(key, value), self.config.n_timesteps)  # type: ignore[arg-type]
+                           for key, value in kwargs.items() if isinstance(value, str) and value.startswith("lin_")}
+        kwargs.update({key: schedule.start for key, schedule in self._schedules.items()})  # installed after
         on_policy = issubclass(self.algo_class, OnPolicyAlgorithm)
         if on_policy:
             kwargs.setdefault("n_steps", max(1, self.config.steps_per_iteration // self.config.n_envs))
@@ -563,7 +620,13 @@ class SB3Agent(Agent):
             "MultiInputPolicy" if isinstance(self.observation_space, gym.spaces.Dict) else "MlpPolicy"
         )
         self.model = self.algo_class(policy, self._training_env(), seed=self.seed, verbose=0, device="cpu", **kwargs)
+        self._install_schedules()
         self._quiet_logger()
+
+    def _install_schedules(self) -> None:
+        """Put the ``lin_`` schedules where SB3 reads them (it rebuilds constant ones from the start values on load)."""
+        for key, schedule in self._schedules.items():
+            setattr(self.model, "lr_schedule" if key == "learning_rate" else key, schedule)
 
     def _training_env(self) -> Any:
         """The VecEnv SB3 steps: the VecNormalize wrapper when there is one."""
@@ -583,6 +646,11 @@ class SB3Agent(Agent):
     def _update(self, iteration: int) -> dict[str, Any]:
         collector = _make_collector()
         before = self.model.num_timesteps
+        for schedule in self._schedules.values():  # the env step SB3 counts this call's progress against
+            schedule.span = before + self.config.steps_per_iteration
+        if self._schedules and before + self.config.steps_per_iteration > self.config.n_timesteps:  # type: ignore[operator]
+            warnings.warn(f"the 'lin_' schedules of {sorted(self._schedules)} end at n_timesteps: past it they are 0 "
+                          "(a learning rate of 0 leaves the policy as it is)", stacklevel=2)
         with one_torch_thread():
             self.model.learn(total_timesteps=self.config.steps_per_iteration, reset_num_timesteps=False,
                              callback=collector, progress_bar=False)
@@ -640,6 +708,7 @@ class SB3Agent(Agent):
             loaded.set_venv(self.sb3_env)
             self.vec_normalize = loaded
         self.model = self.algo_class.load(io.BytesIO(files[SB3_MEMBER]), env=self._training_env(), device="cpu")
+        self._install_schedules()
         self._quiet_logger()
 
 

@@ -233,7 +233,9 @@ def test_the_packaged_hyperparameters_validate():
         ("TLCarNav-v0:\n  ppo:\n    gama: 0.9\n", "TLCarNav-v0 / ppo: unknown key 'gama'"),
         ("TLCarNav-v0:\n  sac:\n    n_epochs: 3\n", "unknown key 'n_epochs'.*SAC"),
         ("TLCarNav-v0:\n  nope:\n    gamma: 0.9\n", "unknown algorithm 'nope'"),
-        ("TLCarNav-v0:\n  ppo:\n    learning_rate: lin_3e-4\n", "'lin_' schedules"),
+        ("TLCarNav-v0:\n  ppo:\n    learning_rate: lin_fast\n", "expected 'lin_<number>'"),
+        ("TLCarNav-v0:\n  ppo:\n    gamma: lin_0.9\n", "gamma='lin_0.9': a 'lin_' schedule is only for"),
+        ("TLCarNav-v0:\n  ppo:\n    clip_range: lin_-0.2\n", "must be a finite number > 0"),
         ("TLCarNav-v0:\n  ppo:\n    policy_kwargs: \"dict(net_arch=__import__('os'))\"\n", "cannot read"),
         ("TLCarNav-v0:\n  ppo:\n    policy_kwargs: {activation_fn: nn.Sigmoidal}\n", "unknown activation_fn"),
         ("TLCarNav-v0:\n  ppo:\n    normalize: \"{'norm_obs': True, 'gamma2': 1}\"\n", "gamma2"),
@@ -247,6 +249,33 @@ def test_a_bad_hyperparameter_file_is_refused_naming_the_culprit(tmp_path, text,
         load_hyperparams(path)
     with pytest.raises(ValueError, match=message):
         SB3Agent("TLCarNav-v0", "ppo", hyperparams=str(path), **TINY)
+
+
+def test_zoo_linear_schedules_decay_over_the_budget_and_survive_save_load(tmp_path):
+    agent = SB3Agent("TLCarNav-v0", "ppo", seed=0, n_timesteps=256, learning_rate="lin_1e-3", clip_range="lin_0.2",
+                     **TINY)
+
+    def rates(agent):
+        model = agent.model
+        return model.policy.optimizer.param_groups[0]["lr"], model.clip_range(model._current_progress_remaining)
+
+    seen = []
+    for _ in range(3):
+        agent.learn(1)
+        seen.append(rates(agent))
+    # PPO trains after each 64-step rollout, at 64, 128, 192 of the 256 steps
+    np.testing.assert_allclose(seen, [(1e-3 * (1 - k / 4), 0.2 * (1 - k / 4)) for k in (1, 2, 3)])
+    loaded = Agent.load(agent.save(tmp_path / "lin.zip"))
+    assert loaded.config.algo_kwargs["learning_rate"] == "lin_1e-3"
+    loaded.learn(1)  # the budget's last rollout
+    assert rates(loaded) == (0.0, 0.0)
+    with pytest.warns(UserWarning, match="past it they are 0"):
+        loaded.learn(1)
+
+
+def test_a_linear_schedule_needs_a_budget():
+    with pytest.raises(ValueError, match="learning_rate='lin_1e-3' decays over n_timesteps, which is not set"):
+        SB3Agent("TLCarNav-v0", "ppo", hyperparams=False, learning_rate="lin_1e-3", **TINY)
 
 
 @pytest.mark.parametrize("end_is_terminal", [True, False])
