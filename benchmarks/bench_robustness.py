@@ -51,8 +51,7 @@ def trajectories(n: int, length: int, seed: int, tasks: Iterable[Task] = ()) -> 
     scale = ARENA * math.sqrt(3) / 2 / length**1.5
     walk = np.cumsum(np.cumsum(rng.standard_normal((2, n, length)), axis=2), axis=2) * scale
     start = rng.uniform(0, ARENA, (n, 2))
-    centres = [((b.x_low + b.x_high) / 2, (b.y_low + b.y_high) / 2) for t in tasks for b in t.goals]
-    centres = list(dict.fromkeys(centres)) or [(ARENA / 2, ARENA / 2)]
+    centres = list(dict.fromkeys(b.center for t in tasks for b in t.goals)) or [(ARENA / 2, ARENA / 2)]
     routed = rng.random(n) < 0.5
     picks = rng.integers(0, len(centres), (n, 3))
     in_order = rng.random(n) < 0.25
@@ -72,20 +71,17 @@ def tl_gym_evaluators(task: Task, beta: float) -> list[Evaluator]:
     def exact(x: np.ndarray, y: np.ndarray, backend: str = "numpy") -> np.ndarray:
         return np.asarray(task.formula.robustness({"x": x, "y": y}, backend=backend))
 
-    def smooth(form: str) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
-        def run(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-            xt, yt = (torch.from_numpy(v).requires_grad_(True) for v in (x, y))
-            values = task.formula.smooth_robustness({"x": xt, "y": yt}, beta, form=form)
-            values.sum().backward()
-            return values.detach().numpy()
-
-        return run
+    def smooth(x: np.ndarray, y: np.ndarray, form: str = "nested") -> np.ndarray:
+        xt, yt = (torch.from_numpy(v).requires_grad_(True) for v in (x, y))
+        values = task.formula.smooth_robustness({"x": xt, "y": yt}, beta, form=form)
+        values.sum().backward()
+        return values.detach().numpy()
 
     nested = {} if task.key == "phi1" else {"max_length": NESTED_MAX_LENGTH, "too_long": NESTED_TOO_LONG}
     out = [Evaluator(TL_GYM, "exact", exact, per_trajectory=False),
-           Evaluator(TL_GYM, "smooth+grad", smooth("nested"), per_trajectory=False, **nested)]
+           Evaluator(TL_GYM, "smooth+grad", smooth, per_trajectory=False, **nested)]
     if task.key != "phi1":
-        out.append(Evaluator(TL_GYM, SMOOTH_LINEAR, smooth("linear"), per_trajectory=False))
+        out.append(Evaluator(TL_GYM, SMOOTH_LINEAR, functools.partial(smooth, form="linear"), per_trajectory=False))
     if fused.available():
         out.append(Evaluator(TL_GYM_NUMBA, "exact", lambda x, y: exact(x, y, "numba"), False, compiles=True))
     return out
@@ -116,8 +112,9 @@ class Row:
     ratio: float | None = None  # tl_gym's throughput / this library's (same mode)
 
 
-def _time(run: Callable[[], np.ndarray], repeats: int, budget: float, warm: bool) -> tuple[float, np.ndarray]:
-    """Best wall time of ``run`` over a few repeats, and its values; unless ``warm``, an untimed first call warms up.
+def _time(run: Callable[[], np.ndarray], repeats: int = 1, budget: float = math.inf,
+          warm: bool = True) -> tuple[float, np.ndarray]:
+    """Best wall time of ``run`` over ``repeats`` calls and its values; unless ``warm``, an untimed call warms up first.
 
     That first call is the time when it alone is too slow to repeat.
     """
@@ -161,9 +158,7 @@ def measure(evaluator: Evaluator, row: Row, x: np.ndarray, y: np.ndarray, refere
         probe = min(n, 1 if evaluator.per_trajectory else 16)
         if evaluator.compiles:  # compile for the probe's shape first, or the estimate is the compile time
             evaluator.run(x[:probe], y[:probe])
-        start = time.perf_counter()
-        evaluator.run(x[:probe], y[:probe])
-        per_one = (time.perf_counter() - start) / probe
+        per_one = _time(lambda: evaluator.run(x[:probe], y[:probe]))[0] / probe
         limit = settings.budget if evaluator.per_trajectory else settings.max_seconds  # on a batch: a cap
         k = int(min(n, max(1, limit // max(per_one, 1e-9))))
     try:
@@ -175,12 +170,9 @@ def measure(evaluator: Evaluator, row: Row, x: np.ndarray, y: np.ndarray, refere
         row.note = f"error: {type(exc).__name__}: {exc}"[:120]
         return None
     values = np.asarray(values, dtype=np.float64).reshape(-1)
-    if reference is not None:
-        both = min(k, len(reference))
-        problem = _mismatch(values[:both], reference[:both])
-        if problem:
-            row.note = problem
-            return None
+    if reference is not None and (problem := _mismatch(values[: min(k, len(reference))], reference[:k])):
+        row.note = problem
+        return None
     row.per_second = k / seconds
     row.note = "; ".join(filter(None, [evaluator.expressed, f"timed on {k:,} of {n:,}" if k < n else ""]))
     return values
@@ -189,11 +181,10 @@ def measure(evaluator: Evaluator, row: Row, x: np.ndarray, y: np.ndarray, refere
 def run_cell(task: Task, x: np.ndarray, y: np.ndarray, evaluators: list, settings: argparse.Namespace,
              log: Callable[[str], None]) -> list[Row]:
     """All libraries on one (task, N, T) batch; tl_gym first, as every other is checked against it."""
-    n, length = x.shape
     rows: list[Row] = []
     references: dict[str, np.ndarray] = {}  # tl_gym's values, by mode
     for ev in evaluators:
-        rows.append(row := Row(task.key, n, length, ev.library, ev.mode))
+        rows.append(row := Row(task.key, *x.shape, ev.library, ev.mode))
         if isinstance(ev, Unsupported):
             row.note = f"not comparable: {ev.reason}"
         elif ev.library != TL_GYM and ev.mode not in references:
@@ -245,10 +236,9 @@ def interleaved(task: Task, x: np.ndarray, y: np.ndarray, beta: float, rounds: i
     best = [math.inf] * len(calls)
     for round_index in range(rounds + 1):  # round 0 warms up
         for i, call in enumerate(calls):
-            start = time.perf_counter()
-            runs[call](x, y)
+            seconds = _time(functools.partial(runs[call], x, y))[0]
             if round_index:
-                best[i] = min(best[i], time.perf_counter() - start)
+                best[i] = min(best[i], seconds)
     return tuple(best)
 
 
@@ -327,16 +317,15 @@ def targets(rows: list[Row], alternated: tuple[float, ...] | None = None,
 def linearity(rows: list[Row], rates: dict[tuple[str, int, int, str, str], float | None]) -> list[str]:
     """Time per trajectory step of tl_gym across T at the largest N measured at every T (``rates``: `targets`')."""
     lines = []
-    lengths = sorted({r.length for r in rows})
+    lengths, sizes = sorted({r.length for r in rows}), {r.n for r in rows}
     if len(lengths) < 2:
         return lines
     for mode in ("exact", "smooth+grad", SMOOTH_LINEAR):
         for task in sorted({r.task for r in rows}):
-            sizes = sorted({r.n for r in rows if (r.task, r.library, r.mode) == (task, TL_GYM, mode)})
             common = [n for n in sizes if all(rates.get((task, n, t, TL_GYM, mode)) for t in lengths)]
             if not common:
                 continue
-            n = common[-1]
+            n = max(common)
             per_step = [1e9 / (rates[task, n, t, TL_GYM, mode] * t) for t in lengths]
             growth = per_step[-1] / per_step[0]
             # Large arrays leave the caches: the hand-written numpy pays that too, so compare growths.
