@@ -22,8 +22,7 @@ def _box(box: Goal, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 def _clearance(obstacle: Obstacle, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """The minimum over time of d_o − r_o, shape ``(N,)`` (the clause G(d_o > r_o))."""
-    dx = x - obstacle.x
-    dy = y - obstacle.y
+    dx, dy = x - obstacle.x, y - obstacle.y
     return np.sqrt((dx * dx + dy * dy).min(axis=1)) - obstacle.radius  # sqrt is monotone: take it once
 
 
@@ -50,8 +49,7 @@ def _until_at_zero(left: np.ndarray, right: np.ndarray) -> np.ndarray:
 
 def phi1(task: Task, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Robustness of φ1 = F ψ_g & G(d_o > r_o) for ``(N, T)`` signals, shape ``(N,)``."""
-    reach = _box(task.goals[0], x, y).max(axis=1)
-    return np.minimum(reach, _clearance(task.obstacle, x, y))
+    return np.minimum(_box(task.goals[0], x, y).max(axis=1), _clearance(task.obstacle, x, y))
 
 
 def phi2(task: Task, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -61,10 +59,8 @@ def phi2(task: Task, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     # then the outer at 0 only.
     inner = _suffix(np.maximum, np.minimum(g2, _shift_left(_suffix(np.maximum, g3), -np.inf)))
     order = np.minimum(g1[:, :-1], inner[:, 1:]).max(axis=1, initial=-np.inf)
-    first = _until_at_zero(-np.maximum(g2, g3), g1)
-    second = _until_at_zero(-g3, g2)
-    out = np.minimum(order, first)
-    np.minimum(out, second, out=out)
+    out = np.minimum(order, _until_at_zero(-np.maximum(g2, g3), g1))  # and ¬(g2 ∨ g3) U g1
+    np.minimum(out, _until_at_zero(-g3, g2), out=out)  # and ¬g3 U g2
     for g in (g1, g2, g3):
         never_again = _shift_left(_suffix(np.minimum, -g), -np.inf)  # X G !g
         if task.strict:  # G(g -> X G !g)
