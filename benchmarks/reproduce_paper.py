@@ -190,8 +190,7 @@ def _ahead(a: results.GroupSummary, b: results.GroupSummary) -> str:
 
     More seeds reaching it wins; with as many, every seed of one must get there before every seed of the other.
     """
-    reached_a = [f for f in a.first_success if f is not None]
-    reached_b = [f for f in b.first_success if f is not None]
+    reached_a, reached_b = ([f for f in row.first_success if f is not None] for row in (a, b))
     share_a, share_b = len(reached_a) / len(a.first_success), len(reached_b) / len(b.first_success)
     if share_a != share_b:
         winner, loser = (a, b) if share_a > share_b else (b, a)

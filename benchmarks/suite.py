@@ -34,13 +34,10 @@ def config_paths(tasks: Sequence[str] = ()) -> list[Path]:
 
 def eval_curve(runs: Sequence[RunResult], key: str = "eval_success_rate") -> tuple[np.ndarray, np.ndarray]:
     """``(env steps, values (seeds, points))`` of the rows where the runs evaluated, cut to the shortest run."""
-    points = []
-    for run in runs:
-        mask = ~np.isnan(run.history[key])
-        points.append((run.history["env_steps"][mask], run.history[key][mask]))
-    length = min(len(steps) for steps, _ in points)
-    steps = np.mean([s[:length] for s, _ in points], axis=0)
-    return steps, np.stack([v[:length] for _, v in points])
+    masks = [~np.isnan(run.history[key]) for run in runs]
+    length = min(int(mask.sum()) for mask in masks)
+    steps = np.mean([run.history["env_steps"][mask][:length] for run, mask in zip(runs, masks)], axis=0)
+    return steps, np.stack([run.history[key][mask][:length] for run, mask in zip(runs, masks)])
 
 
 def steps_to_solve(steps: np.ndarray, values: np.ndarray) -> float | None:
