@@ -37,5 +37,4 @@ def benchmark_task(key: str) -> Task:
         raise ValueError(f"unknown task {key!r}; expected one of {', '.join(TASKS)}")
     number = 1 if key == "phi1" else 2
     layout = make_layout(number)
-    formula = task_formula(number, "strict" if key == "phi2-strict" else "leave")
-    return Task(key, layout.goals, layout.obstacle, formula)
+    return Task(key, layout.goals, layout.obstacle, task_formula(number, "strict" if key == "phi2-strict" else "leave"))

@@ -12,7 +12,6 @@ import collections
 import concurrent.futures as futures
 import dataclasses
 import fnmatch
-import functools
 import hashlib
 import io
 import itertools
@@ -406,7 +405,7 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, workers: int | None = None, ray
         _run_on_ray(pending, out_dir, ray_address, report)
     elif pending and workers == 0:
         for run in pending:
-            report.attempt(run, functools.partial(execute_run, run, out_dir / "runs" / run.run_id))
+            report.attempt(run, lambda run=run: execute_run(run, out_dir / "runs" / run.run_id))
     elif pending:
         # spawn: a fresh interpreter per worker, no torch/thread state inherited through fork
         with futures.ProcessPoolExecutor(min(workers or os.cpu_count() or 1, len(pending)),
@@ -477,9 +476,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, help="results folder (default runs/sweeps/<name>[-<variant>])")
     add_sweep_options(parser)
     args = parser.parse_args(argv)
-    variant = variant_of(parser, args)
     try:
-        sweep = load_config(args.config, variant=variant)
+        sweep = load_config(args.config, variant=variant_of(parser, args))
     except ConfigError as exc:
         parser.error(str(exc))
     out_dir = args.out or default_out_dir(sweep)
