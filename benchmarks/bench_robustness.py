@@ -233,13 +233,8 @@ def interleaved(task: Task, x: np.ndarray, y: np.ndarray, beta: float, rounds: i
                 calls: Sequence[tuple[str, str]] = PHI1_ALTERNATED) -> tuple[float, ...]:
     """Best time of each (library, mode) of ``task``, the calls taking turns ``rounds`` times in one loop (speed.md)."""
     runs = {(e.library, e.mode): e.run for e in [*tl_gym_evaluators(task, beta), *handwritten_evaluators(task, beta)]}
-    best = [math.inf] * len(calls)
-    for round_index in range(rounds + 1):  # round 0 warms up
-        for i, call in enumerate(calls):
-            seconds = _time(functools.partial(runs[call], x, y))[0]
-            if round_index:
-                best[i] = min(best[i], seconds)
-    return tuple(best)
+    times = [[_time(functools.partial(runs[call], x, y))[0] for call in calls] for _ in range(rounds + 1)]
+    return tuple(map(min, zip(*times[1:])))  # round 0 warms up
 
 
 def _met(ok: bool) -> str:
