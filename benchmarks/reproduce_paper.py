@@ -146,9 +146,16 @@ def claims(task: Any, rows: Sequence[results.GroupSummary]) -> str:
     key, what, paper = ("first_positive", "mean ρ > 0", 30) if task == 1 else ("first_success", "success ≥ 80%", 50)
     lines = []
     if tlps is not None:
+        firsts = getattr(tlps, key)
+        median, share = results.median_first(firsts), f"{sum(f is not None for f in firsts)}/{len(firsts)} seeds"
+        if median is None:
+            verdict = f"**not reproduced**: no seed reached {what}"
+        else:
+            verdict = (f"**agrees** ({share}, median iteration {median:g} ≤ {paper})" if median <= paper
+                       else f"**slower than the paper** ({share}, median iteration {median:g} > {paper})")
         claim = ("Task 1 is satisfied (mean ρ > 0) around iteration 30 with β = 9" if task == 1
                  else "Task 2 is satisfied around iteration 50 with β = 9 (measured here: success ≥ 80%)")
-        lines.append(_claim(claim, getattr(tlps, key), paper, what))
+        lines.append(f"- *{claim}.* {verdict}.")
     betas = sorted(((_beta(row.label), row) for row in rows if _beta(row.label) is not None), key=lambda p: p[0])
     if len(betas) > 1:
         parts = [f"β = {beta:g}: {results.first_text(getattr(row, key))}, final success {row.final_success:.0%}"
@@ -172,17 +179,6 @@ def claims(task: Any, rows: Sequence[results.GroupSummary]) -> str:
             f"{results.percent(tlps.eval_success)} vs {results.percent(reps.eval_success)}. On these runs: **{ahead}**."
         )
     return "\n".join(lines) if lines else "No TLPS β = 9 curve in these results."
-
-
-def _claim(text: str, firsts: Sequence[int | None], paper: int, what: str) -> str:
-    median = results.median_first(firsts)
-    if median is None:
-        verdict = f"**not reproduced**: no seed reached {what}"
-    else:
-        share = f"{sum(f is not None for f in firsts)}/{len(firsts)} seeds"
-        verdict = (f"**agrees** ({share}, median iteration {median:g} ≤ {paper})" if median <= paper
-                   else f"**slower than the paper** ({share}, median iteration {median:g} > {paper})")
-    return f"- *{text}.* {verdict}."
 
 
 def _ahead(a: results.GroupSummary, b: results.GroupSummary) -> str:
