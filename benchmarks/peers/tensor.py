@@ -7,6 +7,7 @@ build a ``(2T, T)`` matrix per trajectory: T above `MAX_LENGTH` is declined); th
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -95,17 +96,14 @@ def stljax_evaluators(task: Task, beta: float) -> list[Evaluator | Unsupported]:
         grad.block_until_ready()
         return values
 
-    def chunked(step: Callable[[Any], Any]) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
-        def run(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-            signal, n = np.stack([x, y], axis=-1), len(x)
-            chunk = min(n, _chunk(x.shape[1]))
-            out = []
-            for start in range(0, n, chunk):
-                part = signal[start : start + chunk]
-                part = np.concatenate([part, np.repeat(part[-1:], chunk - len(part), axis=0)])  # one compiled shape
-                out.append(np.asarray(step(part)))
-            return np.concatenate(out)[:n]
+    def chunked(step: Callable[[Any], Any], x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        signal, n = np.stack([x, y], axis=-1), len(x)
+        chunk = min(n, _chunk(x.shape[1]))
+        out = []
+        for start in range(0, n, chunk):
+            part = signal[start : start + chunk]
+            part = np.concatenate([part, np.repeat(part[-1:], chunk - len(part), axis=0)])  # one compiled shape
+            out.append(np.asarray(step(part)))
+        return np.concatenate(out)[:n]
 
-        return run
-
-    return _pair("stljax", chunked(exact), chunked(smooth_step), compiles=True)
+    return _pair("stljax", functools.partial(chunked, exact), functools.partial(chunked, smooth_step), compiles=True)
