@@ -95,16 +95,15 @@ def headline(task: str, rows: Sequence[tuple[str, float, float | None, int, int]
             + (f"; also {others}" if others else "") + " |")
 
 
-def write_report(results: dict[str, tuple[str, list[RunResult]]], command: str, out: Path,
-                 planned: dict[str, list[str]] | None = None) -> Path:
-    """``suite.md`` in ``out``: the headline, then each task's table and figure, and its ``planned`` labels not run."""
+def write_report(results: dict[str, tuple[str, list[RunResult], list[str]]], command: str, out: Path) -> Path:
+    """``suite.md`` in ``out``: per (title, runs, planned labels), a headline row, table, figure and labels not run."""
     lines = ["# The TL task suite", "",
              f"Produced by `{command}` (seeds and budgets in `benchmarks/configs/suite/`); success is "
              "ρ > 0 on fresh episodes of the deterministic policy, evaluated along training. "
              "Tasks and formulas: [../tasks.md](../tasks.md).", "",
              "| task | solved by (median final success ≥ 90 %) | at |", "|---|---|---|"]
     sections = []
-    for stem, (title, runs) in results.items():
+    for stem, (title, runs, planned) in results.items():
         if not runs:
             lines.append(f"| {title} | not run for this report | |")
             sections += ["", f"## {title}", "", "No finished run for this report."]
@@ -115,7 +114,7 @@ def write_report(results: dict[str, tuple[str, list[RunResult]]], command: str, 
         plot_task(title, runs, out / figure)
         sections += ["", f"## {title}", "", task_markdown]
         done = {run.spec.label for run in runs}
-        missing = [label for label in (planned or {}).get(stem, []) if label not in done]
+        missing = [label for label in planned if label not in done]
         if missing:
             sections += ["", f"Not run for this report: {'; '.join(missing)}."]
         sections += ["", f"![{title}]({figure})"]
@@ -134,8 +133,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     add_sweep_options(parser)
     args = parser.parse_args(argv)
     variant = variant_of(parser, args)
-    results: dict[str, tuple[str, list[RunResult]]] = {}
-    planned: dict[str, list[str]] = {}
+    results: dict[str, tuple[str, list[RunResult], list[str]]] = {}
     failed = 0
     for path in config_paths(args.tasks):
         sweep = load_config(path, variant=variant)
@@ -143,12 +141,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not args.report_only:
             failed += len(run_with_options(sweep, out_dir, args).failed)
         runs = load_runs(out_dir) if (out_dir / "sweep.json").is_file() else []
-        results[path.stem] = (sweep.description or path.stem, runs)  # a task without runs says so
-        planned[path.stem] = list(dict.fromkeys(run.label for run in sweep.runs))
+        planned = list(dict.fromkeys(run.label for run in sweep.runs))
+        results[path.stem] = (sweep.description or path.stem, runs, planned)  # a task without runs says so
     command = "python -m benchmarks.suite" + (f" --variant {variant}" if variant and not args.quick else "")
     target = Path(args.out) if args.quick else RESULTS
     target.mkdir(parents=True, exist_ok=True)
-    print(f"wrote {write_report(results, command, target, planned)}")  # every config has its section
+    print(f"wrote {write_report(results, command, target)}")  # every config has its section
     return 1 if failed else 0
 
 

@@ -59,8 +59,9 @@ def test_runs_evaluate_along_training_and_the_report_reads_them(tmp_path):
     assert rows[1][0] == "slow" and rows[1][2] is None  # ρ = 0.1 m − 1 stays below 0: never solved
     assert suite.headline("tiny", rows) == "| tiny | fast | 300 env steps (median, 2/2 seeds) |"
     assert "none solved it" in suite.headline("tiny", rows[1:])
-    page = suite.write_report({"tiny": ("tiny", runs), "empty": ("empty", [])}, "python -m benchmarks.suite",
-                              tmp_path, planned={"tiny": ["fast", "slow", "SAC", "PPO, terminal"]})
+    planned = ["fast", "slow", "SAC", "PPO, terminal"]
+    page = suite.write_report({"tiny": ("tiny", runs, planned), "empty": ("empty", [], [])},
+                              "python -m benchmarks.suite", tmp_path)
     text = page.read_text()
     assert (tmp_path / "suite_tiny.png").is_file() and "| tiny | fast |" in text
     assert "Not run for this report: SAC; PPO, terminal." in text
