@@ -246,13 +246,13 @@ def execute_run(spec: RunSpec, run_dir: str | Path) -> dict[str, Any]:
         os.environ.setdefault(name, "1")
     if "torch" in sys.modules:
         sys.modules["torch"].set_num_threads(1)
-    from tl_gym.agents.callbacks import write_history
+    from tl_gym.agents.callbacks import HistoryCSV
     from tl_gym.agents.registry import make_agent
 
     start = time.perf_counter()
     agent = make_agent(spec.agent, spec.env, seed=spec.seed, env_kwargs=dict(spec.env_kwargs),
                        **dict(spec.hyperparameters))
-    rows: list[dict[str, Any]] = []
+    history = HistoryCSV(run_dir / HISTORY)
     traces: dict[str, np.ndarray] = {}
 
     def record(agent: Any, row: Mapping[str, Any]) -> bool:
@@ -262,8 +262,7 @@ def execute_run(spec: RunSpec, run_dir: str | Path) -> dict[str, Any]:
             result = agent.evaluate(n_episodes=spec.evaluate_episodes, seed=20_000_033 + spec.seed)
             row.update(eval_success_rate=float(result["success_rate"]),
                        eval_mean_robustness=float(result["mean_robustness"]))
-        rows.append(row)
-        write_history(rows, run_dir / HISTORY)
+        history.on_iteration(agent, row)
         if iteration in spec.trajectory_iterations:
             traces.update(sample_traces(agent, spec, int(iteration)))
         return True
