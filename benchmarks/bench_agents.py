@@ -56,12 +56,11 @@ def main(argv: list[str] | None = None) -> None:
     medians = {label: np.median(rows, axis=0) for label, rows in times.items()}
     for label, (cpu, wall) in medians.items():
         print(f"| {label} | {cpu:.3f} | {wall:.3f} |")
-    ratio = medians["TLPS"] / medians["REPS"]
-    history = agents["TLPS"].history[-args.iterations:]
-    split = {key: np.median([row[key] for row in history]) for key in ("time_sampling", "time_trust_region")}
-    print(f"| TLPS / REPS | {ratio[0]:.2f}x | {ratio[1]:.2f}x |")
-    print(f"TLPS's split (median wall s): sampling {split['time_sampling']:.3f}, "
-          f"trust region {split['time_trust_region']:.3f}")
+    cpu, wall = medians["TLPS"] / medians["REPS"]
+    print(f"| TLPS / REPS | {cpu:.2f}x | {wall:.2f}x |")
+    sampling, trust_region = (np.median([row[key] for row in tlps.history[-args.iterations:]])
+                              for key in ("time_sampling", "time_trust_region"))
+    print(f"TLPS's split (median wall s): sampling {sampling:.3f}, trust region {trust_region:.3f}")
 
 
 if __name__ == "__main__":

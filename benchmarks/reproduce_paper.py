@@ -59,8 +59,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def provenance(sweep: Sweep, config: Path, out_dir: Path, command: str, runs: Sequence[results.RunResult]) -> str:
     """What produced a results page (command, config, variant, commit, machine), and its curves' seeds and budgets."""
-    finished = {run.spec.run_id for run in runs}
-    missing = sum(run.run_id not in finished for run in sweep.runs)
+    missing = len({run.run_id for run in sweep.runs} - {run.spec.run_id for run in runs})
     variant = sweep.name.partition("-")[2]
     versions = results.group_by(runs, lambda run: run.summary.get("code", "not recorded"))
     code = "; ".join(f"{key}: {len(members)} run(s)" for key, members in versions.items())
