@@ -340,8 +340,7 @@ def write_results(rows: list[Row], path: Path, command: str, skipped: list[str],
         "`traj/s`: trajectories per second (best of a few repeats); `tl_gym ×`: tl_gym's throughput in the same",
         "mode divided by this row's (above 1: tl_gym is faster). How to read it: `docs/speed.md`.", "",
         "## Targets (issue 3)", "",
-        *(target_lines or ["- (the grid run does not include the targets' sizes)"]),
-        "",
+        *(target_lines or ["- (the grid run does not include the targets' sizes)"]), "",
         "## Table", "", table(rows), "",
     ]
     if skipped:

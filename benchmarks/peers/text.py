@@ -56,8 +56,7 @@ def specification(task: Task, s: Syntax) -> str:
     for gi in g:
         leaving = gi if task.strict else s.and_(gi, s.next(s.not_(gi)))  # type: ignore[misc]
         clauses.append(s.always(s.implies(leaving, s.always_after(s.not_(gi)))))
-    clauses.append(avoid)
-    return s.wrap(s.join.join(f"({c})" for c in clauses))
+    return s.wrap(s.join.join(f"({c})" for c in [*clauses, avoid]))
 
 
 def _exact(name: str, task: Task, run_one: Callable[[np.ndarray, np.ndarray], float], rewrites: str,
