@@ -119,9 +119,7 @@ def _time(run: Callable[[], np.ndarray], repeats: int = 1, budget: float = math.
     That first call is the time when it alone is too slow to repeat.
     """
     if not warm:
-        start = time.perf_counter()
-        values = run()
-        first = time.perf_counter() - start
+        first, values = _time(run)
         if first > 3 * budget:
             return first, values
     best, spent = math.inf, 0.0
