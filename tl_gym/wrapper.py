@@ -242,8 +242,8 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._potential.reset()
             self._phi = self._potential.update(dict(zip(self._reader.names, row)))
         if self.monitor_view is not None:
-            features = self.monitor_view.observe(dict(zip(self._reader.names, row)), 0)
-            return augment(obs, features, MONITOR_KEY), info
+            self.monitor_view.update(dict(zip(self._reader.names, row)), 0)
+            return augment(obs, self.monitor_view.features(0), MONITOR_KEY), info
         if self._monitor is not None:
             self._monitor.reset()
             self._monitor.update(dict(zip(self._reader.names, row)))
@@ -258,9 +258,9 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         reward = 0.0
         value = None
         if self.monitor_view is not None:
-            features = self.monitor_view.observe(dict(zip(self._reader.names, row)), len(self._rows) - 1)
-            obs = augment(obs, features, MONITOR_KEY)
-            value = self.monitor_view.value
+            t = len(self._rows) - 1
+            value = self.monitor_view.update(dict(zip(self._reader.names, row)), t)
+            obs = augment(obs, self.monitor_view.features(t), MONITOR_KEY)
         if terminated or truncated:
             self._done = True
             reward = self._terminal_reward(info)
