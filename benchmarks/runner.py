@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import collections
 import concurrent.futures as futures
+import contextlib
 import dataclasses
 import fnmatch
 import hashlib
@@ -267,13 +268,11 @@ def execute_run(spec: RunSpec, run_dir: str | Path) -> dict[str, Any]:
             traces.update(sample_traces(agent, spec, int(iteration)))
         return True
 
-    try:
+    with contextlib.closing(agent):
         if 0 in spec.trajectory_iterations:
             traces.update(sample_traces(agent, spec, 0))
         agent.learn(spec.iterations, callback=record)
         summary = _summarise(spec, agent, time.perf_counter() - start)
-    finally:
-        agent.close()
     if traces:
         buffer = io.BytesIO()
         np.savez_compressed(buffer, **traces)
@@ -291,11 +290,8 @@ def sample_traces(agent: Any, spec: RunSpec, iteration: int) -> dict[str, np.nda
     from tl_gym.agents.sampling import make_vector_env
 
     n = spec.trajectory_episodes
-    venv = make_vector_env(spec.env, n, getattr(agent, "env_kwargs", spec.env_kwargs))  # the agent's view
-    try:
+    with contextlib.closing(make_vector_env(spec.env, n, getattr(agent, "env_kwargs", spec.env_kwargs))) as venv:
         robustness, traces = collect_episodes(agent, venv, n, seed=1_000_003 * (iteration + 1) + spec.seed)
-    finally:
-        venv.close()
     out = {f"it{iteration}_robustness": robustness}
     for name, episodes in traces.items():
         padded = np.full((n, max(len(e) for e in episodes)), np.nan)
