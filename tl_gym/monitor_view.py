@@ -221,8 +221,9 @@ def augment_space(space: spaces.Space, view: MonitorView, key: str) -> spaces.Sp
 def augment(obs: Any, features: Sequence[float], key: str) -> Any:
     """The observation with the monitor features appended (Box) or added under ``key`` (Dict), as float64.
 
-    One array is made from the two lists (for the single env's step, a third of the time of
-    making the features' array and concatenating).
+    One array is made from the two lists: in the single env's step, about two thirds of the time
+    of making the features' array and concatenating it to the observation (2.6 µs against 4.0 µs
+    on 4 + 45 floats, loaded machine).
     """
     if isinstance(obs, np.ndarray):  # checked first: a Mapping check goes through the ABC machinery (~1 µs)
         return np.array([*obs.tolist(), *features], dtype=np.float64)
