@@ -65,8 +65,7 @@ def plot_trajectory_distribution(run: RunResult, path: str | Path | None = None,
     draw_layout(ax, layout, labels=False, alpha=0.45)  # which also sets the whole arena as the limits
     for patch in ax.patches[before:]:
         patch.set_zorder(5)
-    legend = ax.get_legend()
-    for text, it in zip(legend.get_texts() if legend else (), iterations):
+    for text, it in zip(ax.get_legend().get_texts(), iterations):  # plot_trajectories' legend, one entry a snapshot
         success = float(np.mean(traces[f"it{it}_robustness"] > 0))
         text.set_text(f"iteration {it}" + (" (initial)" if it == 0 else "") + f": success {success:.0%}")
     return saved(fig, path)
