@@ -96,7 +96,7 @@ def headline(task: str, rows: Sequence[tuple[str, float, float | None, int, int]
 
 
 def write_report(results: dict[str, tuple[str, list[RunResult], list[str]]], command: str, out: Path) -> Path:
-    """``suite.md`` in ``out``: per (title, runs, planned labels), a headline row, table, figure and labels not run."""
+    """``suite.md`` in ``out``: the headline, then each config's table and figure, and its planned labels not run."""
     lines = ["# The TL task suite", "",
              f"Produced by `{command}` (seeds and budgets in `benchmarks/configs/suite/`); success is "
              "ρ > 0 on fresh episodes of the deterministic policy, evaluated along training. "
