@@ -186,7 +186,7 @@ def test_online_module_does_not_import_gymnasium():
             imported.update(alias.name.split(".")[0] for alias in node.names)
         elif isinstance(node, ast.ImportFrom) and node.module:
             imported.add(node.module.split(".")[0])
-    assert imported <= {"__future__", "math", "collections", "typing", "numpy", "tl_gym"}, imported
+    assert imported <= {"__future__", "math", "collections", "operator", "typing", "numpy", "tl_gym"}, imported
 
 
 @settings(max_examples=150, deadline=None)
