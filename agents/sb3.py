@@ -648,7 +648,7 @@ class SB3Agent(Agent):
         before = self.model.num_timesteps
         for schedule in self._schedules.values():  # the env step SB3 counts this call's progress against
             schedule.span = before + self.config.steps_per_iteration
-        if self._schedules and before + self.config.steps_per_iteration > self.config.n_timesteps:  # type: ignore[operator]
+        if self._schedules and before >= self.config.n_timesteps:  # type: ignore[operator]  # a whole iteration at 0
             warnings.warn(f"the 'lin_' schedules of {sorted(self._schedules)} end at n_timesteps: past it they are 0 "
                           "(a learning rate of 0 leaves the policy as it is)", stacklevel=2)
         with one_torch_thread():
