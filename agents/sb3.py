@@ -296,7 +296,7 @@ class SB3Config:
             raise ValueError(f"noise_type must be None or one of {NOISE_TYPES}, got {self.noise_type!r}")
         check_positive("noise_std", self.noise_std, allow_zero=True)
         for key, value in self.algo_kwargs.items():
-            if isinstance(value, str) and value.startswith("lin_"):
+            if is_linear_schedule(value):
                 linear_start(key, value)
                 if self.n_timesteps is None:
                     raise ValueError(f"{key}={value!r} decays over n_timesteps, which is not set; give n_timesteps")
@@ -365,7 +365,7 @@ def _canonical(settings: Mapping[str, Any]) -> dict[str, Any]:
     """Settings in the form the config holds (JSON-able where the value allows)."""
     out = dict(settings)
     for key, value in out.items():
-        if isinstance(value, str) and value.startswith("lin_"):
+        if is_linear_schedule(value):
             linear_start(key, value)  # checked here, built by the agent
     if "n_timesteps" in out:
         value = float(out["n_timesteps"])
@@ -434,6 +434,11 @@ def merge_hyperparameters(entry: Mapping[str, Any], explicit: Mapping[str, Any],
     if on_policy and "n_steps" not in explicit and {"steps_per_iteration", "n_envs"} & set(explicit):
         merged.pop("n_steps", None)
     return merged
+
+
+def is_linear_schedule(value: Any) -> bool:
+    """Whether a hyperparameter's value is the zoo's ``"lin_<x>"`` schedule."""
+    return isinstance(value, str) and value.startswith("lin_")
 
 
 def linear_start(key: str, value: str) -> float:
@@ -588,7 +593,7 @@ class SB3Agent(Agent):
 
         kwargs = dict(self.config.algo_kwargs)
         self._schedules = {key: LinearSchedule(linear_start(key, value), self.config.n_timesteps)  # type: ignore[arg-type]
-                           for key, value in kwargs.items() if isinstance(value, str) and value.startswith("lin_")}
+                           for key, value in kwargs.items() if is_linear_schedule(value)}
         kwargs.update({key: schedule.start for key, schedule in self._schedules.items()})  # installed after
         on_policy = issubclass(self.algo_class, OnPolicyAlgorithm)
         if on_policy:
