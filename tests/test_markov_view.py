@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 import tl_gym
 from tl_gym import TLTLRewardWrapper, parse
-from tl_gym.monitor_view import MonitorView
+from tl_gym.monitor_view import MonitorView, augment
 from tl_gym.tltl.online import PrefixMonitor
 
 from .test_online import fragment
@@ -48,6 +48,29 @@ def test_dense_reward_is_a_function_of_the_augmented_observations(formula, rows,
 
 
 SIGNALS = {False: {"a": 0, "b": 1}, True: {"a": ("pos", 0), "b": "speed"}}
+
+
+@settings(max_examples=150, deadline=None)
+@given(fragment, episodes, st.sampled_from([math.inf, 5.0]), st.sampled_from([math.inf, 1e4, 2.0]))
+def test_features_read_from_the_live_monitor_equal_the_encoded_state(formula, rows, rho_max, clip):
+    """`features` reads the nodes directly: the same floats as `encode` of the exported state."""
+    view = MonitorView(PrefixMonitor(formula, rho_max), scale=0.5, clip=clip, horizon=4)
+    for t, (a, b, _) in enumerate(rows):
+        view.update({"a": a, "b": b}, t)
+        live = view.features(t)
+        assert np.array_equal(live, view.encode(view.monitor.state(), t)), (str(formula), t)
+        assert view.space.contains(np.array(live)), (str(formula), t)
+
+
+@given(st.lists(st.floats(allow_nan=False, width=32), min_size=1, max_size=6),
+       st.lists(st.floats(allow_nan=False), max_size=8), st.sampled_from([np.float32, np.float64]))
+def test_augment_packs_the_same_bits_as_concatenate(raw, features, dtype):
+    obs = np.array(raw, dtype=dtype)
+    packed = augment(obs, features, "monitor")
+    assert packed.dtype == np.float64 and packed.flags.writeable and packed.flags.owndata
+    expected = np.concatenate([obs.astype(np.float64), np.array(features, dtype=np.float64)])
+    assert packed.tobytes() == expected.tobytes()
+    assert augment(raw, features, "monitor").tobytes() == np.array([*raw, *features]).tobytes()  # a list observation
 
 
 def test_box_grows_and_dict_gets_a_key():

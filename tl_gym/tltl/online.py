@@ -50,7 +50,6 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable, Mapping
-from operator import itemgetter
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -232,7 +231,8 @@ def _window_closure(formula: Formula, rho_max: float) -> _WindowFn:
 # --------------------------------------------------------------------------- incremental nodes
 #
 # Every node keeps a small state from which its value is a pure function (`value`); `update`
-# is the transition. `export` and `load` write and read that state as flat floats, so that the
+# is the transition. `source` writes that state's floats as Python expressions over the node's
+# attributes, compiled into one function (`StateSource`), and `load` reads them back, so that the
 # state can be shown to an agent (`PrefixMonitor.state`, the wrapper's ``observe_monitor``) and the
 # value recomputed from it (`PrefixMonitor.value_of_state`). Slots are typed by `Slot`.
 
@@ -251,6 +251,47 @@ class Slot(NamedTuple):
     bound: int = 0
 
 
+class StateSource:
+    """A monitor state's floats as Python expressions, and what they read, for code written out at construction.
+
+    The Markov view reads the state at every step of the single env. A pass over the nodes
+    that appends their floats to a list (one method call per node, one per remembered state)
+    costs more than the floats themselves; so each node writes its floats as expressions
+    (`_Node.source`), and `function` compiles them into one flat function. `MonitorView`
+    compiles the same expressions into its encoder, which then reads the nodes directly.
+
+    Args:
+        prefix: the names this writes start with (so that another writer's names stay apart).
+    """
+
+    def __init__(self, prefix: str = "_m"):
+        self.prefix = prefix
+        self.namespace: dict[str, Any] = {}
+        self.lines: list[str] = []  # statements before the expressions: `name = expression`
+        self._names: dict[int, str] = {}
+
+    def bind(self, obj: Any) -> str:
+        """The name under which the written code reads ``obj`` (one name per object)."""
+        if id(obj) not in self._names:
+            self._names[id(obj)] = f"{self.prefix}{len(self._names)}"
+            self.namespace[self._names[id(obj)]] = obj
+        return self._names[id(obj)]
+
+    def local(self, expression: str) -> str:
+        """A local variable holding ``expression``, computed once before the expressions."""
+        name = f"{self.prefix}_{len(self.lines)}"
+        self.lines.append(f"{name} = {expression}")
+        return name
+
+    def function(self, name: str, arguments: str, items: list[str]) -> Callable[..., list[float]]:
+        """``def name(arguments): <lines>; return [items]``, compiled in this writer's namespace."""
+        body = "".join(f"    {line}\n" for line in self.lines)
+        source = f"def {name}({arguments}):\n{body}    return [{', '.join(items)}]\n"
+        scope = dict(self.namespace)
+        exec(compile(source, f"<tl_gym {name}>", "exec"), scope)
+        return scope[name]
+
+
 class _Node:
     """Robustness at position 0 of a growing prefix, for one node of the fragment."""
 
@@ -267,8 +308,8 @@ class _Node:
         """The value of the prefix seen so far, from the state alone."""
         raise NotImplementedError
 
-    def export(self, out: list[float]) -> None:
-        """Append the state's floats to ``out`` (``len(self.slots)`` of them)."""
+    def source(self, code: StateSource) -> list[str]:
+        """Python expressions of the state's floats (``len(self.slots)`` of them), over the node's live attributes."""
         raise NotImplementedError
 
     def load(self, values: list[float], pos: int) -> int:
@@ -282,22 +323,16 @@ class _Window:
     def __init__(self, names: tuple[str, ...], size: int):
         self.names, self.size = names, size
         self.states: deque[State] = deque(maxlen=size)
-        # a state's signals in one C call: the export runs every step of the Markov view
-        self._signals = itemgetter(*names) if names else None
 
     @property
     def slots(self) -> list[Slot]:
         return [Slot(SIGNAL)] * (self.size * len(self.names))
 
-    def export(self, out: list[float]) -> None:
-        if len(self.names) == 1:  # itemgetter of one name gives the value, not a tuple
-            out.extend(map(self._signals, self.states))  # type: ignore[arg-type]
-        elif self.names:
-            for state in self.states:
-                out.extend(self._signals(state))  # type: ignore[misc]
-        missing = self.size - len(self.states)
-        if missing:
-            out.extend([0.0] * (missing * len(self.names)))
+    def source(self, code: StateSource) -> list[str]:
+        """The remembered states' signals, oldest first, then 0.0 for the states not seen yet."""
+        states = code.local(f"{code.bind(self)}.states")
+        seen = code.local(f"len({states})")
+        return [f"({states}[{k}][{name!r}] if {seen} > {k} else 0.0)" for k in range(self.size) for name in self.names]
 
     def load(self, values: list[float], pos: int, count: int) -> int:
         width = len(self.names)
@@ -330,12 +365,10 @@ class _AtStart(_Node):
     def value(self) -> float:
         return self.first
 
-    def export(self, out: list[float]) -> None:
+    def source(self, code: StateSource) -> list[str]:
         if self.depth == 0:
-            out.append(self.first)
-            return
-        out.append(float(len(self.window.states)))
-        self.window.export(out)
+            return [f"{code.bind(self)}.first"]
+        return [f"float(len({code.bind(self.window)}.states))", *self.window.source(code)]
 
     def load(self, values: list[float], pos: int) -> int:
         if self.depth == 0:
@@ -383,11 +416,11 @@ class _Extremum(_Node):
             value = operators.online_extremum(value, self.fn(states, i), self.is_max)
         return value
 
-    def export(self, out: list[float]) -> None:
-        out.append(self.final)
-        if self.depth:
-            out.append(float(min(self.count, self.depth + 1)))
-            self.window.export(out)
+    def source(self, code: StateSource) -> list[str]:
+        node = code.bind(self)
+        if not self.depth:
+            return [f"{node}.final"]
+        return [f"{node}.final", f"float(min({node}.count, {self.depth + 1}))", *self.window.source(code)]
 
     def load(self, values: list[float], pos: int) -> int:
         self.final = values[pos]
@@ -421,8 +454,8 @@ class _AtEnd(_Node):
     def value(self) -> float:
         return self.last
 
-    def export(self, out: list[float]) -> None:
-        out.append(self.last)
+    def source(self, code: StateSource) -> list[str]:
+        return [f"{code.bind(self)}.last"]
 
     def load(self, values: list[float], pos: int) -> int:
         self.last = values[pos]
@@ -473,9 +506,10 @@ class _NeverAgain(_Node):
             value = min(value, max(self.a(states, i), later))
         return value
 
-    def export(self, out: list[float]) -> None:
-        out.extend((self.final, self.min_a, float(min(self.count, self.depth + 1))))
-        self.window.export(out)
+    def source(self, code: StateSource) -> list[str]:
+        node = code.bind(self)
+        return [f"{node}.final", f"{node}.min_a", f"float(min({node}.count, {self.depth + 1}))",
+                *self.window.source(code)]
 
     def load(self, values: list[float], pos: int) -> int:
         self.final, self.min_a = values[pos], values[pos + 1]
@@ -505,8 +539,9 @@ class _Until(_Node):
     def value(self) -> float:
         return self.best
 
-    def export(self, out: list[float]) -> None:
-        out.extend((self.left_so_far, self.best))
+    def source(self, code: StateSource) -> list[str]:
+        node = code.bind(self)
+        return [f"{node}.left_so_far", f"{node}.best"]
 
     def load(self, values: list[float], pos: int) -> int:
         self.left_so_far, self.best = values[pos], values[pos + 1]
@@ -535,8 +570,9 @@ class _ThenChain(_Node):
     def value(self) -> float:
         return self.best[-1]
 
-    def export(self, out: list[float]) -> None:
-        out.extend(self.best)
+    def source(self, code: StateSource) -> list[str]:
+        best = code.local(f"{code.bind(self)}.best")
+        return [f"{best}[{i}]" for i in range(len(self.fns))]
 
     def load(self, values: list[float], pos: int) -> int:
         self.best = list(values[pos : pos + len(self.fns)])
@@ -564,9 +600,8 @@ class _Combine(_Node):
     def _combine(self, values: list[float]) -> float:
         return operators.CONNECTIVES[self.kind](values)
 
-    def export(self, out: list[float]) -> None:
-        for child in self.children:
-            child.export(out)
+    def source(self, code: StateSource) -> list[str]:
+        return [expression for child in self.children for expression in child.source(code)]
 
     def load(self, values: list[float], pos: int) -> int:
         for child in self.children:
@@ -750,6 +785,10 @@ class PrefixMonitor:
         self._root = _compile_incremental(formula, self.rho_max, self._names)
         self.incremental = self._root is not None
         self._pure: _Node | None = None  # a second tree, for value_of_state
+        self._state: Callable[[], list[float]] | None = None
+        if self._root is not None:
+            code = StateSource()
+            self._state = code.function("state", "", self._root.source(code))
         self._history: np.ndarray = np.empty((len(self._names), 64), dtype=np.float64)
         self._length = 0
 
@@ -780,11 +819,19 @@ class PrefixMonitor:
         Raises:
             ValueError: the formula is outside the incremental fragment (its state is the whole prefix).
         """
+        if self._state is None:
+            raise ValueError(_outside_message(self.formula))
+        return self._state()
+
+    def state_source(self, code: StateSource) -> list[str]:
+        """`state` as expressions written by ``code``, one per slot, for generated code that reads the live state.
+
+        Raises:
+            ValueError: the formula is outside the incremental fragment.
+        """
         if self._root is None:
             raise ValueError(_outside_message(self.formula))
-        out: list[float] = []
-        self._root.export(out)
-        return out
+        return self._root.source(code)
 
     def value_of_state(self, state: Any) -> float:
         """The prefix robustness that a monitor in ``state`` (a `state` vector) reports: a pure function.
