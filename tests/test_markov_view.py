@@ -62,6 +62,26 @@ def test_features_read_from_the_live_monitor_equal_the_encoded_state(formula, ro
         assert view.space.contains(np.array(live)), (str(formula), t)
 
 
+def test_a_deep_copied_view_reads_its_own_monitor():
+    """The written-out functions read the nodes they were written for: a deep copy writes its own."""
+    import copy
+
+    def view_after(*states):
+        view = MonitorView(PrefixMonitor(parse("F(a > 1) & G(b < 2) & G(a > 0 | X G b > 1)")), scale=1.0, clip=10.0,
+                           horizon=5)
+        for t, (a, b) in enumerate(states):
+            view.update({"a": a, "b": b}, t)
+        return view
+
+    view = view_after((0.5, 0.0))
+    twin = copy.deepcopy(view)
+    twin.update({"a": 3.0, "b": 1.5}, 1)  # only the twin moves on
+    expected_twin, expected_view = view_after((0.5, 0.0), (3.0, 1.5)), view_after((0.5, 0.0))
+    assert twin.monitor.state() == expected_twin.monitor.state() != expected_view.monitor.state()
+    assert twin.features(1) == expected_twin.features(1)
+    assert view.monitor.state() == expected_view.monitor.state() and view.features(0) == expected_view.features(0)
+
+
 @given(st.lists(st.floats(allow_nan=False, width=32), min_size=1, max_size=6),
        st.lists(st.floats(allow_nan=False), max_size=8), st.sampled_from([np.float32, np.float64]))
 def test_augment_packs_the_same_bits_as_concatenate(raw, features, dtype):

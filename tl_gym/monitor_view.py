@@ -108,11 +108,10 @@ class MonitorView:
                 divisors.append(float(slot.bound))
         # the encoding's layout, for `encode` (written out slot by slot) and `encode_rows` (slots grouped by kind)
         self._is_value = [slot.kind == VALUE for slot in self.slots]
-        layout = (self._is_value, divisors, self.clip, self.horizon)
+        self._layout = (self._is_value, divisors, self.clip, self.horizon)
         self._encode = _written_out_encoder([f"state[{i}]" for i in range(len(self.slots))], StateSource(),
-                                            "state, t", *layout)
-        live = StateSource()
-        self._features = _written_out_encoder(monitor.state_source(live), live, "t", *layout)
+                                            "state, t", *self._layout)
+        self._features = self._written_out_features()
         starts = np.cumsum([0] + [2 if is_value else 1 for is_value in self._is_value])  # each slot's first feature
         self._value_slots = np.flatnonzero(self._is_value)
         self._other_slots = np.flatnonzero(np.logical_not(self._is_value))
@@ -128,6 +127,19 @@ class MonitorView:
         self.space = spaces.Box(np.array(low), np.array(high), dtype=np.float64)
         self.size = len(low)
         self.value = math.nan  # the monitor's value after the last `observe`
+
+    def _written_out_features(self) -> Callable[[int], list[float]]:
+        """`features` as one function that reads the monitor's nodes (`PrefixMonitor.state_source`)."""
+        live = StateSource()
+        return _written_out_encoder(self.monitor.state_source(live), live, "t", *self._layout)
+
+    def __getstate__(self) -> dict[str, Any]:
+        # `_features` reads this view's monitor: a copy writes its own, over its copy of the monitor
+        return {**self.__dict__, "_features": None}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._features = self._written_out_features()
 
     # encoding ----------------------------------------------------------------------------
     def update(self, state: Mapping[str, float], t: int) -> float:

@@ -785,12 +785,24 @@ class PrefixMonitor:
         self._root = _compile_incremental(formula, self.rho_max, self._names)
         self.incremental = self._root is not None
         self._pure: _Node | None = None  # a second tree, for value_of_state
-        self._state: Callable[[], list[float]] | None = None
-        if self._root is not None:
-            code = StateSource()
-            self._state = code.function("state", "", self._root.source(code))
+        self._state = self._written_out_state()
         self._history: np.ndarray = np.empty((len(self._names), 64), dtype=np.float64)
         self._length = 0
+
+    def _written_out_state(self) -> Callable[[], list[float]] | None:
+        """`state` as one function reading this monitor's nodes (None outside the fragment)."""
+        if self._root is None:
+            return None
+        code = StateSource()
+        return code.function("state", "", self._root.source(code))
+
+    def __getstate__(self) -> dict[str, Any]:
+        # the written-out function reads this monitor's nodes: a copy writes its own
+        return {**self.__dict__, "_state": None}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._state = self._written_out_state()
 
     @property
     def length(self) -> int:
