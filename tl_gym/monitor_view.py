@@ -46,7 +46,8 @@ import numpy as np
 from gymnasium import spaces
 
 from tl_gym.checks import check_positive
-from tl_gym.tltl.online import SIGNAL, VALUE, PrefixMonitor, StateSource
+from tl_gym.tltl.codegen import CodeWriter
+from tl_gym.tltl.online import SIGNAL, VALUE, PrefixMonitor
 
 
 class MonitorView:
@@ -109,7 +110,7 @@ class MonitorView:
         # the encoding's layout, for `encode` (written out slot by slot) and `encode_rows` (slots grouped by kind)
         self._is_value = [slot.kind == VALUE for slot in self.slots]
         self._layout = (self._is_value, divisors, self.clip, self.horizon)
-        self._encode = _written_out_encoder([f"state[{i}]" for i in range(len(self.slots))], StateSource(),
+        self._encode = _written_out_encoder([f"state[{i}]" for i in range(len(self.slots))], CodeWriter(),
                                             "state, t", *self._layout)
         self._features = self._written_out_features()
         starts = np.cumsum([0] + [2 if is_value else 1 for is_value in self._is_value])  # each slot's first feature
@@ -130,7 +131,7 @@ class MonitorView:
 
     def _written_out_features(self) -> Callable[[int], list[float]]:
         """`features` as one function that reads the monitor's nodes (`PrefixMonitor.state_source`)."""
-        live = StateSource()
+        live = CodeWriter()
         return _written_out_encoder(self.monitor.state_source(live), live, "t", *self._layout)
 
     def __getstate__(self) -> dict[str, Any]:
@@ -272,7 +273,7 @@ def split(obs: Any, view: MonitorView, key: str) -> Any:
 
 
 def _written_out_encoder(
-    slots: Sequence[str], code: StateSource, arguments: str,
+    slots: Sequence[str], code: CodeWriter, arguments: str,
     is_value: Sequence[bool], divisors: Sequence[float], clip: float, horizon: int | None,
 ) -> Callable[..., list[float]]:
     """The encoding of the module docstring as one function written out slot by slot, ``slots`` its inputs.

@@ -58,6 +58,7 @@ from tl_gym.errors import TraceError, UnknownSignalError
 from tl_gym.tltl import ast as nodes
 from tl_gym.tltl import operators
 from tl_gym.tltl.ast import Expr, Formula, height
+from tl_gym.tltl.codegen import CodeWriter, state_formula_source, window_formula_source, writable
 from tl_gym.tltl.expressions import can_be_non_finite, evaluate_expression, postorder
 from tl_gym.tltl.trace import check_rho_max
 
@@ -150,6 +151,10 @@ def compile_state_formula(formula: Formula, rho_max: float) -> _Scalar:
     if formula.depth > _CLOSURE_DEPTH:
         window = _engine_window_formula(formula, rho_max)
         return lambda s: window([s], 0)
+    if writable(formula):  # one expression, 2-3x faster (docs/results/online_monitor_speed.md)
+        code = CodeWriter()
+        return code.scalar_function("state_formula", "s",
+                                    state_formula_source(formula, rho_max, "s", code, _compile_predicate))
     return _state_closure(formula, rho_max)
 
 
@@ -209,6 +214,10 @@ def compile_window_formula(formula: Formula, rho_max: float) -> _WindowFn:
         if lookahead(formula) is None:
             raise TypeError(f"{type(formula).__name__} has no bounded lookahead")
         return _engine_window_formula(formula, rho_max)
+    if writable(formula):
+        code = CodeWriter()
+        return code.scalar_function("window_formula", "w, i",
+                                    window_formula_source(formula, rho_max, code, _compile_predicate))
     return _window_closure(formula, rho_max)
 
 
@@ -232,7 +241,7 @@ def _window_closure(formula: Formula, rho_max: float) -> _WindowFn:
 #
 # Every node keeps a small state from which its value is a pure function (`value`); `update`
 # is the transition. `source` writes that state's floats as Python expressions over the node's
-# attributes, compiled into one function (`StateSource`), and `load` reads them back, so that the
+# attributes, compiled into one function (`CodeWriter`), and `load` reads them back, so that the
 # state can be shown to an agent (`PrefixMonitor.state`, the wrapper's ``observe_monitor``) and the
 # value recomputed from it (`PrefixMonitor.value_of_state`). Slots are typed by `Slot`.
 
@@ -251,47 +260,6 @@ class Slot(NamedTuple):
     bound: int = 0
 
 
-class StateSource:
-    """A monitor state's floats as Python expressions, and what they read, for code written out at construction.
-
-    The Markov view reads the state at every step of the single env. A pass over the nodes
-    that appends their floats to a list (one method call per node, one per remembered state)
-    costs more than the floats themselves; so each node writes its floats as expressions
-    (`_Node.source`), and `function` compiles them into one flat function. `MonitorView`
-    compiles the same expressions into its encoder, which then reads the nodes directly.
-
-    Args:
-        prefix: the names this writes start with (so that another writer's names stay apart).
-    """
-
-    def __init__(self, prefix: str = "_m"):
-        self.prefix = prefix
-        self.namespace: dict[str, Any] = {}
-        self.lines: list[str] = []  # statements before the expressions: `name = expression`
-        self._names: dict[int, str] = {}
-
-    def bind(self, obj: Any) -> str:
-        """The name under which the written code reads ``obj`` (one name per object)."""
-        if id(obj) not in self._names:
-            self._names[id(obj)] = f"{self.prefix}{len(self._names)}"
-            self.namespace[self._names[id(obj)]] = obj
-        return self._names[id(obj)]
-
-    def local(self, expression: str) -> str:
-        """A local variable holding ``expression``, computed once before the expressions."""
-        name = f"{self.prefix}_{len(self.lines)}"
-        self.lines.append(f"{name} = {expression}")
-        return name
-
-    def function(self, name: str, arguments: str, items: list[str]) -> Callable[..., list[float]]:
-        """``def name(arguments): <lines>; return [items]``, compiled in this writer's namespace."""
-        body = "".join(f"    {line}\n" for line in self.lines)
-        source = f"def {name}({arguments}):\n{body}    return [{', '.join(items)}]\n"
-        scope = dict(self.namespace)
-        exec(compile(source, f"<tl_gym {name}>", "exec"), scope)
-        return scope[name]
-
-
 class _Node:
     """Robustness at position 0 of a growing prefix, for one node of the fragment."""
 
@@ -308,7 +276,7 @@ class _Node:
         """The value of the prefix seen so far, from the state alone."""
         raise NotImplementedError
 
-    def source(self, code: StateSource) -> list[str]:
+    def source(self, code: CodeWriter) -> list[str]:
         """Python expressions of the state's floats (``len(self.slots)`` of them), over the node's live attributes."""
         raise NotImplementedError
 
@@ -328,7 +296,7 @@ class _Window:
     def slots(self) -> list[Slot]:
         return [Slot(SIGNAL)] * (self.size * len(self.names))
 
-    def source(self, code: StateSource) -> list[str]:
+    def source(self, code: CodeWriter) -> list[str]:
         """The remembered states' signals, oldest first, then 0.0 for the states not seen yet."""
         states = code.local(f"{code.bind(self)}.states")
         seen = code.local(f"len({states})")
@@ -365,7 +333,7 @@ class _AtStart(_Node):
     def value(self) -> float:
         return self.first
 
-    def source(self, code: StateSource) -> list[str]:
+    def source(self, code: CodeWriter) -> list[str]:
         if self.depth == 0:
             return [f"{code.bind(self)}.first"]
         return [f"float(len({code.bind(self.window)}.states))", *self.window.source(code)]
@@ -416,7 +384,7 @@ class _Extremum(_Node):
             value = operators.online_extremum(value, self.fn(states, i), self.is_max)
         return value
 
-    def source(self, code: StateSource) -> list[str]:
+    def source(self, code: CodeWriter) -> list[str]:
         node = code.bind(self)
         if not self.depth:
             return [f"{node}.final"]
@@ -454,7 +422,7 @@ class _AtEnd(_Node):
     def value(self) -> float:
         return self.last
 
-    def source(self, code: StateSource) -> list[str]:
+    def source(self, code: CodeWriter) -> list[str]:
         return [f"{code.bind(self)}.last"]
 
     def load(self, values: list[float], pos: int) -> int:
@@ -506,7 +474,7 @@ class _NeverAgain(_Node):
             value = min(value, max(self.a(states, i), later))
         return value
 
-    def source(self, code: StateSource) -> list[str]:
+    def source(self, code: CodeWriter) -> list[str]:
         node = code.bind(self)
         return [f"{node}.final", f"{node}.min_a", f"float(min({node}.count, {self.depth + 1}))",
                 *self.window.source(code)]
@@ -539,7 +507,7 @@ class _Until(_Node):
     def value(self) -> float:
         return self.best
 
-    def source(self, code: StateSource) -> list[str]:
+    def source(self, code: CodeWriter) -> list[str]:
         node = code.bind(self)
         return [f"{node}.left_so_far", f"{node}.best"]
 
@@ -570,7 +538,7 @@ class _ThenChain(_Node):
     def value(self) -> float:
         return self.best[-1]
 
-    def source(self, code: StateSource) -> list[str]:
+    def source(self, code: CodeWriter) -> list[str]:
         best = code.local(f"{code.bind(self)}.best")
         return [f"{best}[{i}]" for i in range(len(self.fns))]
 
@@ -600,7 +568,7 @@ class _Combine(_Node):
     def _combine(self, values: list[float]) -> float:
         return operators.CONNECTIVES[self.kind](values)
 
-    def source(self, code: StateSource) -> list[str]:
+    def source(self, code: CodeWriter) -> list[str]:
         return [expression for child in self.children for expression in child.source(code)]
 
     def load(self, values: list[float], pos: int) -> int:
@@ -793,7 +761,7 @@ class PrefixMonitor:
         """`state` as one function reading this monitor's nodes (None outside the fragment)."""
         if self._root is None:
             return None
-        code = StateSource()
+        code = CodeWriter()
         return code.function("state", "", self._root.source(code))
 
     def __getstate__(self) -> dict[str, Any]:
@@ -835,7 +803,7 @@ class PrefixMonitor:
             raise ValueError(_outside_message(self.formula))
         return self._state()
 
-    def state_source(self, code: StateSource) -> list[str]:
+    def state_source(self, code: CodeWriter) -> list[str]:
         """`state` as expressions written by ``code``, one per slot, for generated code that reads the live state.
 
         Raises:

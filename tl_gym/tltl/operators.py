@@ -422,6 +422,21 @@ CONNECTIVES: dict[type, Callable[[Sequence[float]], float]] = {  # the exact rul
 }
 
 
+def connective_source(kind: type, parts: Sequence[str]) -> str:
+    """`CONNECTIVES` ``[kind]`` as a Python expression over its operands' expressions ``parts``.
+
+    For code written out at construction (`tl_gym.tltl.codegen`): the same operations on the
+    same floats (tested against `CONNECTIVES`).
+    """
+    if kind is nodes.Not:
+        return f"(-{parts[0]})"
+    if kind is nodes.Implies:
+        return f"max(-{parts[0]}, {parts[1]})"
+    if len(parts) == 1:  # an n-ary node of one operand: min/max of one float is that float
+        return parts[0]
+    return f"{'min' if kind is nodes.And else 'max'}({', '.join(parts)})"
+
+
 def online_extremum(best: Any, new: Any, largest: bool, maximum: Callable = max, minimum: Callable = min) -> Any:
     """F (largest) / G: the running max / min of φ over the positions seen.
 
