@@ -77,3 +77,17 @@ def test_formulas_too_deep_for_one_expression_keep_their_closures():
         deep = ~deep if k % 2 else deep & (a < k)
     assert not writable(deep)
     assert compile_state_formula(deep, math.inf)({"a": 0.5}) == _state_closure(deep, math.inf)({"a": 0.5})
+
+
+def test_an_arithmetic_error_in_plain_arithmetic_still_names_its_predicate():
+    """Python ints overflow a float: the written expression falls back to the closure, which names the predicate."""
+    state_formula = compile_state_formula(parse("a * a * 1.0 > 1 & b > 0"), math.inf)
+    with pytest.raises(TraceError, match=r"predicate 'a \* a \* 1 > 1' is undefined"):
+        state_formula({"a": 10**200, "b": 1.0})
+
+
+@given(st.sampled_from(["<", "<=", ">", ">="]), floats, floats)
+def test_margin_source_computes_the_margin(op, lhs, rhs):
+    code = CodeWriter()
+    written = code.scalar_function("f", "", operators.margin_source(op, code.bind(lhs), code.bind(rhs)))()
+    assert same(written, operators.margin(op, lhs, rhs))

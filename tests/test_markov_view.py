@@ -62,6 +62,16 @@ def test_features_read_from_the_live_monitor_equal_the_encoded_state(formula, ro
         assert view.space.contains(np.array(live)), (str(formula), t)
 
 
+def test_a_nan_value_is_encoded_as_in_the_batched_encoding():
+    """Unchecked arithmetic can give NaN (inf - inf): the single encoding passes it on with flag 0, as `encode_rows`."""
+    view = MonitorView(PrefixMonitor(parse("a * a - b * b > 0")), scale=1.0, clip=10.0, horizon=None)
+    view.update({"a": 1e200, "b": 1e200}, 0)
+    single = view.features(0)
+    rows = view.encode_rows(np.array(view.monitor.state()).reshape(-1, 1), 0)[0]
+    assert math.isnan(single[0]) and single[1:] == [0.0, 1.0]
+    assert math.isnan(rows[0]) and rows[1:].tolist() == [0.0, 1.0]
+
+
 def test_a_deep_copied_view_reads_its_own_monitor():
     """The written-out functions read the nodes they were written for: a deep copy writes its own."""
     import copy

@@ -285,14 +285,15 @@ def _written_out_encoder(
     arithmetic (docs/results/env_speed_markov_view.md). The expression does the same operations
     as `MonitorView.encode_rows` (clip, then divide; the flag; divide), so the same floats (tested).
     """
-    # v - v == 0.0 is v's finiteness test (values are floats or ±inf, never NaN): one float
-    # subtraction and comparison, cheaper than a membership test in (inf, -inf)
+    # "v - v == 0.0 or v != v": not ±inf, in one float subtraction and comparison for the finite
+    # values (cheaper than a membership test in (inf, -inf)); a NaN (unchecked arithmetic such as
+    # inf - inf) passes through as NaN with flag 0, as in `encode_rows`
     clipped = "v" if math.isinf(clip) else f"({clip!r} if v > {clip!r} else {-clip!r} if v < {-clip!r} else v)"
     parts = []
     for slot, value_slot, divisor in zip(slots, is_value, divisors):
         if value_slot:
-            parts.append(f"({clipped} / {divisor!r} if (v := {slot}) - v == 0.0 else 0.0)")
-            parts.append("(0.0 if v - v == 0.0 else 1.0 if v > 0 else -1.0)")
+            parts.append(f"({clipped} / {divisor!r} if (v := {slot}) - v == 0.0 or v != v else 0.0)")
+            parts.append("(0.0 if v - v == 0.0 or v != v else 1.0 if v > 0 else -1.0)")
         else:
             parts.append(f"{slot} / {divisor!r}")
     parts.append("1.0 if t == 0 else 0.0")

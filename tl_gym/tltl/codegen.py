@@ -74,10 +74,20 @@ class CodeWriter:
         """``def name(arguments): <lines>; return [items]``, compiled in this writer's namespace."""
         return self.scalar_function(name, arguments, f"[{', '.join(items)}]")
 
-    def scalar_function(self, name: str, arguments: str, expression: str) -> Callable[..., Any]:
-        """``def name(arguments): <lines>; return expression``, compiled in this writer's namespace."""
+    def scalar_function(self, name: str, arguments: str, expression: str,
+                        fallback: Callable[..., Any] | None = None) -> Callable[..., Any]:
+        """``def name(arguments): <lines>; return expression``, compiled in this writer's namespace.
+
+        With ``fallback``, an arithmetic error (ValueError, ZeroDivisionError, OverflowError) in the
+        expression returns ``fallback(arguments)`` instead: the closures, whose error names the culprit.
+        """
         body = "".join(f"    {line}\n" for line in self.lines)
-        source = f"def {name}({arguments}):\n{body}    return {expression}\n"
+        if fallback is None:
+            source = f"def {name}({arguments}):\n{body}    return {expression}\n"
+        else:  # a try block costs nothing on CPython 3.11 until something is raised
+            source = (f"def {name}({arguments}):\n{body}    try:\n        return {expression}\n"
+                      f"    except (ValueError, ZeroDivisionError, OverflowError):\n"
+                      f"        return {self.bind(fallback)}({arguments})\n")
         scope = dict(self.namespace)
         exec(compile(source, f"<tl_gym {name}>", "exec"), scope)
         return scope[name]
@@ -90,26 +100,30 @@ def writable(formula: Formula) -> bool:
     return formula.depth + deepest_expression <= MAX_WRITTEN_DEPTH
 
 
-def state_formula_source(formula: Formula, rho_max: float, state: str, code: CodeWriter, checked: Checked) -> str:
+def state_formula_source(formula: Formula, rho_max: float, state: str, code: CodeWriter,
+                         checked: Checked | None) -> str:
     """The robustness of a temporal-free ``formula`` on the state ``state`` (an expression), as an expression.
 
     A predicate whose arithmetic can be undefined or non-finite is called through ``checked(predicate)``,
-    a function of the state that raises an error naming it.
+    a function of the state that raises an error naming it (None: there is no such predicate).
     """
     if isinstance(formula, nodes.Constant):
         return code.bind(float(rho_max) if formula.value else -float(rho_max))
     if isinstance(formula, nodes.Predicate):
         if can_be_non_finite(formula.lhs) or can_be_non_finite(formula.rhs):
+            if checked is None:
+                raise ValueError(f"{formula} needs a checking closure (checked=None)")
             return f"{code.bind(checked(formula))}({state})"
         lhs, rhs = _expression_source(formula.lhs, state), _expression_source(formula.rhs, state)
-        return f"({lhs} - {rhs})" if operators.SIGN[formula.op] > 0 else f"({rhs} - {lhs})"
+        return operators.margin_source(formula.op, lhs, rhs)
     if isinstance(formula, (nodes.Not, nodes.And, nodes.Or, nodes.Implies)):
         parts = [state_formula_source(c, rho_max, state, code, checked) for c in formula.children]
         return operators.connective_source(type(formula), parts)
     raise TypeError(f"{type(formula).__name__} is temporal; state_formula_source takes temporal-free formulas")
 
 
-def window_formula_source(formula: Formula, rho_max: float, code: CodeWriter, checked: Checked, offset: int = 0) -> str:
+def window_formula_source(formula: Formula, rho_max: float, code: CodeWriter, checked: Checked | None,
+                          offset: int = 0) -> str:
     """The robustness at ``w[i + offset]`` of a formula with bounded lookahead, as an expression in ``w`` and ``i``.
 
     ``X φ`` past the window's end is −ρ_max, as in `tl_gym.tltl.online.compile_window_formula`.

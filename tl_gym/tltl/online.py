@@ -28,7 +28,7 @@ falls back to re-evaluating the whole prefix at every update: O(t) for state
 one it uses in ``incremental``; `outside_fragment` names the sub-formula that keeps a
 formula out.
 
-Inside the fragment the monitor's *state* is finite: `PrefixMonitor.state` exports it as
+Inside the fragment the monitor's *state* is finite: `PrefixMonitor.state` returns it as
 floats (typed by `PrefixMonitor.slots`: robustness values, remembered signals, counts) and
 `PrefixMonitor.value_of_state` recomputes the prefix robustness from it alone. The state and
 the states still to come determine every later value: this is what the wrapper's
@@ -154,7 +154,8 @@ def compile_state_formula(formula: Formula, rho_max: float) -> _Scalar:
     if writable(formula):  # one expression, 2-3x faster (docs/results/online_monitor_speed.md)
         code = CodeWriter()
         return code.scalar_function("state_formula", "s",
-                                    state_formula_source(formula, rho_max, "s", code, _compile_predicate))
+                                    state_formula_source(formula, rho_max, "s", code, _compile_predicate),
+                                    fallback=_state_closure(formula, rho_max))
     return _state_closure(formula, rho_max)
 
 
@@ -217,7 +218,8 @@ def compile_window_formula(formula: Formula, rho_max: float) -> _WindowFn:
     if writable(formula):
         code = CodeWriter()
         return code.scalar_function("window_formula", "w, i",
-                                    window_formula_source(formula, rho_max, code, _compile_predicate))
+                                    window_formula_source(formula, rho_max, code, _compile_predicate),
+                                    fallback=_window_closure(formula, rho_max))
     return _window_closure(formula, rho_max)
 
 
@@ -286,7 +288,7 @@ class _Node:
 
 
 class _Window:
-    """The last ``size`` states (oldest first), exported as ``size × len(names)`` signal slots."""
+    """The last ``size`` states (oldest first), shown as ``size × len(names)`` signal slots."""
 
     def __init__(self, names: tuple[str, ...], size: int):
         self.names, self.size = names, size
@@ -296,11 +298,12 @@ class _Window:
     def slots(self) -> list[Slot]:
         return [Slot(SIGNAL)] * (self.size * len(self.names))
 
-    def source(self, code: CodeWriter) -> list[str]:
-        """The remembered states' signals, oldest first, then 0.0 for the states not seen yet."""
+    def source(self, code: CodeWriter) -> tuple[str, list[str]]:
+        """How many states are remembered, and their signals (oldest first, then 0.0 for those not seen yet)."""
         states = code.local(f"{code.bind(self)}.states")
         seen = code.local(f"len({states})")
-        return [f"({states}[{k}][{name!r}] if {seen} > {k} else 0.0)" for k in range(self.size) for name in self.names]
+        return seen, [f"({states}[{k}][{name!r}] if {seen} > {k} else 0.0)"
+                      for k in range(self.size) for name in self.names]
 
     def load(self, values: list[float], pos: int, count: int) -> int:
         width = len(self.names)
@@ -336,7 +339,8 @@ class _AtStart(_Node):
     def source(self, code: CodeWriter) -> list[str]:
         if self.depth == 0:
             return [f"{code.bind(self)}.first"]
-        return [f"float(len({code.bind(self.window)}.states))", *self.window.source(code)]
+        seen, signals = self.window.source(code)
+        return [f"float({seen})", *signals]
 
     def load(self, values: list[float], pos: int) -> int:
         if self.depth == 0:
@@ -388,7 +392,7 @@ class _Extremum(_Node):
         node = code.bind(self)
         if not self.depth:
             return [f"{node}.final"]
-        return [f"{node}.final", f"float(min({node}.count, {self.depth + 1}))", *self.window.source(code)]
+        return [f"{node}.final", f"float(min({node}.count, {self.depth + 1}))", *self.window.source(code)[1]]
 
     def load(self, values: list[float], pos: int) -> int:
         self.final = values[pos]
@@ -477,7 +481,7 @@ class _NeverAgain(_Node):
     def source(self, code: CodeWriter) -> list[str]:
         node = code.bind(self)
         return [f"{node}.final", f"{node}.min_a", f"float(min({node}.count, {self.depth + 1}))",
-                *self.window.source(code)]
+                *self.window.source(code)[1]]
 
     def load(self, values: list[float], pos: int) -> int:
         self.final, self.min_a = values[pos], values[pos + 1]

@@ -50,6 +50,11 @@ def margin(op: str, lhs: Any, rhs: Any) -> Any:
     return lhs - rhs if SIGN[op] > 0 else rhs - lhs
 
 
+def margin_source(op: str, lhs: str, rhs: str) -> str:
+    """`margin` as a Python expression over the two sides' expressions (for code written out; tested equal)."""
+    return f"({lhs} - {rhs})" if SIGN[op] > 0 else f"({rhs} - {lhs})"
+
+
 def holds(op: str, value: Any) -> Any:
     """The Boolean value of a predicate from its margin: strict comparisons need a margin > 0.
 
