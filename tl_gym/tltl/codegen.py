@@ -12,7 +12,9 @@ attributes (`tl_gym.tltl.online.PrefixMonitor.state_source`), compiled into the 
 What is written out computes the same floats as the closures it replaces, in the same order
 (the connectives' forms are `tl_gym.tltl.operators.connective_source`, tested against their
 rules). A predicate whose arithmetic can be undefined or non-finite (``/ ^``, functions) is
-not written out: the expression calls its closure, which names the predicate in its error.
+not written out: the expression calls its closure, which names the predicate in its error; and
+an arithmetic error anywhere in a written formula (an int signal overflowing a float) reruns it
+through the closures, so that error names its predicate too.
 Formulas nested deeper than `MAX_WRITTEN_DEPTH` keep their closures (CPython's parser bounds
 the nesting of one expression).
 
