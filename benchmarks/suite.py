@@ -2,7 +2,8 @@
 
 Runs the configs of ``benchmarks/configs/suite/`` (one per task, evaluated on fresh episodes along the way), then
 writes ``docs/results/suite.md`` (who solves each task, at how many env steps; a table per task) and one figure per
-task (``--quick``: under ``--out``).
+task: fresh-episode success and mean ρ against env steps, so progress shows where success is still 0 (``--quick``:
+under ``--out``).
 """
 
 from __future__ import annotations
@@ -47,18 +48,27 @@ def steps_to_solve(steps: np.ndarray, values: np.ndarray) -> float | None:
 
 
 def plot_task(name: str, runs: Sequence[RunResult], path: Path | None) -> Figure:
-    """Success on fresh episodes against env steps, mean over seeds with a 95% band, one curve per agent."""
-    fig = Figure(figsize=(6.4, 4.2), constrained_layout=True)
-    ax = fig.subplots()
+    """Fresh-episode success (left) and mean ρ (right) against env steps, mean over seeds with a 95% band.
+
+    The ρ panel shows progress where success is still 0 on every seed (a rising mean ρ is a policy
+    getting closer to the formula).
+    """
+    fig = Figure(figsize=(11.0, 4.2), constrained_layout=True)
+    success_ax, rho_ax = fig.subplots(1, 2)
     for i, ((_, label), members) in enumerate(group_runs(runs).items()):
+        color, legend = colormaps["tab10"](i % 10), f"{label} ({len(members)} seed{'s' if len(members) > 1 else ''})"
         steps, values = eval_curve(members)
         if not steps.size:
             continue
-        plot_band(ax, steps, values, colormaps["tab10"](i % 10), f"{label} ({len(members)} seeds)", rate=True,
-                  markersize=3)
-    ax.axhline(SOLVED, color="0.4", lw=0.8, ls="--")
-    ax.set(xlabel="env steps", ylabel="success on fresh episodes (ρ > 0)", ylim=(-0.02, 1.02), title=name)
-    ax.legend(fontsize=7, loc="best")
+        plot_band(success_ax, steps, values, color, legend, rate=True, markersize=3)
+        plot_band(rho_ax, *eval_curve(members, "eval_mean_robustness"), color, legend, markersize=3)
+    success_ax.axhline(SOLVED, color="0.4", lw=0.8, ls="--")
+    rho_ax.axhline(0.0, color="0.4", lw=0.8, ls="--")
+    success_ax.set(xlabel="env steps", ylabel="success on fresh episodes (ρ > 0)", ylim=(-0.02, 1.02))
+    rho_ax.set(xlabel="env steps", ylabel="mean ρ on fresh episodes (symlog)")
+    rho_ax.set_yscale("symlog", linthresh=1.0)  # early policies' ρ can be 100× the late ones'; linear within ±1
+    success_ax.legend(fontsize=7, loc="best")
+    fig.suptitle(name)
     return saved(fig, path)
 
 
@@ -100,7 +110,9 @@ def write_report(results: dict[str, tuple[str, list[RunResult], list[str]]], com
     lines = ["# The TL task suite", "",
              f"Produced by `{command}` (seeds and budgets in `benchmarks/configs/suite/`); success is "
              "ρ > 0 on fresh episodes of the deterministic policy, evaluated along training. "
-             "Tasks and formulas: [../tasks.md](../tasks.md).", "",
+             "Tasks and formulas: [../tasks.md](../tasks.md). Each task's figure plots the success (left) and "
+             "the mean ρ (right, symlog) of those evaluations against env steps: the mean over seeds with a 95 % "
+             "Student-t band, wide for 2 or 3 seeds.", "",
              "| task | solved by (median final success ≥ 90 %) | at |", "|---|---|---|"]
     sections = []
     for stem, (title, runs, planned) in results.items():

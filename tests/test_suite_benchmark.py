@@ -66,3 +66,8 @@ def test_runs_evaluate_along_training_and_the_report_reads_them(tmp_path):
     assert (tmp_path / "suite_tiny.png").is_file() and "| tiny | fast |" in text
     assert "Not run for this report: SAC; PPO, terminal." in text
     assert "| empty | not run for this report | |" in text
+    # the figure: success on the left, the mean ρ of the same evaluations on the right, one curve per agent
+    success_ax, rho_ax = suite.plot_task("tiny", runs, None).axes
+    fast_rho = suite.eval_curve([r for r in runs if r.spec.label == "fast"], "eval_mean_robustness")[1].mean(axis=0)
+    np.testing.assert_allclose(rho_ax.lines[0].get_ydata(), fast_rho)
+    assert [line.get_label() for line in success_ax.lines[:2]] == ["fast (2 seeds)", "slow (2 seeds)"]
