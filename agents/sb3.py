@@ -51,8 +51,10 @@ import numpy as np
 
 from tl_gym.checks import check_positive
 from tl_gym.errors import IncompatibleSaveError
+from tl_gym.relabel import EpisodeRecorder, GoalRelabeller
 
 from .base import Agent, _describe_env_source
+from .hindsight import make_hindsight_feeder
 from .sampling import env_attribute
 from .serialization import is_jsonable
 
@@ -273,6 +275,10 @@ class SB3Config:
     """Report the end of every episode to SB3 as a termination. The robustness is of the finite trace
     s_0 … s_T: nothing after its end counts, so SB3 must not add a bootstrapped value past a time-limit
     truncation (which it does, as for infinite-horizon tasks). ``False`` keeps Gymnasium's flags."""
+    her_goals: int = 0
+    """Hindsight relabelling on goal-conditioned envs (off-policy algorithms): every finished episode is also
+    added to the replay buffer ``her_goals`` times, each time with a goal it achieved later and the TL reward
+    recomputed for that goal (`tl_gym.relabel`, `agents.hindsight`). 0 is off."""
     algo_kwargs: dict[str, Any] = field(default_factory=dict)
     """Keyword arguments for the algorithm's constructor (``learning_rate``, ``n_steps``, ...)."""
 
@@ -292,6 +298,8 @@ class SB3Config:
             raise ValueError(f"n_timesteps must be an int >= 1 or None, got {self.n_timesteps!r}")
         if not isinstance(self.end_is_terminal, bool):
             raise ValueError(f"end_is_terminal must be true or false, got {self.end_is_terminal!r}")
+        if not isinstance(self.her_goals, (int, np.integer)) or isinstance(self.her_goals, bool) or self.her_goals < 0:
+            raise ValueError(f"her_goals must be an int >= 0, got {self.her_goals!r}")
         if self.noise_type is not None and self.noise_type not in NOISE_TYPES:
             raise ValueError(f"noise_type must be None or one of {NOISE_TYPES}, got {self.noise_type!r}")
         check_positive("noise_std", self.noise_std, allow_zero=True)
@@ -613,9 +621,20 @@ class SB3Agent(Agent):
         if self.config.noise_type is not None and "action_noise" not in kwargs:
             kwargs["action_noise"] = _action_noise(self.config.noise_type, self.config.noise_std, self.action_space)
         factories = _single_env_factories(self._env_argument, self._train_env_kwargs, self.config.n_envs)
+        if self.config.her_goals:
+            if on_policy:
+                raise ValueError(f"her_goals={self.config.her_goals} relabels episodes into a replay buffer: use an "
+                                 f"off-policy algorithm (SAC, TD3, ...), not {self.algo_class.__name__}")
+            factories = [lambda make=make: EpisodeRecorder(make()) for make in factories]
         if self.config.end_is_terminal:
             factories = [lambda make=make: TraceEndIsTerminal(make()) for make in factories]
         self.sb3_env = DummyVecEnv(factories)
+        self._hindsight = None
+        if self.config.her_goals:
+            recorders = [_find_layer(env, EpisodeRecorder) for env in self.sb3_env.envs]
+            relabeller = GoalRelabeller(self.sb3_env.envs[0], end_is_terminal=self.config.end_is_terminal)
+            self._hindsight = make_hindsight_feeder(recorders, relabeller, self.config.her_goals,
+                                                    np.random.default_rng(self.seed))
         normalize = parse_normalize(self.config.normalize)
         self.vec_normalize: VecNormalize | None = None
         if normalize is not None:
@@ -657,8 +676,9 @@ class SB3Agent(Agent):
             warnings.warn(f"the 'lin_' schedules of {sorted(self._schedules)} end at n_timesteps: past it they are 0 "
                           "(a learning rate of 0 leaves the policy as it is)", stacklevel=2)
         with one_torch_thread():
+            callbacks = [collector] if self._hindsight is None else [collector, self._hindsight]
             self.model.learn(total_timesteps=self.config.steps_per_iteration, reset_num_timesteps=False,
-                             callback=collector, progress_bar=False)
+                             callback=callbacks, progress_bar=False)
         robustness = np.asarray(collector.robustness, dtype=float)
         return {
             "env_steps": self.model.num_timesteps - before,
@@ -768,6 +788,14 @@ def _make_collector() -> Any:
             return True
 
     return RobustnessCollector()
+
+
+def _find_layer(env: gym.Env, kind: type) -> Any:
+    """The wrapper of type ``kind`` in ``env``'s chain."""
+    layer: Any = env
+    while not isinstance(layer, kind):
+        layer = layer.env
+    return layer
 
 
 def _default_argument(algo_class: type, name: str, fallback: Any) -> Any:

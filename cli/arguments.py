@@ -85,7 +85,8 @@ def hyperparameter_help() -> str:
         lines.append(f"  {name}: {fields}")
     lines.append("  stable-baselines3 agents: tl_reward='markov' (or 'terminal', the ablation), normalize, "
                  "hyperparams=true (agents/hyperparams/sb3.yml, or false, or a path), steps_per_iteration=8000, "
-                 "n_envs, policy, n_timesteps, noise_type, noise_std, and the algorithm's own keywords "
+                 "n_envs, policy, n_timesteps, noise_type, noise_std, her_goals=0 (off-policy, goal-conditioned envs: "
+                 "relabelled copies of each episode), and the algorithm's own keywords "
                  "(learning_rate, batch_size, ...); unset ones come from the task's entry in the file")
     return "\n".join(lines)
 

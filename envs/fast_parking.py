@@ -4,7 +4,8 @@ parking-v0 builds its ``KinematicsGoal`` observation through a one-row pandas Da
 it four times a step (the observation, the reward, the termination and the info's ``is_success``):
 profiled on this machine, that is about 80 % of a step. `NumpyParkingEnv` is parking-v0 with the
 same observation read straight from the vehicle's ``to_dict()``; the values are equal to the last
-bit (tests/test_suite.py compares whole episodes). `TLParking-v0` runs on it.
+bit (tests/test_suite.py compares whole episodes). `TLParking-v0` runs on it. It also has
+`compute_terminated`, for hindsight relabelling.
 
 This module imports highway-env: import it only after checking that the extra is installed.
 """
@@ -50,3 +51,11 @@ class NumpyParkingEnv(ParkingEnv):
         if type(self.observation_type) is KinematicsGoalObservation:
             self.observation_type = NumpyKinematicsGoalObservation(self, **self.config["observation"])
         self.observation_type_parking = NumpyKinematicsGoalObservation(self, **self.PARKING_OBS["observation"])
+
+    def compute_terminated(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: dict[str, Any]) -> bool:
+        """Whether parking-v0 ends an episode at this goal pair: crashed (``info["crashed"]``) or parked there.
+
+        Gymnasium-Robotics' ``GoalEnv`` method, which parking-v0 lacks: hindsight relabelling
+        (`tl_gym.relabel`) ends a relabelled episode where parking-v0's ``_is_terminated`` would have.
+        """
+        return bool(info.get("crashed", False) or self._is_success(achieved_goal, desired_goal))
