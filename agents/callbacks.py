@@ -103,15 +103,21 @@ class EvalCallback(AbstractCallback):
     ``best_path`` (if given), as rl-baselines3-zoo keeps ``best_model.zip``: where a policy's
     success swings between evaluations (docs/results/ppo_car2.md), the best one is what to deploy,
     reported on other fresh episodes. Evaluation episodes are not counted in ``env_steps``.
+    With ``log_path``, every evaluation so far is also written there as CSV (``iteration``,
+    ``env_steps``, ``success_rate``, ``mean_robustness``) after each one, as SB3's
+    ``EvalCallback(log_path=...)`` writes ``evaluations.npz``: a long run can be watched.
     """
 
-    def __init__(self, every: int, n_episodes: int = 100, best_path: str | Path | None = None, seed: int = 20_000_033):
+    def __init__(self, every: int, n_episodes: int = 100, best_path: str | Path | None = None, seed: int = 20_000_033,
+                 log_path: str | Path | None = None):
         if every < 1:
             raise ValueError(f"every must be >= 1, got {every}")
         if n_episodes < 1:
             raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
         self.every, self.n_episodes, self.seed = every, n_episodes, seed
         self.best_path = None if best_path is None else Path(best_path)
+        self.log_path = None if log_path is None else Path(log_path)
+        self._log: list[Row] = []
         self.evaluations: list[tuple[int, float, float]] = []
         self.best: tuple[int, float, float] | None = None
 
@@ -120,6 +126,10 @@ class EvalCallback(AbstractCallback):
             result = agent.evaluate(n_episodes=self.n_episodes, seed=self.seed)
             evaluation = (int(row["iteration"]), float(result["success_rate"]), float(result["mean_robustness"]))
             self.evaluations.append(evaluation)
+            if self.log_path is not None:
+                self._log.append({"iteration": evaluation[0], "env_steps": row.get("env_steps"),
+                                  "success_rate": evaluation[1], "mean_robustness": evaluation[2]})
+                write_history(self._log, self.log_path)
             if self.best is None or evaluation[1:] > self.best[1:]:
                 self.best = evaluation
                 if self.best_path is not None:

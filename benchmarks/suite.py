@@ -24,6 +24,10 @@ from benchmarks.runner import add_sweep_options, load_config, run_with_options, 
 HERE = Path(__file__).resolve().parent
 CONFIGS = HERE / "configs" / "suite"
 RESULTS = HERE.parent / "docs" / "results"
+#: Where the suite's run records live by default: in git (spec, history and summary of each run, a few KB), so that
+#: ``--report-only`` redraws the report on any clone. (Until 2026-12-02 they lived in the git-ignored ``runs/suite``
+#: and were lost with that machine.) ``--quick`` runs go to ``runs/suite-quick``.
+RECORDS = HERE / "results" / "suite"
 #: Success on fresh episodes that counts as "solved" (the issue's target).
 SOLVED = 0.9
 
@@ -140,11 +144,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.suite", description=__doc__.split("\n")[0])
     parser.add_argument("--tasks", nargs="*", default=[], choices=[p.stem for p in config_paths()],
                         help="config stems to run (default: all)")
-    parser.add_argument("--out", default="runs/suite", help="results directory (--quick: the report too)")
+    parser.add_argument("--out", default=None,
+                        help=f"run records (default: {RECORDS.relative_to(HERE.parent)}, kept in git; --quick: "
+                             "runs/suite-quick, and the report goes there too)")
     parser.add_argument("--report-only", action="store_true", help="only redraw the report from finished runs")
     add_sweep_options(parser)
     args = parser.parse_args(argv)
     variant = variant_of(parser, args)
+    if args.out is None:
+        args.out = "runs/suite-quick" if args.quick else str(RECORDS)
     results: dict[str, tuple[str, list[RunResult], list[str]]] = {}
     failed = 0
     for path in config_paths(args.tasks):

@@ -7,6 +7,7 @@ folder::
         run.json            how the run was made (env, formula, agent, hyperparameters, seed)
         agent.zip           the trained agent (`tl_gym.agents.Agent.load`)
         best_agent.zip      with --eval-every N: the agent at its best evaluation (`EvalCallback`)
+        evaluations.csv     with --eval-every N: each evaluation (iteration, env steps, success rate, mean rho)
         history.csv         one row per iteration (mean exact robustness, success rate, env steps, ...)
         learning_curve.png  mean robustness and success rate per iteration
         trajectories.png    sampled trajectories at selected iterations (over the task layout for the car)
@@ -52,6 +53,7 @@ from .arguments import build_parser, parse_hyperparameters
 RUN_FILE = "run.json"
 AGENT_FILE = "agent.zip"
 BEST_FILE = "best_agent.zip"
+EVALUATIONS_FILE = "evaluations.csv"
 
 
 # Building the env and the agent --------------------------------------------------------------------
@@ -147,14 +149,15 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
     # watched and a killed one keeps its rows
     callbacks = [record, HistoryCSV(out / "history.csv")]
     if args.eval_every is not None:
-        callbacks.append(EvalCallback(args.eval_every, args.eval_episodes, best_path=out / BEST_FILE))
+        callbacks.append(EvalCallback(args.eval_every, args.eval_episodes, best_path=out / BEST_FILE,
+                                      log_path=out / EVALUATIONS_FILE))
     agent.learn(iterations, callback=as_callback(callbacks), progress_bar=not args.quiet)
     agent.save(out / AGENT_FILE)
     write_plots(agent, run, snapshots, out)
     last = agent.history[-1]
     print(f"iteration {last['iteration']}: mean robustness {last['mean_robustness']:.4g}, "
           f"success rate {last['success_rate']:.1%}, {last['env_steps']} env steps, {last['wall_time']:.1f} s")
-    best = f", {BEST_FILE}" if args.eval_every is not None else ""
+    best = f", {BEST_FILE}, {EVALUATIONS_FILE}" if args.eval_every is not None else ""
     print(f"wrote {out}/{{{RUN_FILE}, {AGENT_FILE}{best}, history.csv, learning_curve.png, trajectories.png}}")
     return 0
 

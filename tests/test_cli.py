@@ -156,6 +156,9 @@ def test_eval_every_keeps_the_best_agent_and_eval_best_reads_it(tmp_path, capsys
     assert "best_agent.zip" in capsys.readouterr().out
     best = Agent.load(out / "best_agent.zip")
     assert len(best.history) in (2, 4)  # saved at an evaluation
+    evaluations = (out / "evaluations.csv").read_text().splitlines()
+    assert evaluations[0] == "iteration,env_steps,success_rate,mean_robustness"
+    assert [row.split(",")[:2] for row in evaluations[1:]] == [["2", "80"], ["4", "160"]]  # 4 episodes x 10 steps
     assert main(["eval", str(out), "--best", "--episodes", "3"]) == 0
     assert "3 episodes" in capsys.readouterr().out
     assert main(["eval", str(tmp_path / "run"), "--episodes", "3"]) == 0  # the final agent still there
