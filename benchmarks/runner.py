@@ -21,12 +21,14 @@ import multiprocessing
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 import traceback
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -404,13 +406,46 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, workers: int | None = None, ray
     elif pending:
         # spawn: a fresh interpreter per worker, no torch/thread state inherited through fork
         with futures.ProcessPoolExecutor(min(workers or os.cpu_count() or 1, len(pending)),
-                                         mp_context=multiprocessing.get_context("spawn")) as pool:
+                                         mp_context=multiprocessing.get_context("spawn")) as pool, \
+                _workers_die_with_the_sweep(pool):
             jobs = {pool.submit(execute_run, run, out_dir / "runs" / run.run_id): run for run in pending}
             for done, job in enumerate(futures.as_completed(jobs), 1):
                 report.attempt(jobs[job], job.result)
                 print(f"{sweep.name}: {done}/{len(pending)} runs", file=sys.stderr, flush=True)
     report.wall_time = time.perf_counter() - start
     return report
+
+
+@contextlib.contextmanager
+def _workers_die_with_the_sweep(pool: futures.ProcessPoolExecutor) -> Iterator[None]:
+    """Stop ``pool``'s worker processes when the sweep is interrupted (Ctrl-C, or SIGTERM as from ``kill``).
+
+    The executor's own exit waits for the running runs to finish, so an interrupted sweep would
+    leave its workers training on, unseen. SIGTERM is turned into `SystemExit` while the sweep
+    runs (main thread only), and any interruption terminates the workers before it propagates; a
+    killed run leaves no ``done.json`` and reruns next time.
+    """
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGTERM, _exit_on_sigterm)
+    try:
+        yield
+    except BaseException:
+        terminate = getattr(pool, "terminate_workers", None)  # Python 3.14
+        if terminate is not None:
+            terminate()
+        else:
+            for process in list((getattr(pool, "_processes", None) or {}).values()):
+                process.terminate()
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _exit_on_sigterm(signum: int, frame: Any) -> None:
+    raise SystemExit(128 + signum)
 
 
 def _run_on_ray(pending: Sequence[RunSpec], out_dir: Path, address: str, report: SweepReport) -> None:

@@ -7,6 +7,7 @@ exactly and fast; the real agents have their own tests and the benchmarks run th
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -54,7 +55,7 @@ class StandInAgent:
     def learn(self, iterations, callback=None, progress_bar=False):
         for m in range(len(self.history) + 1, len(self.history) + iterations + 1):
             if m == 2 and self.marker_dir and Path(self.marker_dir, "hang").exists():
-                Path(self.marker_dir, "started").touch()
+                Path(self.marker_dir, "started").write_text(str(os.getpid()))
                 time.sleep(120)
             rho = self.rate * m - 1 + self.seed / 100
             row = {"iteration": m, "env_steps": 100 * m, "mean_robustness": rho,
@@ -232,6 +233,48 @@ def test_killed_sweep_leaves_no_half_result_and_rerun_completes(tmp_path):
     assert report.finished == [run.run_id]
     history = results.read_history(run_dir / HISTORY)
     assert history["iteration"].tolist() == [1, 2, 3]  # restarted from scratch, no duplicated rows
+
+
+def test_a_terminated_sweep_stops_its_workers(tmp_path):
+    markers = tmp_path / "markers"
+    markers.mkdir()
+    (markers / "hang").touch()
+    path = tmp_path / "sweep.toml"
+    path.write_text(
+        'name = "stop"\nenv = "TLCarNav-v0"\ntasks = [1]\nseeds = [0]\niterations = 3\n'
+        f'[[agents]]\nlabel = "stand-in"\nagent = "{STAND_IN}"\n'
+        f'hyperparameters = {{ marker_dir = "{markers}" }}\n'
+    )
+    process = subprocess.Popen(
+        [sys.executable, "-m", "benchmarks.runner", str(path), "--out", str(tmp_path / "out"), "--workers", "1"],
+        cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+    )
+    try:
+        deadline = time.monotonic() + 40
+        while not (markers / "started").exists() or not (markers / "started").read_text():
+            assert process.poll() is None and time.monotonic() < deadline, "the sweep never reached iteration 2"
+            time.sleep(0.1)
+        worker = int((markers / "started").read_text())
+        assert worker != process.pid  # the run is in a spawned worker process
+        process.send_signal(signal.SIGTERM)  # the runner only, as `kill PID` does
+        assert process.wait(timeout=30) != 0
+        deadline = time.monotonic() + 10
+        while _alive(worker):
+            assert time.monotonic() < deadline, "the worker outlived its terminated sweep"
+            time.sleep(0.1)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(process.pid, signal.SIGKILL)
+        process.wait()
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie, dead but not yet reaped, counts as gone)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+    return state != "Z"
 
 
 def test_run_files_round_trip_installs_done_last(tmp_path):
