@@ -4,7 +4,7 @@ parking-v0 builds its ``KinematicsGoal`` observation through a one-row pandas Da
 it four times a step (the observation, the reward, the termination and the info's ``is_success``):
 profiled on this machine, that is about 80 % of a step. `NumpyParkingEnv` is parking-v0 with the
 same observation read straight from the vehicle's ``to_dict()``; the values are equal to the last
-bit (tests/test_suite.py compares whole episodes). `TLParking-v0` runs on it. It also has
+bit (tests/test_suite_envs.py compares whole episodes). `TLParking-v0` runs on it. It also has
 `compute_terminated`, for hindsight relabelling.
 
 This module imports highway-env: import it only after checking that the extra is installed.
