@@ -199,7 +199,8 @@ def test_failed_run_is_reported_and_leaves_no_result(tmp_path):
     assert [r.spec.label for r in results.load_runs(tmp_path)] == ["good"]
 
 
-def test_killed_sweep_leaves_no_half_result_and_rerun_completes(tmp_path):
+def start_hanging_sweep(tmp_path: Path) -> tuple[subprocess.Popen, Path, Path, int]:
+    """A runner process whose one run hangs at iteration 2: (process, config, out, the worker's pid)."""
     markers = tmp_path / "markers"
     markers.mkdir()
     (markers / "hang").touch()
@@ -214,14 +215,20 @@ def test_killed_sweep_leaves_no_half_result_and_rerun_completes(tmp_path):
         [sys.executable, "-m", "benchmarks.runner", str(path), "--out", str(out), "--workers", "1"],
         cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
     )
-    try:
-        deadline = time.monotonic() + 40
-        while not (markers / "started").exists():
-            assert process.poll() is None and time.monotonic() < deadline, "the sweep never reached iteration 2"
-            time.sleep(0.1)
-    finally:
-        os.killpg(process.pid, signal.SIGKILL)
-        process.wait()
+    deadline = time.monotonic() + 40
+    while not (markers / "started").exists() or not (markers / "started").read_text():
+        if process.poll() is not None or time.monotonic() > deadline:
+            os.killpg(process.pid, signal.SIGKILL)
+            raise AssertionError("the sweep never reached iteration 2")
+        time.sleep(0.1)
+    return process, path, out, int((markers / "started").read_text())
+
+
+def test_killed_sweep_leaves_no_half_result_and_rerun_completes(tmp_path):
+    process, path, out, _ = start_hanging_sweep(tmp_path)
+    markers = tmp_path / "markers"
+    os.killpg(process.pid, signal.SIGKILL)
+    process.wait()
     (run,) = load_config(path).runs
     run_dir = out / "runs" / run.run_id
     assert (run_dir / HISTORY).read_text().count("\n") == 2  # header and iteration 1, then killed
@@ -236,25 +243,8 @@ def test_killed_sweep_leaves_no_half_result_and_rerun_completes(tmp_path):
 
 
 def test_a_terminated_sweep_stops_its_workers(tmp_path):
-    markers = tmp_path / "markers"
-    markers.mkdir()
-    (markers / "hang").touch()
-    path = tmp_path / "sweep.toml"
-    path.write_text(
-        'name = "stop"\nenv = "TLCarNav-v0"\ntasks = [1]\nseeds = [0]\niterations = 3\n'
-        f'[[agents]]\nlabel = "stand-in"\nagent = "{STAND_IN}"\n'
-        f'hyperparameters = {{ marker_dir = "{markers}" }}\n'
-    )
-    process = subprocess.Popen(
-        [sys.executable, "-m", "benchmarks.runner", str(path), "--out", str(tmp_path / "out"), "--workers", "1"],
-        cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
-    )
+    process, *_, worker = start_hanging_sweep(tmp_path)
     try:
-        deadline = time.monotonic() + 40
-        while not (markers / "started").exists() or not (markers / "started").read_text():
-            assert process.poll() is None and time.monotonic() < deadline, "the sweep never reached iteration 2"
-            time.sleep(0.1)
-        worker = int((markers / "started").read_text())
         assert worker != process.pid  # the run is in a spawned worker process
         process.send_signal(signal.SIGTERM)  # the runner only, as `kill PID` does
         assert process.wait(timeout=30) != 0
