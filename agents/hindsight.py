@@ -2,7 +2,8 @@
 
 `HindsightFeeder` is an SB3 callback: after every env step it takes the episodes that the
 training envs' `tl_gym.relabel.EpisodeRecorder` finished, relabels each ``n_goals`` times with
-goals it achieved ("future" HER, through the TL reward: `tl_gym.relabel.GoalRelabeller`), and
+goals it achieved (``strategy``: "future" HER, or "satisfied"; through the TL reward:
+`tl_gym.relabel.GoalRelabeller`), and
 adds the relabelled transitions to the algorithm's replay buffer, as SB3 itself stores a
 transition: unnormalised observations (VecNormalize normalises them when it samples), actions
 scaled to the policy's ``[-1, 1]``. A buffer that holds one transition per env per row gets the
@@ -20,7 +21,7 @@ from tl_gym.relabel import EpisodeRecorder, GoalRelabeller, RelabelledEpisode
 
 
 def make_hindsight_feeder(recorders: Sequence[EpisodeRecorder], relabeller: GoalRelabeller, n_goals: int,
-                          rng: np.random.Generator) -> Any:
+                          rng: np.random.Generator, strategy: str = "future") -> Any:
     """The SB3 callback that feeds relabelled episodes of ``recorders`` into the model's replay buffer."""
     from stable_baselines3.common.callbacks import BaseCallback
 
@@ -33,7 +34,7 @@ def make_hindsight_feeder(recorders: Sequence[EpisodeRecorder], relabeller: Goal
         def _on_step(self) -> bool:
             for recorder in recorders:
                 for episode in recorder.pop_episodes():
-                    for relabelled in relabeller.sample(episode, n_goals, rng):
+                    for relabelled in relabeller.sample(episode, n_goals, rng, strategy):
                         self._pending.extend(_transitions(relabelled))
             self._flush()
             return True

@@ -51,7 +51,7 @@ import numpy as np
 
 from tl_gym.checks import check_positive
 from tl_gym.errors import IncompatibleSaveError
-from tl_gym.relabel import EpisodeRecorder, GoalRelabeller
+from tl_gym.relabel import RELABEL_STRATEGIES, EpisodeRecorder, GoalRelabeller
 
 from .base import Agent, _describe_env_source
 from .hindsight import make_hindsight_feeder
@@ -279,6 +279,9 @@ class SB3Config:
     """Hindsight relabelling on goal-conditioned envs (off-policy algorithms): every finished episode is also
     added to the replay buffer ``her_goals`` times, each time with a goal it achieved later and the TL reward
     recomputed for that goal (`tl_gym.relabel`, `agents.hindsight`). 0 is off."""
+    her_strategy: str = "future"
+    """Which achieved goals `her_goals` relabels with: ``"future"`` (HER's: steps drawn uniformly) or
+    ``"satisfied"`` (goals under which the episode satisfies the formula first; `GoalRelabeller.sample`)."""
     algo_kwargs: dict[str, Any] = field(default_factory=dict)
     """Keyword arguments for the algorithm's constructor (``learning_rate``, ``n_steps``, ...)."""
 
@@ -300,6 +303,8 @@ class SB3Config:
             raise ValueError(f"end_is_terminal must be true or false, got {self.end_is_terminal!r}")
         if not isinstance(self.her_goals, (int, np.integer)) or isinstance(self.her_goals, bool) or self.her_goals < 0:
             raise ValueError(f"her_goals must be an int >= 0, got {self.her_goals!r}")
+        if self.her_strategy not in RELABEL_STRATEGIES:
+            raise ValueError(f"her_strategy must be one of {RELABEL_STRATEGIES}, got {self.her_strategy!r}")
         if self.noise_type is not None and self.noise_type not in NOISE_TYPES:
             raise ValueError(f"noise_type must be None or one of {NOISE_TYPES}, got {self.noise_type!r}")
         check_positive("noise_std", self.noise_std, allow_zero=True)
@@ -634,7 +639,7 @@ class SB3Agent(Agent):
             recorders = [_find_layer(env, EpisodeRecorder) for env in self.sb3_env.envs]
             relabeller = GoalRelabeller(self.sb3_env.envs[0], end_is_terminal=self.config.end_is_terminal)
             self._hindsight = make_hindsight_feeder(recorders, relabeller, self.config.her_goals,
-                                                    np.random.default_rng(self.seed))
+                                                    np.random.default_rng(self.seed), self.config.her_strategy)
         normalize = parse_normalize(self.config.normalize)
         self.vec_normalize: VecNormalize | None = None
         if normalize is not None:

@@ -142,6 +142,23 @@ def test_sample_draws_goals_from_the_episode():
     assert any(e.rewards and sum(e.rewards) > 0 for e in out)  # slow moves: the reached goals are satisfied
 
 
+def test_satisfied_strategy_prefers_goals_under_which_the_formula_holds():
+    env = EpisodeRecorder(make_point())
+    # slow for 6 steps, then full speed: the goals of steps 1-6 are reached slowly (satisfied), later ones are not
+    run(env, [np.array([0.3, 0.0], np.float32)] * 6 + [np.array([1.0, 0.0], np.float32)] * 6)
+    episode = env.pop_episodes()[0]
+    relabeller = GoalRelabeller(env)
+    every = [relabeller.relabel(episode, k) for k in range(1, episode.length + 1)]
+    assert [e.robustness > 0 for e in every] == [True] * 6 + [False] * 6
+    picked = relabeller.sample(episode, 4, np.random.default_rng(0), strategy="satisfied")
+    assert len(picked) == 4 and all(e.robustness > 0 for e in picked)
+    assert len({e.length for e in picked}) == 4  # drawn without replacement
+    more = relabeller.sample(episode, 9, np.random.default_rng(0), strategy="satisfied")
+    assert sum(e.robustness > 0 for e in more) >= 6  # all 6 satisfied ones, then uniform draws
+    with pytest.raises(ValueError, match="strategy must be one of"):
+        relabeller.sample(episode, 1, np.random.default_rng(0), strategy="final")
+
+
 def test_bad_envs_are_named():
     with pytest.raises(ValueError, match="TLTLRewardWrapper"):
         GoalRelabeller(PointGoal())
@@ -188,3 +205,5 @@ def test_her_goals_is_checked():
         SB3Agent(make_point(), "ppo", her_goals=2, hyperparams=False)
     with pytest.raises(ValueError, match="her_goals must be an int >= 0"):
         SB3Agent(make_point(), "sac", her_goals=-1, hyperparams=False)
+    with pytest.raises(ValueError, match="her_strategy must be one of"):
+        SB3Agent(make_point(), "sac", her_goals=1, her_strategy="best", hyperparams=False)

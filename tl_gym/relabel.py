@@ -63,6 +63,8 @@ from gymnasium import spaces
 from tl_gym.wrapper import MONITOR_KEY, TLTLRewardWrapper
 
 ACHIEVED, DESIRED = "achieved_goal", "desired_goal"
+#: How `GoalRelabeller.sample` picks the goals of an episode's relabellings.
+RELABEL_STRATEGIES = ("future", "satisfied")
 #: Keys the wrapper adds to the terminal info: a replay computes them afresh.
 _TERMINAL_KEYS = ("robustness", "satisfied", "trace", "smooth_robustness")
 
@@ -96,6 +98,8 @@ class RelabelledEpisode:
     rewards: list[float]
     dones: list[bool]
     """``terminated`` of each step; with ``end_is_terminal`` in `GoalRelabeller`, every episode end."""
+    robustness: float = float("nan")
+    """The exact robustness of the relabelled episode (the wrapper's terminal ``info["robustness"]``)."""
 
     @property
     def length(self) -> int:
@@ -227,21 +231,43 @@ class GoalRelabeller:
         obs, _ = self._wrapper.reset()
         out = RelabelledEpisode([obs], [], [], [])
         for action in episode.actions:
-            obs, reward, terminated, truncated, _ = self._wrapper.step(action)
+            obs, reward, terminated, truncated, info = self._wrapper.step(action)
             out.observations.append(obs)
             out.actions.append(action)
             out.rewards.append(float(reward))
             out.dones.append(bool(terminated or (truncated and self.end_is_terminal)))
             if terminated or truncated:
+                out.robustness = float(info["robustness"])
                 break
         return out
 
-    def sample(self, episode: Episode, n_goals: int, rng: np.random.Generator) -> list[RelabelledEpisode]:
-        """``n_goals`` relabellings of ``episode``, each with the goal of a step drawn uniformly ("future" HER)."""
+    def sample(self, episode: Episode, n_goals: int, rng: np.random.Generator,
+               strategy: str = "future") -> list[RelabelledEpisode]:
+        """``n_goals`` relabellings of ``episode``.
+
+        ``strategy="future"`` (HER's): each with the goal of a step drawn uniformly.
+        ``"satisfied"``: relabels with the goal of every step, then draws the ``n_goals`` among
+        those under which the episode satisfies the formula (ρ > 0), without replacement, and
+        fills up with uniform draws when there are fewer. With a TL task, reaching a goal is
+        not enough (parking: also slower than 1 m/s there), so most "future" goals give failed
+        episodes; this keeps the hindsight successes that teach the task, at ``length``
+        relabellings per episode (about 1 ms each on parking).
+
+        Raises:
+            ValueError: an unknown strategy.
+        """
+        if strategy not in RELABEL_STRATEGIES:
+            raise ValueError(f"strategy must be one of {RELABEL_STRATEGIES}, got {strategy!r}")
         if episode.length == 0:
             return []
-        steps = rng.integers(1, episode.length + 1, size=n_goals)
-        return [self.relabel(episode, int(step)) for step in steps]
+        if strategy == "future":
+            steps = rng.integers(1, episode.length + 1, size=n_goals)
+            return [self.relabel(episode, int(step)) for step in steps]
+        every = [self.relabel(episode, step) for step in range(1, episode.length + 1)]
+        satisfied = [e for e in every if e.robustness > 0]
+        picked = [satisfied[i] for i in rng.permutation(len(satisfied))[:n_goals]]
+        picked += [every[i] for i in rng.integers(0, len(every), size=n_goals - len(picked))]
+        return picked
 
 
 def _find_wrapper(env: gym.Env) -> TLTLRewardWrapper:
