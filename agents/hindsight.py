@@ -2,12 +2,12 @@
 
 `HindsightFeeder` is an SB3 callback: after every env step it takes the episodes that the
 training envs' `tl_gym.relabel.EpisodeRecorder` finished, relabels each ``n_goals`` times with
-goals it achieved (``strategy``: "future" HER, or "satisfied"; through the TL reward:
-`tl_gym.relabel.GoalRelabeller`), and
-adds the relabelled transitions to the algorithm's replay buffer, as SB3 itself stores a
-transition: unnormalised observations (VecNormalize normalises them when it samples), actions
-scaled to the policy's ``[-1, 1]``. A buffer that holds one transition per env per row gets the
-relabelled ones in rows of ``n_envs``; a remainder waits for the next episode.
+goals it achieved (``strategy``: "future" HER, or "satisfied"), through the TL reward
+(`tl_gym.relabel.GoalRelabeller`), and adds the relabelled transitions to the algorithm's
+replay buffer as SB3 itself stores a transition: unnormalised observations (VecNormalize
+normalises them when it samples), actions scaled to the policy's ``[-1, 1]``. A buffer that
+holds one transition per env per row gets the relabelled ones in rows of ``n_envs``; a
+remainder waits for the next episode.
 """
 
 from __future__ import annotations
