@@ -51,7 +51,7 @@ import numpy as np
 
 from tl_gym.checks import check_positive
 from tl_gym.errors import IncompatibleSaveError
-from tl_gym.relabel import RELABEL_STRATEGIES, EpisodeRecorder, GoalRelabeller
+from tl_gym.relabel import RELABEL_STRATEGIES, EpisodeRecorder, GoalRelabeller, find_wrapper
 
 from .base import Agent, _describe_env_source
 from .hindsight import make_hindsight_feeder
@@ -636,7 +636,7 @@ class SB3Agent(Agent):
         self.sb3_env = DummyVecEnv(factories)
         self._hindsight = None
         if self.config.her_goals:
-            recorders = [_find_layer(env, EpisodeRecorder) for env in self.sb3_env.envs]
+            recorders = [find_wrapper(env, EpisodeRecorder) for env in self.sb3_env.envs]
             relabeller = GoalRelabeller(self.sb3_env.envs[0], end_is_terminal=self.config.end_is_terminal)
             self._hindsight = make_hindsight_feeder(recorders, relabeller, self.config.her_goals,
                                                     np.random.default_rng(self.seed), self.config.her_strategy)
@@ -793,14 +793,6 @@ def _make_collector() -> Any:
             return True
 
     return RobustnessCollector()
-
-
-def _find_layer(env: gym.Env, kind: type) -> Any:
-    """The wrapper of type ``kind`` in ``env``'s chain."""
-    layer: Any = env
-    while not isinstance(layer, kind):
-        layer = layer.env
-    return layer
 
 
 def _default_argument(algo_class: type, name: str, fallback: Any) -> Any:

@@ -54,7 +54,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from typing import Any
+from typing import Any, TypeVar
 
 import gymnasium as gym
 import numpy as np
@@ -62,6 +62,7 @@ from gymnasium import spaces
 
 from tl_gym.wrapper import MONITOR_KEY, TLTLRewardWrapper
 
+W = TypeVar("W", bound=gym.Wrapper)
 ACHIEVED, DESIRED = "achieved_goal", "desired_goal"
 #: How `GoalRelabeller.sample` picks the goals of an episode's relabellings.
 RELABEL_STRATEGIES = ("future", "satisfied")
@@ -194,7 +195,9 @@ class GoalRelabeller:
     """
 
     def __init__(self, env: gym.Env, end_is_terminal: bool = True):
-        wrapper = _find_wrapper(env)
+        wrapper = find_wrapper(env, TLTLRewardWrapper)
+        if wrapper is None:
+            raise ValueError(f"goal relabelling needs an env wrapped in TLTLRewardWrapper, got {env}")
         space = wrapper.env.observation_space
         if not (isinstance(space, spaces.Dict) and ACHIEVED in space.spaces and DESIRED in space.spaces):
             raise ValueError(
@@ -270,13 +273,14 @@ class GoalRelabeller:
         return picked
 
 
-def _find_wrapper(env: gym.Env) -> TLTLRewardWrapper:
+def find_wrapper(env: gym.Env, kind: type[W]) -> W | None:
+    """The outermost wrapper of type ``kind`` in ``env``'s chain of wrappers; None if there is none."""
     layer: Any = env
     while isinstance(layer, gym.Wrapper):
-        if isinstance(layer, TLTLRewardWrapper):
+        if isinstance(layer, kind):
             return layer
         layer = layer.env
-    raise ValueError(f"goal relabelling needs an env wrapped in TLTLRewardWrapper, got {env}")
+    return None
 
 
 def _base(obs: Any) -> dict[str, Any]:
