@@ -5,7 +5,9 @@ it four times a step (the observation, the reward, the termination and the info'
 profiled on this machine, that is about 80 % of a step. `NumpyParkingEnv` is parking-v0 with the
 same observation read straight from the vehicle's ``to_dict()``; the values are equal to the last
 bit (tests/test_suite_envs.py compares whole episodes). `TLParking-v0` runs on it. It also has
-`compute_terminated`, for hindsight relabelling.
+`compute_terminated`, for hindsight relabelling, and one config key of its own, ``terminate_on_success``
+(default True, parking-v0's rule): False lets the episode go on after the car reaches the slot, so that
+only a crash (or the time limit) ends it.
 
 This module imports highway-env: import it only after checking that the extra is installed.
 """
@@ -43,7 +45,23 @@ class NumpyKinematicsGoalObservation(KinematicsGoalObservation):
 
 
 class NumpyParkingEnv(ParkingEnv):
-    """parking-v0 whose ``KinematicsGoal`` observations (its own and the reward's) skip pandas."""
+    """parking-v0 whose ``KinematicsGoal`` observations (its own and the reward's) skip pandas.
+
+    With ``config["terminate_on_success"] = False`` the episode does not end at the slot.
+    """
+
+    @classmethod
+    def default_config(cls) -> dict[str, Any]:
+        """parking-v0's config, plus ``terminate_on_success`` (True: end the episode at the slot, as parking-v0)."""
+        config = super().default_config()
+        config["terminate_on_success"] = True
+        return config
+
+    def _is_terminated(self) -> bool:
+        """parking-v0's rule (crashed or parked), or only crashed when ``terminate_on_success`` is False."""
+        if self.config["terminate_on_success"]:
+            return super()._is_terminated()
+        return any(vehicle.crashed for vehicle in self.controlled_vehicles)
 
     def define_spaces(self) -> None:
         """highway-env's spaces, then the numpy reader in place of each ``KinematicsGoalObservation``."""
@@ -53,9 +71,12 @@ class NumpyParkingEnv(ParkingEnv):
         self.observation_type_parking = NumpyKinematicsGoalObservation(self, **self.PARKING_OBS["observation"])
 
     def compute_terminated(self, achieved_goal: np.ndarray, desired_goal: np.ndarray, info: dict[str, Any]) -> bool:
-        """Whether parking-v0 ends an episode at this goal pair: crashed (``info["crashed"]``) or parked there.
+        """Whether this env ends an episode at this goal pair: crashed (``info["crashed"]``) or parked there.
 
         Gymnasium-Robotics' ``GoalEnv`` method, which parking-v0 lacks: hindsight relabelling
-        (`tl_gym.relabel`) ends a relabelled episode where parking-v0's ``_is_terminated`` would have.
+        (`tl_gym.relabel`) ends a relabelled episode where ``_is_terminated`` would have. Parked
+        counts only with ``terminate_on_success``.
         """
-        return bool(info.get("crashed", False) or self._is_success(achieved_goal, desired_goal))
+        if info.get("crashed", False):
+            return True
+        return bool(self.config["terminate_on_success"] and self._is_success(achieved_goal, desired_goal))

@@ -292,6 +292,7 @@ def make_parking(
     horizon: int = 100,
     arrival_speed: float = 1.0,
     speed_limit: float = 5.0,
+    terminate_on_success: bool = False,
     config: Mapping[str, Any] | None = None,
     render_mode: str | None = None,
     **wrapper_kwargs: Any,
@@ -300,13 +301,19 @@ def make_parking(
 
     Formula `parking_formula`: ``F(goal_error < 1.44 & speed < arrival_speed) & G(speed < speed_limit)``,
     with ``goal_error`` the env's own weighted distance to the slot in metres (`ParkingGoalError`;
-    below 1.44 m is the env's success, which ends the episode) and ``speed`` in m/s
-    (`ParkingSpeed`). The slot is drawn by parking-v0 at reset, as is the start heading.
+    below 1.44 m is the env's success) and ``speed`` in m/s (`ParkingSpeed`). The slot is drawn
+    by parking-v0 at reset, as is the start heading. Only a crash or the horizon ends the episode:
+    a car that reaches the slot may drive on into it and stop, so a satisfying episode's robustness
+    measures how well it parked (up to 1). With ``terminate_on_success=True`` (parking-v0's own
+    rule) the episode ends as the car crosses into the success region, which caps that robustness
+    at about one step of travel (docs/tasks.md).
 
     Args:
-        horizon: actions per episode (5 per simulated second), unless the car parks or crashes first.
-        arrival_speed: the car must be slower than this (m/s) when it enters the slot.
+        horizon: actions per episode (5 per simulated second), unless the car crashes first.
+        arrival_speed: the car must be slower than this (m/s) in the slot.
         speed_limit: bound on the speed at every step (m/s).
+        terminate_on_success: end the episode when the car reaches the slot, as parking-v0 does
+            (the task as measured before 2026-12-03).
         config: parking-v0 config overrides (``duration`` is raised to outlast ``horizon``).
         render_mode: passed to parking-v0.
         **wrapper_kwargs: `TLTLRewardWrapper` keywords.
@@ -327,7 +334,10 @@ def make_parking(
     _check_steps("horizon", horizon)
     # parking-v0's own wrappers and checks, on its subclass that reads the goal observation without pandas
     spec = dataclasses.replace(gym.spec("parking-v0"), entry_point=NumpyParkingEnv)
-    base = gym.make(spec, config=dict(config or {}), render_mode=render_mode)
+    if config is not None and "terminate_on_success" in config:
+        raise ValueError("pass terminate_on_success as TLParking-v0's own keyword, not in config")
+    config = {**(config or {}), "terminate_on_success": bool(terminate_on_success)}
+    base = gym.make(spec, config=config, render_mode=render_mode)
     cfg = base.unwrapped.config
     observation = cfg["observation"]
     if observation.get("type") != "KinematicsGoal" or tuple(observation.get("features", ())) != PARKING_FEATURES:

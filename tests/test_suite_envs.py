@@ -241,9 +241,37 @@ def test_parking_controller_parks_and_full_throttle_speeds():
     pytest.importorskip("highway_env")
     env = gym.make("TLParking-v0")
     steps, _, good = run_episode(env, Parker(), seed=8)
-    assert good["satisfied"] and good["is_success"] and steps < 100
+    # the slot does not end the episode: the car drives on into it, and ρ measures how well it parked
+    assert good["satisfied"] and steps == 100 and good["robustness"] > 0.3
     _, _, fast = run_episode(env, lambda obs: np.array([1.0, 0.0], dtype=np.float32), seed=8)
     assert fast["robustness"] < 0 and fast["trace"]["speed"].max() > 5.0
+
+
+def test_parking_terminate_on_success_ends_at_the_slots_edge():
+    """parking-v0's own rule: the episode ends as the car enters the slot, so ρ is at most a step of travel."""
+    pytest.importorskip("highway_env")
+    steps, _, info = run_episode(gym.make("TLParking-v0", terminate_on_success=True), Parker(), seed=8)
+    assert info["satisfied"] and info["is_success"] and steps < 100
+    assert 0 < info["robustness"] < 0.1
+
+
+def test_parking_terminate_on_success_in_config_is_refused():
+    pytest.importorskip("highway_env")
+    with pytest.raises(ValueError, match="terminate_on_success as TLParking-v0's own keyword"):
+        gym.make("TLParking-v0", config={"terminate_on_success": True})
+
+
+@pytest.mark.parametrize("terminate_on_success", [True, False])
+def test_parking_compute_terminated_follows_the_env(terminate_on_success):
+    pytest.importorskip("highway_env")
+    from tl_gym.envs.fast_parking import NumpyParkingEnv
+
+    env = NumpyParkingEnv(config={"terminate_on_success": terminate_on_success})
+    obs, _ = env.reset(seed=0)
+    goal = obs["desired_goal"]
+    assert env.compute_terminated(goal, goal, {"crashed": False}) is terminate_on_success
+    assert env.compute_terminated(goal + 1.0, goal, {"crashed": True}) is True
+    assert env.compute_terminated(goal + 1.0, goal, {"crashed": False}) is False
 
 
 @pytest.mark.parametrize("seed", [3, 8])
