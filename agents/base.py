@@ -223,7 +223,8 @@ class Agent(abc.ABC):
             deterministic: act with the policy's mean.
 
         Returns:
-            ``{"mean_robustness": float, "success_rate": float, "robustness": (n_episodes,) array}``.
+            ``{"mean_robustness": float, "success_rate": float, "robustness": (n_episodes,) array,
+            "traces": {signal: [each episode's s_0 … s_T]}}`` (`evaluate_policy`).
         """
         if seed is not None:
             self._predict_rng = np.random.default_rng([seed, 2])

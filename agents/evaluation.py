@@ -56,8 +56,9 @@ def evaluate_policy(
         deterministic: use the policy's mean action.
 
     Returns:
-        ``{"mean_robustness": float, "success_rate": float, "robustness": (n_episodes,) array}``;
-        success means robustness > 0.
+        ``{"mean_robustness": float, "success_rate": float, "robustness": (n_episodes,) array,
+        "traces": {signal: [each episode's s_0 … s_T]}}``; success means robustness > 0. The
+        traces are what `tl_gym.diagnosis.conjunct_breakdown` reads.
 
     Raises:
         ValueError: ``n_episodes < 1``.
@@ -69,11 +70,12 @@ def evaluate_policy(
         env = as_vector_env(env)
     elif not isinstance(env, gym.vector.VectorEnv):
         raise TypeError(f"env must be a gymnasium Env or VectorEnv, got {type(env).__name__}")
-    robustness, _ = collect_episodes(predictor, env, n_episodes, seed, deterministic)
+    robustness, traces = collect_episodes(predictor, env, n_episodes, seed, deterministic)
     return {
         "mean_robustness": float(np.mean(robustness)),
         "success_rate": float(np.mean(robustness > 0)),
         "robustness": robustness,
+        "traces": traces,
     }
 
 

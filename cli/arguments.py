@@ -132,4 +132,7 @@ def build_parser(with_hyperparameters: bool = False) -> argparse.ArgumentParser:
     evaluate.add_argument("--stochastic", action="store_true", help="sample actions instead of the mean")
     evaluate.add_argument("--gif", type=Path, default=None, help="also save a GIF of one episode here")
     evaluate.add_argument("--best", action="store_true", help="the run's best_agent.zip (train --eval-every)")
+    evaluate.add_argument("--why", action="store_true",
+                          help="also print each top-level conjunct's robustness: how often it broke, and how often "
+                               "it was the lowest in a failed episode")
     return parser

@@ -13,7 +13,8 @@ folder::
         trajectories.png    sampled trajectories at selected iterations (over the task layout for the car)
 
 ``tl-gym eval runs/NAME`` reloads the agent (``--best``: the best one), prints its mean robustness
-and success rate over fresh episodes and can save a GIF of one episode.
+and success rate over fresh episodes (``--why``: and which of the formula's conjuncts broke,
+`tl_gym.diagnosis`) and can save a GIF of one episode.
 
 Examples::
 
@@ -23,6 +24,7 @@ Examples::
     tl-gym train --env Pendulum-v1 --spec "F(G(cos_th > 0.95))" --signals cos_th=0 --agent reps \
         --horizon 200 --iterations 30 --out runs/pendulum
     tl-gym eval runs/demo --episodes 100 --gif runs/demo/episode.gif
+    tl-gym eval runs/demo --why
 
 Hyperparameters are passed as ``--name value`` (dashes or underscores); values are read as
 numbers, booleans (``true``/``false``), ``none`` or JSON when they parse as such, else as text.
@@ -32,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -46,6 +49,7 @@ from tl_gym.agents.registry import is_episodic, make_agent
 from tl_gym.agents.sampling import env_attribute, run_episodes
 
 import tl_gym
+from tl_gym.diagnosis import conjunct_breakdown, format_breakdown
 from tl_gym.errors import TLGymError
 
 from .arguments import build_parser, parse_hyperparameters
@@ -198,6 +202,11 @@ def evaluate(args: argparse.Namespace) -> int:
     result = agent.evaluate(n_episodes=args.episodes, seed=args.seed, deterministic=not args.stochastic)
     print(f"{run['agent']} on {run['env']} {run['env_kwargs'] or ''}: {args.episodes} episodes, "
           f"mean robustness {result['mean_robustness']:.4g}, success rate {result['success_rate']:.1%}")
+    if args.why:
+        rho_max = env_attribute(agent.env, "rho_max")
+        rows = conjunct_breakdown(agent.formula, result["traces"], math.inf if rho_max is None else rho_max)
+        print(f"\nwhy ({agent.formula}): each top-level conjunct's robustness over the same episodes\n"
+              + format_breakdown(rows))
     if args.gif is not None:
         frames = record_episode(agent, build_env(run, render_mode="rgb_array"), seed=args.seed,
                                 deterministic=not args.stochastic)

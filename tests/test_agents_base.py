@@ -225,8 +225,11 @@ def test_predict_clips_to_the_action_space():
 def test_evaluate_matches_a_rollout_of_the_mean_actions():
     agent = make_agent().learn(2)
     result = agent.evaluate(n_episodes=10, seed=7)
-    assert set(result) == {"mean_robustness", "success_rate", "robustness"}
+    assert set(result) == {"mean_robustness", "success_rate", "robustness", "traces"}
     assert result["robustness"].shape == (10,)
+    # the traces are the episodes': the formula's robustness of each is the reported one
+    for i, value in enumerate(result["robustness"]):
+        assert agent.formula.robustness({k: v[i] for k, v in result["traces"].items()}) == value
     assert result["success_rate"] == np.mean(result["robustness"] > 0)
     means = np.repeat(agent.policy.mean[None], 10, axis=0)
     batch = rollout(agent.env, means, agent.policy.feedback, seed=7)  # the mean policy, its feedback included

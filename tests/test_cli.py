@@ -167,3 +167,13 @@ def test_eval_every_keeps_the_best_agent_and_eval_best_reads_it(tmp_path, capsys
 def test_eval_best_of_a_run_without_it(car_run, capsys):
     assert main(["eval", str(car_run), "--best"]) == 2
     assert "without --eval-every" in capsys.readouterr().err
+
+
+def test_eval_why_prints_each_conjuncts_breakdown(car_run, capsys):
+    assert main(["eval", str(car_run), "--episodes", "6", "--why"]) == 0
+    out = capsys.readouterr().out
+    formula = Agent.load(car_run / "agent.zip").formula
+    assert f"why ({formula})" in out and "violated in" in out and "median ρ" in out
+    for conjunct in formula.operands:  # task 1 is a conjunction: one line each, with the episodes counted
+        line = next(line for line in out.splitlines() if line.startswith(str(conjunct)))
+        assert " of 6" in line
