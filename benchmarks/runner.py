@@ -252,7 +252,7 @@ def execute_run(spec: RunSpec, run_dir: str | Path) -> dict[str, Any]:
     from tl_gym.agents.callbacks import HistoryCSV
     from tl_gym.agents.registry import make_agent
 
-    start = time.perf_counter()
+    start, code = time.perf_counter(), code_version()  # the code this process imports now, not at the end
     agent = make_agent(spec.agent, spec.env, seed=spec.seed, env_kwargs=dict(spec.env_kwargs),
                        **dict(spec.hyperparameters))
     history = HistoryCSV(run_dir / HISTORY)
@@ -274,7 +274,7 @@ def execute_run(spec: RunSpec, run_dir: str | Path) -> dict[str, Any]:
         if 0 in spec.trajectory_iterations:
             traces.update(sample_traces(agent, spec, 0))
         agent.learn(spec.iterations, callback=record)
-        summary = _summarise(spec, agent, time.perf_counter() - start)
+        summary = _summarise(spec, agent, time.perf_counter() - start, code)
     if traces:
         buffer = io.BytesIO()
         np.savez_compressed(buffer, **traces)
@@ -303,13 +303,13 @@ def sample_traces(agent: Any, spec: RunSpec, iteration: int) -> dict[str, np.nda
     return out
 
 
-def _summarise(spec: RunSpec, agent: Any, elapsed: float) -> dict[str, Any]:
+def _summarise(spec: RunSpec, agent: Any, elapsed: float, code: str) -> dict[str, Any]:
     last = agent.history[-1] if agent.history else {}
     summary: dict[str, Any] = {
         "run_id": spec.run_id, "label": spec.label, "iterations": len(agent.history),
         "env_steps": int(last.get("env_steps", 0)), "train_wall_time": float(last.get("wall_time", 0.0)),
         "total_wall_time": elapsed, "final_mean_robustness": float(last.get("mean_robustness", np.nan)),
-        "final_success_rate": float(last.get("success_rate", np.nan)), "note": spec.note, "code": code_version(),
+        "final_success_rate": float(last.get("success_rate", np.nan)), "note": spec.note, "code": code,
     }
     for deterministic in (True, False) if spec.evaluate_episodes > 0 else ():
         result = agent.evaluate(n_episodes=spec.evaluate_episodes, seed=10_000_019 + spec.seed,

@@ -349,3 +349,15 @@ def test_aggregation_helpers_and_run_folder_names():
     assert (results.first_text([4, None, 8]), results.first_text([None])) == ("6 (2/3)", "never (0/1)")
     assert results.first_text([1500.0, 2500.0], ",.0f") == "2,000 (2/2)"
     assert results.table(["a", "b"], [[1, ""]]) == "| a | b |\n|---|---|\n| 1 |  |"
+
+
+def test_done_records_the_code_the_run_started_with(tmp_path, monkeypatch):
+    """A commit made while a run trains does not relabel it: the version is read when the run starts."""
+    import benchmarks.runner as runner
+
+    run_dir = tmp_path / "run"
+    # the version "changes" once training has written its first history row
+    monkeypatch.setattr(runner, "code_version",
+                        lambda: "0.1.0 (a later commit)" if (run_dir / HISTORY).exists() else "0.1.0 (at the start)")
+    spec = expand_config(config(tasks=[1], seeds=[0], agents=[{"label": "stand-in", "agent": STAND_IN}])).runs[0]
+    assert execute_run(spec, run_dir)["code"] == "0.1.0 (at the start)"
