@@ -12,9 +12,9 @@ from hypothesis import strategies as st
 import tests.reference as ref
 from tests import strategies as S
 from tl_gym import parse
-from tl_gym.diagnosis import conjunct_breakdown, conjuncts, format_breakdown
+from tl_gym.diagnosis import conjunct_breakdown, format_breakdown
 from tl_gym.errors import UnknownSignalError
-from tl_gym.tltl.ast import And
+from tl_gym.tltl.ast import And, conjuncts
 
 
 @st.composite

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tl_gym.tltl.ast import And, Formula
+from tl_gym.tltl.ast import Formula, conjuncts
 
 
 @dataclass(frozen=True)
@@ -53,11 +53,6 @@ class ConjunctStats:
     lowest: int
     failures: int
     median: float
-
-
-def conjuncts(formula: Formula) -> tuple[Formula, ...]:
-    """The top-level conjuncts: the operands of an n-ary ``&``, else the formula alone."""
-    return formula.operands if isinstance(formula, And) else (formula,)
 
 
 def conjunct_breakdown(

@@ -38,7 +38,7 @@ import math
 from collections.abc import Callable, Mapping
 
 from tl_gym.checks import check_positive
-from tl_gym.tltl.ast import And, Eventually, Formula, Then, Until
+from tl_gym.tltl.ast import Eventually, Formula, Then, Until, conjuncts
 from tl_gym.tltl.online import PrefixMonitor, compile_state_formula
 
 State = Mapping[str, float]
@@ -150,13 +150,12 @@ class HierarchicalPotential:
 
     def __init__(self, formula: Formula, rho_max: float = math.inf, scale: float = 1.0):
         check_positive("scale", scale)
-        conjuncts = list(formula.operands) if isinstance(formula, And) else [formula]
         self.scale = float(scale)
         self._safety: list[_Safety] = []
         self._targets: list[_Chain | _Until] = []
         self.safety: list[str] = []
         self.targets: list[str] = []
-        for conjunct in conjuncts:
+        for conjunct in conjuncts(formula):
             operands = _chain_operands(conjunct)
             if operands is not None:
                 self._targets.append(_Chain(operands, rho_max, self.scale))

@@ -563,6 +563,11 @@ class And(_NAry):
     precedence: ClassVar[int] = _F_AND
 
 
+def conjuncts(formula: Formula) -> tuple[Formula, ...]:
+    """The top-level conjuncts: the operands of an n-ary ``&``, else the formula alone."""
+    return formula.operands if isinstance(formula, And) else (formula,)
+
+
 @dataclass(frozen=True, eq=True)
 class Or(_NAry):
     """Disjunction of two or more formulas: one n-ary max."""
