@@ -40,7 +40,7 @@ try:
 except ImportError:  # Python 3.10
     import tomli as tomllib  # type: ignore[no-redef]
 
-DONE, SPEC, HISTORY, TRAJECTORIES = "done.json", "spec.json", "history.csv", "trajectories.npz"
+DONE, SPEC, HISTORY, TRAJECTORIES, AGENT = "done.json", "spec.json", "history.csv", "trajectories.npz", "agent.zip"
 #: Keys an agent entry inherits from the top level (a variant may override them at either level).
 INHERITED = {"tasks": None, "seeds": None, "iterations": None, "evaluate_episodes": 0, "evaluate_every": 0,
              "trajectory_iterations": [], "trajectory_episodes": 40}
@@ -275,6 +275,7 @@ def execute_run(spec: RunSpec, run_dir: str | Path) -> dict[str, Any]:
             traces.update(sample_traces(agent, spec, 0))
         agent.learn(spec.iterations, callback=record)
         summary = _summarise(spec, agent, time.perf_counter() - start, code)
+        agent.save(run_dir / AGENT)  # the final agent, for `tl-gym eval RUN_DIR/agent.zip --why` (not kept in git)
     if traces:
         buffer = io.BytesIO()
         np.savez_compressed(buffer, **traces)

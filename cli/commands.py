@@ -55,6 +55,7 @@ from tl_gym.errors import TLGymError
 from .arguments import build_parser, parse_hyperparameters
 
 RUN_FILE = "run.json"
+RUNNER_SPEC_FILE = "spec.json"  # a run folder of benchmarks/runner.py (docs/benchmarks.md)
 AGENT_FILE = "agent.zip"
 BEST_FILE = "best_agent.zip"
 EVALUATIONS_FILE = "evaluations.csv"
@@ -188,12 +189,24 @@ def write_plots(agent: Any, run: dict[str, Any], snapshots: list[tuple[int, dict
         plot_signals(snapshots, out / "trajectories.png", title=f"{title}: sampled signals (mean ± 2σ)")
 
 
+def read_run(folder: Path) -> dict[str, Any]:
+    """What a run folder trained: `tl-gym train`'s ``run.json``, or the experiment runner's ``spec.json``.
+
+    A runner folder (``benchmarks/runner.py``, docs/benchmarks.md) names a registered id, so it has no
+    ``--spec``; both kinds keep the final agent as ``agent.zip``.
+    """
+    run_file, runner_file = folder / RUN_FILE, folder / RUNNER_SPEC_FILE
+    if run_file.exists():
+        return json.loads(run_file.read_text())
+    if runner_file.exists():
+        return {**json.loads(runner_file.read_text()), "spec": None, "signals": None}
+    raise FileNotFoundError(f"{run_file} not found: is {folder} a folder written by `tl-gym train` "
+                            f"(or a run folder of the experiment runner, with {RUNNER_SPEC_FILE})?")
+
+
 def evaluate(args: argparse.Namespace) -> int:
     """``tl-gym eval``: print the evaluation of a saved run, optionally save a GIF."""
-    run_file = args.run / RUN_FILE
-    if not run_file.exists():
-        raise FileNotFoundError(f"{run_file} not found: is {args.run} a folder written by `tl-gym train`?")
-    run = json.loads(run_file.read_text())
+    run = read_run(args.run)
     env = build_env(run)
     saved = args.run / (BEST_FILE if args.best else AGENT_FILE)
     if args.best and not saved.exists():

@@ -22,6 +22,7 @@ import tomllib
 
 from benchmarks import results
 from benchmarks.runner import (
+    AGENT,
     DONE,
     HISTORY,
     ConfigError,
@@ -68,6 +69,9 @@ class StandInAgent:
     def evaluate(self, n_episodes=100, seed=None, deterministic=True):
         rho = self.history[-1]["mean_robustness"]
         return {"mean_robustness": rho, "success_rate": float(rho > 0), "robustness": np.full(n_episodes, rho)}
+
+    def save(self, path):
+        Path(path).write_text(json.dumps(self.history))
 
     def close(self):
         pass
@@ -167,6 +171,7 @@ def test_tiny_sweep_runs_in_parallel_resumes_and_aggregates(tmp_path):
     assert json.loads((run_dir / "spec.json").read_text()) == sweep.runs[0].to_json()
     assert json.loads((tmp_path / "sweep.json").read_text())["runs"][sweep.runs[0].run_id] == sweep.runs[0].to_json()
     assert json.loads((run_dir / DONE).read_text())["eval_stochastic"]["episodes"] == 3
+    assert len(json.loads((run_dir / AGENT).read_text())) == 4  # the final agent, saved with the run
 
 
 def test_per_seed_report_tables_summary_and_curves(tmp_path):
@@ -271,7 +276,7 @@ def test_run_files_round_trip_installs_done_last(tmp_path):
     spec = RunSpec(env="TLCarNav-v0", env_kwargs={"task": 1}, agent=STAND_IN, label="s", hyperparameters={},
                    seed=0, iterations=2)
     files = run_files(spec)
-    assert set(files) == {DONE, HISTORY, "spec.json"}
+    assert set(files) == {DONE, HISTORY, AGENT, "spec.json"}
     install_files(files, tmp_path / "run")
     assert json.loads((tmp_path / "run" / DONE).read_text())["iterations"] == 2
     with pytest.raises(ValueError, match="no done.json"):
@@ -361,3 +366,17 @@ def test_done_records_the_code_the_run_started_with(tmp_path, monkeypatch):
                         lambda: "0.1.0 (a later commit)" if (run_dir / HISTORY).exists() else "0.1.0 (at the start)")
     spec = expand_config(config(tasks=[1], seeds=[0], agents=[{"label": "stand-in", "agent": STAND_IN}])).runs[0]
     assert execute_run(spec, run_dir)["code"] == "0.1.0 (at the start)"
+
+
+def test_tl_gym_eval_reads_a_runner_folder(tmp_path, capsys):
+    """A finished run keeps its agent, so `tl-gym eval RUN_DIR --why` diagnoses a benchmark run."""
+    from tl_gym.cli import main
+
+    spec = RunSpec(env="TLCarNav-v0", env_kwargs={"task": 1}, agent="reps", label="REPS",
+                   hyperparameters={"n_episodes": 4}, seed=3, iterations=1)
+    run_dir = tmp_path / spec.run_id
+    execute_run(spec, run_dir)
+    assert (run_dir / AGENT).is_file()
+    assert main(["eval", str(run_dir), "--episodes", "3", "--why"]) == 0
+    out = capsys.readouterr().out
+    assert "reps on TLCarNav-v0 {'task': 1}: 3 episodes" in out and "why (" in out
