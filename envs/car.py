@@ -237,7 +237,7 @@ def make_car_env(task: int = 1, no_revisit: str = "leave", **kwargs: Any) -> TLT
             `TLTLRewardWrapper`): 6 + 6 features for task 1, 6 + 45 for task 2.
         monitor_scale: divisor of the monitor's robustness values and positions; 100 units,
             a third of the arena, keeps them of order one (and the unit of the potential).
-        gamma: the discount of ``reward_mode="potential"`` (`TLTLRewardWrapper`).
+        gamma: the agent's discount, for the dense and potential modes (`TLTLRewardWrapper`).
         car keywords: `CarNavEnv` arguments (`CarParams` fields such as ``horizon`` and ``start_std``,
             layout overrides, ``render_mode``).
     """

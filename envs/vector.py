@@ -28,7 +28,7 @@ from tl_gym.envs.dynamics import car_step, sample_episode_noise
 from tl_gym.envs.tasks import task_formula
 
 from tl_gym.monitor_view import MonitorView, augment_space
-from tl_gym.shaping import HierarchicalPotential
+from tl_gym.shaping import HierarchicalPotential, discounted_increment
 from tl_gym.tltl.online import PrefixMonitor
 from tl_gym.tltl.online_batch import BatchPrefixMonitor
 from tl_gym.wrapper import (
@@ -123,7 +123,7 @@ class CarNavVectorEnv(CarProperties, VectorEnv):
         # Every car has the same horizon and restarts on the same step, so one clock serves all.
         self._t = -1  # -1: never reset
         self._autoreset = False
-        self._paid = np.zeros(n)  # dense rewards paid so far in each car's episode
+        self._paid = np.zeros(n)  # each car's clipped prefix robustness after the last step (0 at the reset)
 
     # episodes ---------------------------------------------------------------------------------
     def _start_episodes(self) -> None:
@@ -203,8 +203,8 @@ class CarNavVectorEnv(CarProperties, VectorEnv):
                 rewards = rewards + self._shaping
             return obs, rewards, done, ~done, infos
         if self.reward_mode != "terminal":
-            rewards = np.clip(self._value, -self.clip, self.clip) - self._paid
-            self._paid += rewards
+            rewards, self._paid = discounted_increment(np.clip(self._value, -self.clip, self.clip), self._paid,
+                                                       self.gamma)
         if self._potentials:
             rewards = rewards + self._shaping
         return obs, rewards, done, done.copy(), infos

@@ -24,10 +24,12 @@ episodes = st.integers(1, 10).flatmap(lambda n: st.lists(st.tuples(values, value
 
 
 @settings(max_examples=200, deadline=None)
-@given(fragment, episodes, st.sampled_from([math.inf, 5.0]), st.sampled_from([1e4, 2.0]), st.booleans())
-def test_dense_reward_is_a_function_of_the_augmented_observations(formula, rows, rho_max, clip, dict_obs):
+@given(fragment, episodes, st.sampled_from([math.inf, 5.0]), st.sampled_from([1e4, 2.0]), st.booleans(),
+       st.sampled_from([1.0, 0.9]))
+def test_dense_reward_is_a_function_of_the_augmented_observations(formula, rows, rho_max, clip, dict_obs, gamma):
+    """Each step's reward from the observations around it (and the end flag); discounted, they add up to γ^(T-1) ρ."""
     env = TLTLRewardWrapper(Scripted(rows, dict_obs=dict_obs), formula, signals=SIGNALS[dict_obs], rho_max=rho_max,
-                            clip=clip, reward_mode="dense", observe_monitor=True, monitor_scale=0.5)
+                            clip=clip, reward_mode="dense", observe_monitor=True, monitor_scale=0.5, gamma=gamma)
     obs, _ = env.reset(seed=0)
     assert env.observation_space.contains(obs)
     total = 0.0
@@ -40,11 +42,13 @@ def test_dense_reward_is_a_function_of_the_augmented_observations(formula, rows,
             assert all(np.array_equal(raw[key], expected_raw[key]) for key in ("pos", "speed"))
         else:
             assert np.array_equal(raw, np.asarray(expected_raw, dtype=np.float64))  # raw first, unchanged
-        assert env.dense_reward(obs, after) == pytest.approx(reward, rel=1e-9, abs=1e-9), (str(formula), t)
-        total += reward
+        recomputed = env.dense_reward(obs, after, last=terminated or truncated)
+        assert recomputed == pytest.approx(reward, rel=1e-9, abs=1e-9), (str(formula), t)
+        total += gamma ** (t - 1) * reward
         obs = after
     assert truncated
-    assert total == pytest.approx(min(max(info["robustness"], -clip), clip), rel=1e-9, abs=1e-9)
+    rho = min(max(info["robustness"], -clip), clip)
+    assert total == pytest.approx(gamma ** (len(rows) - 2) * rho, rel=1e-9, abs=1e-9)
 
 
 SIGNALS = {False: {"a": 0, "b": 1}, True: {"a": ("pos", 0), "b": "speed"}}

@@ -46,6 +46,7 @@ import numpy as np
 from gymnasium import spaces
 
 from tl_gym.checks import check_positive
+from tl_gym.shaping import discounted_increment
 from tl_gym.tltl.codegen import CodeWriter
 from tl_gym.tltl.online import SIGNAL, VALUE, PrefixMonitor
 
@@ -207,14 +208,15 @@ class MonitorView:
         state, _ = self.decode(features)
         return min(max(self.monitor.value_of_state(state), -self.clip), self.clip)
 
-    def dense_reward(self, before: Any, after: Any) -> float:
+    def dense_reward(self, before: Any, after: Any, gamma: float = 1.0) -> float:
         """The dense reward of the step from features ``before`` to ``after`` (``reward_mode="dense"``).
 
-        It is the change of the clipped prefix robustness, counted from 0 on the first step, so
-        that an episode's rewards add up to its clipped terminal robustness.
+        ``γ Φ(after) − Φ(before)`` with Φ the clipped prefix robustness, 0 at the first state
+        (`tl_gym.shaping.discounted_increment`; give ``gamma=1`` for the step that ends the episode),
+        so that an episode's discounted rewards add up to its discounted clipped terminal robustness.
         """
         _, first = self.decode(before)
-        return self.prefix_value(after) - (0.0 if first else self.prefix_value(before))
+        return discounted_increment(self.prefix_value(after), 0.0 if first else self.prefix_value(before), gamma)[0]
 
 
 def augment_space(space: spaces.Space, view: MonitorView, key: str) -> spaces.Space:

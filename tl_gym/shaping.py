@@ -36,12 +36,30 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
+from typing import Any
 
 from tl_gym.checks import check_positive
 from tl_gym.tltl.ast import Eventually, Formula, Then, Until, conjuncts
 from tl_gym.tltl.online import PrefixMonitor, compile_state_formula
 
 State = Mapping[str, float]
+
+
+def discounted_increment(value: Any, previous: Any, gamma: float) -> tuple[Any, Any]:
+    """The dense reward of a step that does not end the episode, and the new potential: ``(γ·value − previous, value)``.
+
+    ``reward_mode="dense"`` is potential-based shaping (Ng, Harada and Russell, 1999) of the terminal
+    robustness, with Φ the clipped prefix robustness of the state reached (``value``; 0 at the reset
+    state): a step pays ``γ Φ(s') − Φ(s)`` and the last one ``ρ − Φ(s)``. An episode of T steps then
+    discounts to ``γ^(T-1) ρ``, its terminal robustness (``ρ`` itself at γ = 1), so the agent's optimal
+    policies are those of the terminal reward. Plain increments ``Φ(s') − Φ(s)`` under γ < 1 would
+    pay for raising the prefix robustness early, i.e. for hurrying. Scalars or numpy arrays.
+
+    Example:
+        >>> discounted_increment(2.0, 0.5, gamma=0.9)
+        (1.3, 2.0)
+    """
+    return gamma * value - previous, value
 
 
 def _closeness(value: float, scale: float) -> float:

@@ -16,7 +16,7 @@ from gymnasium import spaces
 from tl_gym.checks import check_positive
 from tl_gym.errors import TraceError, UnknownSignalError
 from tl_gym.monitor_view import MonitorView, augment, augment_space, split
-from tl_gym.shaping import HierarchicalPotential
+from tl_gym.shaping import HierarchicalPotential, discounted_increment
 from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.online import PrefixMonitor
 from tl_gym.tltl.parser import parse
@@ -132,6 +132,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     Change logs:
         * v0.1.0 - Initially added.
         * v0.1.0 - ``observe_monitor``, ``monitor_scale``, ``horizon``; ``reward_mode="potential"`` and ``gamma``.
+        * v0.1.0 - ``gamma`` also discounts the dense mode's potential (``γ ρ_{t+1} − ρ_t``); 1 is unchanged.
     """
 
     def __init__(
@@ -176,8 +177,10 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             horizon: the episode length ``T`` for the monitor's ``t / T`` feature; None reads it
                 from the env (``spec.max_episode_steps``, else a ``horizon`` attribute) and leaves
                 the feature out when neither exists.
-            gamma: the discount γ of ``reward_mode="potential"`` (in (0, 1]); the agent's own
-                discount keeps its optimal policies those of the unshaped reward.
+            gamma: the agent's discount γ, in (0, 1]. The dense and potential modes pay
+                ``γ Φ(s') − Φ(s)`` (Φ: the prefix robustness, plus the hierarchical potential),
+                so that with the agent's own γ its optimal policies are the terminal reward's
+                (`tl_gym.shaping.discounted_increment`). At 1, the plain prefix increments.
 
         Raises:
             SpecError: ``spec`` does not parse.
@@ -228,7 +231,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         )
         self._phi = 0.0  # Φ of the state the last step reached
         self._rows: list[list[float]] = []
-        self._paid = 0.0
+        self._paid = 0.0  # the clipped prefix robustness of the state the last step reached (0 at the reset)
         self._done = True
 
     # Gymnasium API ------------------------------------------------------------------------
@@ -267,8 +270,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         elif self.reward_mode != "terminal":
             if value is None:
                 value = self._monitor.update(dict(zip(self._reader.names, row)))  # type: ignore[union-attr]
-            reward = self._clipped(value) - self._paid
-            self._paid += reward
+            reward, self._paid = discounted_increment(self._clipped(value), self._paid, self.gamma)
         if self._potential is not None:  # γ Φ(s') − Φ(s), with Φ(s_T) = 0 at the last state
             phi = 0.0 if self._done else self._potential.update(dict(zip(self._reader.names, row)))
             reward += self.gamma * phi - self._phi
@@ -309,17 +311,19 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             raise ValueError("the wrapper was made without observe_monitor=True: its observations hold no monitor")
         return split(obs, self.monitor_view, MONITOR_KEY)
 
-    def dense_reward(self, obs_before: Any, obs_after: Any) -> float:
+    def dense_reward(self, obs_before: Any, obs_after: Any, last: bool = False) -> float:
         """The ``reward_mode="dense"`` reward of a step, recomputed from its two observations alone.
 
-        A pure function of the augmented observations (``observe_monitor=True``): with the
-        monitor's state in the observation, the dense reward is Markov. It equals what
-        `step` pays in dense mode (env reward excluded), up to the rounding of ``monitor_scale``.
+        A pure function of the augmented observations (``observe_monitor=True``) and, for γ < 1,
+        of whether the step ended the episode (``last``: terminated or truncated, which an agent
+        sees): with the monitor's state in the observation, the dense reward is Markov. It equals
+        what `step` pays in dense mode (env reward excluded), up to the rounding of ``monitor_scale``.
         """
         view = self.monitor_view
         if view is None:
             raise ValueError("the wrapper was made without observe_monitor=True: its observations hold no monitor")
-        return view.dense_reward(split(obs_before, view, MONITOR_KEY), split(obs_after, view, MONITOR_KEY))
+        return view.dense_reward(split(obs_before, view, MONITOR_KEY), split(obs_after, view, MONITOR_KEY),
+                                 gamma=1.0 if last else self.gamma)
 
 
 def terminal_info(formula: Formula, trace: Mapping[str, np.ndarray], rho_max: float,
