@@ -275,7 +275,7 @@ def execute_run(spec: RunSpec, run_dir: str | Path) -> dict[str, Any]:
             traces.update(sample_traces(agent, spec, 0))
         agent.learn(spec.iterations, callback=record)
         summary = _summarise(spec, agent, time.perf_counter() - start, code)
-        agent.save(run_dir / AGENT)  # the final agent, for `tl-gym eval RUN_DIR/agent.zip --why` (not kept in git)
+        agent.save(run_dir / AGENT)  # the final agent, for `tl-gym eval RUN_DIR --why` (not kept in git)
     if traces:
         buffer = io.BytesIO()
         np.savez_compressed(buffer, **traces)
