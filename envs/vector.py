@@ -170,7 +170,7 @@ class CarNavVectorEnv(CarProperties, VectorEnv):
                 phi = np.zeros(self.num_envs)
                 if t < self.params.horizon:
                     phi = np.array([p.update(s) for p, s in zip(self._potentials, states)])
-                self._shaping, self._phi = self.gamma * phi - self._phi, phi
+                self._shaping, self._phi = discounted_increment(phi, self._phi, self.gamma)
         if not self.observe_monitor:
             return self._state.copy()
         return np.concatenate([self._state, self._view.encode_rows(self._monitor.rows, t)], axis=1)  # type: ignore[union-attr]

@@ -46,11 +46,13 @@ State = Mapping[str, float]
 
 
 def discounted_increment(value: Any, previous: Any, gamma: float) -> tuple[Any, Any]:
-    """The dense reward of a step that does not end the episode, and the new potential: ``(γ·value − previous, value)``.
+    """The shaping reward of a step, ``γ Φ(s') − Φ(s)``, and the new potential: ``(γ·value − previous, value)``.
 
-    ``reward_mode="dense"`` is potential-based shaping (Ng, Harada and Russell, 1999) of the terminal
-    robustness, with Φ the clipped prefix robustness of the state reached (``value``; 0 at the reset
-    state): a step pays ``γ Φ(s') − Φ(s)`` and the last one ``ρ − Φ(s)``. An episode of T steps then
+    The one rule of both shapings the wrapper pays (Ng, Harada and Russell, 1999). The hierarchical
+    potential of `HierarchicalPotential` (``reward_mode="potential"``) is 0 at the last state.
+    ``reward_mode="dense"`` is the same shaping of the terminal robustness, with Φ the clipped prefix
+    robustness of the state reached (``value``; 0 at the reset state): a step pays ``γ Φ(s') − Φ(s)``
+    and the last one ``ρ − Φ(s)``. An episode of T steps then
     discounts to ``γ^(T-1) ρ``, its terminal robustness (``ρ`` itself at γ = 1), so the agent's optimal
     policies are those of the terminal reward. Plain increments ``Φ(s') − Φ(s)`` under γ < 1 would
     pay for raising the prefix robustness early, i.e. for hurrying. Scalars or numpy arrays.

@@ -273,8 +273,8 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             reward, self._paid = discounted_increment(self._clipped(value), self._paid, self.gamma)
         if self._potential is not None:  # γ Φ(s') − Φ(s), with Φ(s_T) = 0 at the last state
             phi = 0.0 if self._done else self._potential.update(dict(zip(self._reader.names, row)))
-            reward += self.gamma * phi - self._phi
-            self._phi = phi
+            shaping, self._phi = discounted_increment(phi, self._phi, self.gamma)
+            reward += shaping
         if self.env_reward_weight:
             reward += self.env_reward_weight * float(env_reward)
         return obs, reward, terminated, truncated, info
