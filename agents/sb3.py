@@ -25,7 +25,8 @@ pickled `VecNormalize` as ``vecnormalize.pkl`` (the zoo's file; ``VecNormalize.l
 reads it). stable-baselines3 unpickles parts of the first, and the second is a pickle,
 so **load only files you trust**. A loaded agent acts and evaluates exactly as the
 saved one; it can continue learning, but not bit-identically to an uninterrupted run
-(SB3 does not save its random state, nor, for off-policy algorithms, its replay buffer).
+(SB3 does not save its random state). An off-policy algorithm's replay buffer is saved apart:
+`SB3Agent.save_replay_buffer`.
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ import importlib
 import inspect
 import io
 import math
+import os
 import pickle
 import warnings
 from collections.abc import Iterator, Mapping
@@ -740,6 +742,40 @@ class SB3Agent(Agent):
         self.model = self.algo_class.load(io.BytesIO(files[SB3_MEMBER]), env=self._training_env(), device="cpu")
         self._install_schedules()
         self._quiet_logger()
+
+    # The replay buffer -------------------------------------------------------------
+    @property
+    def off_policy(self) -> bool:
+        """Whether the algorithm learns from a replay buffer (SAC, TD3, DQN...), which `save` does not keep."""
+        from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+
+        return isinstance(self.model, OffPolicyAlgorithm)
+
+    def save_replay_buffer(self, path: str | Path) -> Path:
+        """Save the replay buffer atomically (SB3's pickle), so that a loaded agent resumes training where it stopped.
+
+        `save` leaves it out (it can hold a million transitions); a run that is to go on later, in
+        another process, saves both, as rl-baselines3-zoo's ``--save-replay-buffer`` does. The
+        file is a pickle: load only files you trust.
+
+        Raises:
+            ValueError: the algorithm keeps no replay buffer (PPO, A2C).
+        """
+        self._check_off_policy("save")
+        path = Path(path)
+        partial = path.with_name(path.name + ".partial")
+        self.model.save_replay_buffer(partial)
+        os.replace(partial, path)
+        return path
+
+    def load_replay_buffer(self, path: str | Path) -> None:
+        """Load a buffer written by `save_replay_buffer` (typically into the agent `Agent.load` returned)."""
+        self._check_off_policy("load")
+        self.model.load_replay_buffer(Path(path))
+
+    def _check_off_policy(self, verb: str) -> None:
+        if not self.off_policy:
+            raise ValueError(f"cannot {verb} a replay buffer: {self.algo_class.__name__} is on-policy and keeps none")
 
 
 class TraceEndIsTerminal(gym.Wrapper):

@@ -1,8 +1,9 @@
 """The experiment runner: a TOML config expands into runs (task × agent × hyperparameters × seed).
 
 Every run gets a folder ``OUT/runs/<run_id>`` whose ``done.json``, written last and atomically, alone marks it
-finished: a rerun skips it and restarts the others from scratch. ``OUT/sweep.json`` lists the config's runs for
-`benchmarks.results`. Command line, config keys and run files: ``docs/benchmarks.md``.
+finished: a rerun skips it, resumes an unfinished run from its last checkpoint (``--checkpoint-every``) and restarts
+the others from scratch. ``OUT/sweep.json`` lists the config's runs for `benchmarks.results`. Command line, config
+keys and run files: ``docs/benchmarks.md``.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import argparse
 import collections
 import concurrent.futures as futures
 import contextlib
+import csv
 import dataclasses
 import fnmatch
 import hashlib
@@ -35,12 +37,19 @@ from typing import Any
 import numpy as np
 from tl_gym.agents.serialization import write_atomic
 
+from tl_gym.errors import IncompatibleSaveError
+
 try:
     import tomllib
 except ImportError:  # Python 3.10
     import tomli as tomllib  # type: ignore[no-redef]
 
 DONE, SPEC, HISTORY, TRAJECTORIES, AGENT = "done.json", "spec.json", "history.csv", "trajectories.npz", "agent.zip"
+#: A run's latest checkpoint: a folder of the agent (written last: it marks a whole checkpoint), the replay buffer
+#: of an off-policy agent, the trajectories sampled so far and STATE; removed once the run is done.
+CHECKPOINT, REPLAY_BUFFER, STATE = "checkpoint", "replay_buffer.pkl", "state.json"
+#: Iterations between checkpoints on the command line (0: none).
+DEFAULT_CHECKPOINT_EVERY = 5
 #: Keys an agent entry inherits from the top level (a variant may override them at either level).
 INHERITED = {"tasks": None, "seeds": None, "iterations": None, "evaluate_episodes": 0, "evaluate_every": 0,
              "trajectory_iterations": [], "trajectory_episodes": 40}
@@ -237,14 +246,17 @@ def is_done(run_dir: str | Path) -> bool:
     return (Path(run_dir) / DONE).is_file()
 
 
-def execute_run(spec: RunSpec, run_dir: str | Path) -> dict[str, Any]:
-    """Run ``spec`` into ``run_dir`` unless it is finished there (else from scratch); return ``done.json``'s content."""
+def execute_run(spec: RunSpec, run_dir: str | Path, checkpoint_every: int = 0) -> dict[str, Any]:
+    """Run ``spec`` into ``run_dir``; return ``done.json``'s content.
+
+    A finished run is returned as it is; an unfinished one resumes from its checkpoint when ``run_dir`` has one
+    of the same spec, else starts from scratch. ``checkpoint_every``: iterations between checkpoints (0: none).
+    A resumed run is not bit-identical to an uninterrupted one (episodes in progress restart, and SB3 keeps no
+    random state); ``done.json``'s ``resumed_at`` lists the iterations it resumed after.
+    """
     run_dir = Path(run_dir)
     if is_done(run_dir):
         return json.loads((run_dir / DONE).read_text())
-    shutil.rmtree(run_dir, ignore_errors=True)
-    run_dir.mkdir(parents=True)
-    write_atomic(run_dir / SPEC, json.dumps(spec.to_json(), indent=1).encode())
     for name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"):  # runs are parallel processes: one thread each
         os.environ.setdefault(name, "1")
     if "torch" in sys.modules:
@@ -253,10 +265,20 @@ def execute_run(spec: RunSpec, run_dir: str | Path) -> dict[str, Any]:
     from tl_gym.agents.registry import make_agent
 
     start, code = time.perf_counter(), code_version()  # the code this process imports now, not at the end
-    agent = make_agent(spec.agent, spec.env, seed=spec.seed, env_kwargs=dict(spec.env_kwargs),
-                       **dict(spec.hyperparameters))
     history = HistoryCSV(run_dir / HISTORY)
-    traces: dict[str, np.ndarray] = {}
+    resumed = load_checkpoint(spec, run_dir)
+    if resumed is None:
+        shutil.rmtree(run_dir, ignore_errors=True)
+        run_dir.mkdir(parents=True)
+        write_atomic(run_dir / SPEC, json.dumps(spec.to_json(), indent=1).encode())
+        agent = make_agent(spec.agent, spec.env, seed=spec.seed, env_kwargs=dict(spec.env_kwargs),
+                           **dict(spec.hyperparameters))
+        traces: dict[str, np.ndarray] = {}
+        state: dict[str, Any] = {"resumed_at": [], "wall_time": 0.0, "code": code}
+    else:
+        agent, traces, state = resumed
+        state["resumed_at"].append(len(agent.history))
+        history.rows = read_history_rows(run_dir / HISTORY)[: len(agent.history)]
 
     def record(agent: Any, row: Mapping[str, Any]) -> bool:
         row = {**row, "eval_success_rate": np.nan, "eval_mean_robustness": np.nan}
@@ -268,20 +290,78 @@ def execute_run(spec: RunSpec, run_dir: str | Path) -> dict[str, Any]:
         history.on_iteration(agent, row)
         if iteration in spec.trajectory_iterations:
             traces.update(sample_traces(agent, spec, int(iteration)))
+        if checkpoint_every and iteration % checkpoint_every == 0 and iteration < spec.iterations:
+            save_checkpoint(agent, run_dir, traces, {**state, "wall_time": state["wall_time"] + time.perf_counter()
+                                                     - start})
         return True
 
     with contextlib.closing(agent):
-        if 0 in spec.trajectory_iterations:
+        if resumed is None and 0 in spec.trajectory_iterations:
             traces.update(sample_traces(agent, spec, 0))
-        agent.learn(spec.iterations, callback=record)
-        summary = _summarise(spec, agent, time.perf_counter() - start, code)
+        agent.learn(spec.iterations - len(agent.history), callback=record)
+        started_with = state["code"] if state["code"] == code else f"{state['code']}, resumed with {code}"
+        summary = _summarise(spec, agent, state["wall_time"] + time.perf_counter() - start, started_with)
+        summary["resumed_at"] = state["resumed_at"]
         agent.save(run_dir / AGENT)  # the final agent, for `tl-gym eval RUN_DIR --why` (not kept in git)
     if traces:
-        buffer = io.BytesIO()
-        np.savez_compressed(buffer, **traces)
-        write_atomic(run_dir / TRAJECTORIES, buffer.getvalue())
+        write_atomic(run_dir / TRAJECTORIES, compressed_arrays(traces))
     write_atomic(run_dir / DONE, json.dumps(summary, indent=1).encode())
+    shutil.rmtree(run_dir / CHECKPOINT, ignore_errors=True)
     return summary
+
+
+def save_checkpoint(agent: Any, run_dir: Path, traces: Mapping[str, np.ndarray], state: Mapping[str, Any]) -> None:
+    """Write ``run_dir/checkpoint``: what `load_checkpoint` needs to go on from the agent's last iteration."""
+    folder = run_dir / CHECKPOINT
+    folder.mkdir(exist_ok=True)
+    (folder / AGENT).unlink(missing_ok=True)  # until the new agent is written, the checkpoint is not whole
+    if getattr(agent, "off_policy", False):
+        agent.save_replay_buffer(folder / REPLAY_BUFFER)
+    (folder / TRAJECTORIES).unlink(missing_ok=True)
+    if traces:
+        write_atomic(folder / TRAJECTORIES, compressed_arrays(traces))
+    write_atomic(folder / STATE, json.dumps(dict(state), indent=1).encode())
+    agent.save(folder / AGENT)
+
+
+def load_checkpoint(spec: RunSpec, run_dir: Path) -> tuple[Any, dict[str, np.ndarray], dict[str, Any]] | None:
+    """The agent, sampled trajectories and state of ``run_dir``'s checkpoint; ``None`` if it has none for ``spec``."""
+    from tl_gym.agents.registry import agent_class
+
+    folder = run_dir / CHECKPOINT
+    try:
+        same_spec = json.loads((run_dir / SPEC).read_text()) == json.loads(json.dumps(spec.to_json()))
+    except (OSError, ValueError):
+        return None
+    if not same_spec or not (folder / AGENT).is_file():
+        return None
+    try:
+        agent = agent_class(spec.agent).load(folder / AGENT)
+    except IncompatibleSaveError as error:  # saved by code that differs too much: start again
+        print(f"{run_dir}: checkpoint not loadable ({error}); restarting the run", file=sys.stderr)
+        return None
+    if (folder / REPLAY_BUFFER).is_file():
+        agent.load_replay_buffer(folder / REPLAY_BUFFER)
+    traces = {}
+    if (folder / TRAJECTORIES).is_file():
+        with np.load(folder / TRAJECTORIES) as saved:
+            traces = {name: saved[name] for name in saved.files}
+    return agent, traces, json.loads((folder / STATE).read_text())
+
+
+def read_history_rows(path: Path) -> list[dict[str, str]]:
+    """The rows of a ``history.csv`` as written (text values), to be written again as they were."""
+    if not path.is_file():
+        return []
+    with path.open(newline="") as file:
+        return list(csv.DictReader(file))
+
+
+def compressed_arrays(arrays: Mapping[str, np.ndarray]) -> bytes:
+    """``arrays`` as the bytes of a compressed ``.npz``."""
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, **arrays)
+    return buffer.getvalue()
 
 
 def sample_traces(agent: Any, spec: RunSpec, iteration: int) -> dict[str, np.ndarray]:
@@ -382,12 +462,13 @@ class SweepReport:
 
 
 def run_sweep(sweep: Sweep, out_dir: str | Path, workers: int | None = None, ray_address: str | None = None,
-              only: Sequence[str] = ()) -> SweepReport:
+              only: Sequence[str] = (), checkpoint_every: int = 0) -> SweepReport:
     """Run every unfinished run of ``sweep`` into ``out_dir/runs/<run_id>``, and list them in ``sweep.json``.
 
     ``workers`` local processes (default: the CPU count; 0: here, one after the other), or Ray tasks at
     ``ray_address`` (a Ray already initialised here is used as is); ``only``: shell patterns of the labels
-    to run. A failed run leaves no ``done.json`` and is retried by the next sweep.
+    to run; ``checkpoint_every``: iterations between a local run's checkpoints (`execute_run`). A failed run
+    leaves no ``done.json`` and is retried by the next sweep, from its checkpoint if it has one.
     """
     out_dir = Path(out_dir)
     (out_dir / "runs").mkdir(parents=True, exist_ok=True)
@@ -403,13 +484,14 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, workers: int | None = None, ray
         _run_on_ray(pending, out_dir, ray_address, report)
     elif pending and workers == 0:
         for run in pending:
-            report.attempt(run, lambda run=run: execute_run(run, out_dir / "runs" / run.run_id))
+            report.attempt(run, lambda run=run: execute_run(run, out_dir / "runs" / run.run_id, checkpoint_every))
     elif pending:
         # spawn: a fresh interpreter per worker, no torch/thread state inherited through fork
         with futures.ProcessPoolExecutor(min(workers or os.cpu_count() or 1, len(pending)),
                                          mp_context=multiprocessing.get_context("spawn")) as pool, \
                 _workers_die_with_the_sweep(pool):
-            jobs = {pool.submit(execute_run, run, out_dir / "runs" / run.run_id): run for run in pending}
+            jobs = {pool.submit(execute_run, run, out_dir / "runs" / run.run_id, checkpoint_every): run
+                    for run in pending}
             for done, job in enumerate(futures.as_completed(jobs), 1):
                 report.attempt(jobs[job], job.result)
                 print(f"{sweep.name}: {done}/{len(pending)} runs", file=sys.stderr, flush=True)
@@ -481,6 +563,9 @@ def add_sweep_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--variant", help="apply the configs' [variants.VARIANT] overrides")
     parser.add_argument("--only", action="append", default=[], metavar="PATTERN",
                         help='run only labels matching this shell pattern, e.g. "TLPS*" (repeatable)')
+    parser.add_argument("--checkpoint-every", type=int, default=DEFAULT_CHECKPOINT_EVERY, metavar="N",
+                        help="checkpoint each run every N iterations, so that a rerun resumes a stopped run there "
+                             f"(default {DEFAULT_CHECKPOINT_EVERY}; 0: never; not with --ray)")
 
 
 def variant_of(parser: argparse.ArgumentParser, args: argparse.Namespace) -> str | None:
@@ -489,12 +574,15 @@ def variant_of(parser: argparse.ArgumentParser, args: argparse.Namespace) -> str
         parser.error("--quick is --variant quick; give one of them")
     if args.workers is not None and args.workers < 0:
         parser.error(f"--workers must be >= 0, got {args.workers}")
+    if args.checkpoint_every < 0:
+        parser.error(f"--checkpoint-every must be >= 0, got {args.checkpoint_every}")
     return "quick" if args.quick else args.variant
 
 
 def run_with_options(sweep: Sweep, out_dir: str | Path, args: argparse.Namespace) -> SweepReport:
     """`run_sweep` with `add_sweep_options`'s options; the failed runs' tracebacks go to stderr."""
-    report = run_sweep(sweep, out_dir, workers=args.workers, ray_address=args.ray, only=args.only)
+    report = run_sweep(sweep, out_dir, workers=args.workers, ray_address=args.ray, only=args.only,
+                       checkpoint_every=args.checkpoint_every)
     for run_id, text in report.failed.items():
         print(f"--- {run_id} failed:\n{text}", file=sys.stderr)
     return report

@@ -23,6 +23,7 @@ import tomllib
 from benchmarks import results
 from benchmarks.runner import (
     AGENT,
+    CHECKPOINT,
     DONE,
     HISTORY,
     ConfigError,
@@ -43,7 +44,7 @@ class StandInAgent:
     """The agents' interface with a known learning curve: ρ_m = rate · m − 1 + seed / 100.
 
     ``marker_dir``: if ``<marker_dir>/hang`` exists, iteration 2 writes ``<marker_dir>/started``
-    and sleeps (the crash test kills it there).
+    and sleeps (the crash test kills it there); if ``<marker_dir>/fail`` exists, iteration 3 raises.
     """
 
     def __init__(self, env, *, seed=None, env_kwargs=None, rate=0.5, marker_dir=None, fail=False):
@@ -58,6 +59,8 @@ class StandInAgent:
             if m == 2 and self.marker_dir and Path(self.marker_dir, "hang").exists():
                 Path(self.marker_dir, "started").write_text(str(os.getpid()))
                 time.sleep(120)
+            if m == 3 and self.marker_dir and Path(self.marker_dir, "fail").exists():
+                raise RuntimeError("stand-in stopped at iteration 3")
             rho = self.rate * m - 1 + self.seed / 100
             row = {"iteration": m, "env_steps": 100 * m, "mean_robustness": rho,
                    "success_rate": min(1.0, max(0.0, rho)), "wall_time": 0.01 * m, "task": self.task}
@@ -71,7 +74,15 @@ class StandInAgent:
         return {"mean_robustness": rho, "success_rate": float(rho > 0), "robustness": np.full(n_episodes, rho)}
 
     def save(self, path):
-        Path(path).write_text(json.dumps(self.history))
+        saved = {"seed": self.seed, "rate": self.rate, "marker_dir": self.marker_dir, "history": self.history}
+        Path(path).write_text(json.dumps(saved))
+
+    @classmethod
+    def load(cls, path):
+        saved = json.loads(Path(path).read_text())
+        agent = cls(None, seed=saved["seed"], rate=saved["rate"], marker_dir=saved["marker_dir"])
+        agent.history = saved["history"]
+        return agent
 
     def close(self):
         pass
@@ -380,3 +391,83 @@ def test_tl_gym_eval_reads_a_runner_folder(tmp_path, capsys):
     assert main(["eval", str(run_dir), "--episodes", "3", "--why"]) == 0
     out = capsys.readouterr().out
     assert "reps on TLCarNav-v0 {'task': 1}: 3 episodes" in out and "why (" in out
+
+
+def start_failing_run(tmp_path: Path, **overrides) -> tuple[RunSpec, Path, Path]:
+    """A stand-in run of 4 iterations, checkpointed every 2, that fails at iteration 3: (spec, run folder, marker)."""
+    markers = tmp_path / "markers"
+    markers.mkdir(exist_ok=True)
+    (markers / "fail").touch()
+    spec = RunSpec(env="TLCarNav-v0", env_kwargs={"task": 1}, agent=STAND_IN, label="stand-in",
+                   hyperparameters={"marker_dir": str(markers)}, seed=0, iterations=4, evaluate_episodes=3,
+                   evaluate_every=1, **overrides)
+    run_dir = tmp_path / "run"
+    with pytest.raises(RuntimeError, match="stopped at iteration 3"):
+        execute_run(spec, run_dir, checkpoint_every=2)
+    return spec, run_dir, markers / "fail"
+
+
+def test_a_stopped_run_resumes_from_its_checkpoint(tmp_path):
+    spec, run_dir, fail = start_failing_run(tmp_path)
+    assert (run_dir / CHECKPOINT / AGENT).is_file() and not (run_dir / DONE).exists()
+    assert results.read_history(run_dir / HISTORY)["iteration"].tolist() == [1, 2]
+    fail.unlink()
+    summary = execute_run(spec, run_dir, checkpoint_every=2)
+    assert summary["resumed_at"] == [2] and summary["iterations"] == 4
+    history = results.read_history(run_dir / HISTORY)
+    assert history["iteration"].tolist() == [1, 2, 3, 4]
+    assert history["eval_mean_robustness"].tolist() == [-0.5, 0.0, 0.5, 1.0]  # rows 1-2 kept as written
+    assert not (run_dir / CHECKPOINT).exists()  # gone with the finished run
+    uninterrupted = execute_run(spec, tmp_path / "uninterrupted", checkpoint_every=2)
+    assert uninterrupted["resumed_at"] == [] and uninterrupted["final_mean_robustness"] == summary[
+        "final_mean_robustness"]
+
+
+def test_a_checkpoint_of_another_spec_is_not_resumed(tmp_path):
+    spec, run_dir, fail = start_failing_run(tmp_path)
+    fail.unlink()
+    other = RunSpec(**{**spec.to_json(), "iterations": 3})
+    summary = execute_run(other, run_dir, checkpoint_every=2)
+    assert summary["resumed_at"] == [] and summary["iterations"] == 3
+
+
+@pytest.mark.parametrize("agent, hyperparameters, env, env_kwargs", [
+    ("reps", {"n_episodes": 4}, "TLCarNav-v0", {"task": 1}),
+    ("sac", {"steps_per_iteration": 64, "learning_starts": 32, "batch_size": 16, "buffer_size": 1000,
+             "policy_kwargs": {"net_arch": [16, 16]}}, "TLPendulum-v0", {}),
+])
+def test_a_real_agent_resumes_with_its_state(tmp_path, monkeypatch, agent, hyperparameters, env, env_kwargs):
+    """The checkpoint holds what the agent needs: REPS's policy and random state, SAC's model and replay buffer."""
+    from tl_gym.agents.registry import agent_class
+
+    klass = agent_class(agent)
+    update, load_buffer = klass._update, getattr(klass, "load_replay_buffer", None)
+    buffer_sizes = []
+
+    def fail_at_3(self, iteration):
+        if iteration == 3:
+            raise RuntimeError("stopped at iteration 3")
+        return update(self, iteration)
+
+    def load_and_count(self, path):
+        load_buffer(self, path)
+        buffer_sizes.append(self.model.replay_buffer.size())
+
+    spec = RunSpec(env=env, env_kwargs=env_kwargs, agent=agent, label=agent, hyperparameters=hyperparameters,
+                   seed=0, iterations=3)
+    monkeypatch.setattr(klass, "_update", fail_at_3)
+    with pytest.raises(RuntimeError, match="stopped at iteration 3"):
+        execute_run(spec, tmp_path / "run", checkpoint_every=1)
+    assert (tmp_path / "run" / CHECKPOINT / "replay_buffer.pkl").is_file() == (agent == "sac")
+    monkeypatch.setattr(klass, "_update", update)
+    if load_buffer is not None:
+        monkeypatch.setattr(klass, "load_replay_buffer", load_and_count)
+    summary = execute_run(spec, tmp_path / "run", checkpoint_every=1)
+    history = results.read_history(tmp_path / "run" / HISTORY)
+    assert summary["resumed_at"] == [2] and history["iteration"].tolist() == [1, 2, 3]
+    steps = history["env_steps"].tolist()
+    assert steps == [steps[0], 2 * steps[0], 3 * steps[0]]
+    assert buffer_sizes == ([128] if agent == "sac" else [])  # both iterations' transitions went back in
+    if agent == "reps":  # its random state is saved too: the resumed run is the uninterrupted one
+        assert execute_run(spec, tmp_path / "uninterrupted")["final_mean_robustness"] == summary[
+            "final_mean_robustness"]

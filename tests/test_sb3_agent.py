@@ -180,6 +180,31 @@ def test_normalize_off_and_on_observations_only(tmp_path):
         SB3Agent("TLCarNav-v0", "ppo", normalize={"norm_everything": True}, **TINY)
 
 
+def test_the_replay_buffer_saves_and_loads_so_that_training_resumes(tmp_path):
+    """`save` leaves the buffer out; `save_replay_buffer` keeps it for a run that goes on in another process."""
+    agent = SB3Agent("TLCarNav-v0", "sac", seed=0, steps_per_iteration=64, learning_starts=32, batch_size=16,
+                     buffer_size=1000, policy_kwargs={"net_arch": [16, 16]})
+    agent.learn(1)
+    assert agent.off_policy and agent.save_replay_buffer(tmp_path / "buffer.pkl") == tmp_path / "buffer.pkl"
+    loaded = Agent.load(agent.save(tmp_path / "sac.zip"))
+    assert loaded.model.replay_buffer.size() == 0  # not in the agent's file
+    loaded.load_replay_buffer(tmp_path / "buffer.pkl")
+    assert loaded.model.replay_buffer.size() == 64
+    np.testing.assert_array_equal(loaded.model.replay_buffer.observations, agent.model.replay_buffer.observations)
+    loaded.learn(1)
+    assert loaded.model.num_timesteps == 128 and loaded.model.replay_buffer.size() == 128
+    assert [row["env_steps"] for row in loaded.history] == [64, 128]
+    assert not list(tmp_path.glob("*.partial"))
+
+
+def test_an_on_policy_agent_has_no_replay_buffer_to_save(tmp_path):
+    agent = SB3Agent("TLCarNav-v0", "ppo", seed=0, **TINY)
+    assert not agent.off_policy
+    with pytest.raises(ValueError, match="PPO is on-policy and keeps none"):
+        agent.save_replay_buffer(tmp_path / "buffer.pkl")
+    assert not (tmp_path / "buffer.pkl").exists()
+
+
 def test_off_policy_entry_with_action_noise_saves_and_loads(tmp_path):
     agent = SB3Agent("TLCarNav-v0", "td3", seed=0, steps_per_iteration=64, n_envs=2, learning_starts=32,
                      batch_size=16, buffer_size=1000)
