@@ -40,7 +40,6 @@ import importlib
 import inspect
 import io
 import math
-import os
 import pickle
 import warnings
 from collections.abc import Iterator, Mapping
@@ -58,7 +57,7 @@ from tl_gym.relabel import RELABEL_STRATEGIES, EpisodeRecorder, GoalRelabeller, 
 from .base import Agent, _describe_env_source
 from .hindsight import make_hindsight_feeder
 from .sampling import env_attribute
-from .serialization import is_jsonable
+from .serialization import atomic_path, is_jsonable
 
 #: Env steps of one TLPS iteration with the paper's settings (N = 40 episodes × T = 200).
 DEFAULT_STEPS_PER_ITERATION = 40 * 200
@@ -762,11 +761,9 @@ class SB3Agent(Agent):
             ValueError: the algorithm keeps no replay buffer (PPO, A2C).
         """
         self._check_off_policy("save")
-        path = Path(path)
-        partial = path.with_name(path.name + ".partial")
-        self.model.save_replay_buffer(partial)
-        os.replace(partial, path)
-        return path
+        with atomic_path(path) as tmp:
+            self.model.save_replay_buffer(tmp)
+        return Path(path)
 
     def load_replay_buffer(self, path: str | Path) -> None:
         """Load a buffer written by `save_replay_buffer` (typically into the agent `Agent.load` returned)."""

@@ -15,12 +15,13 @@ mid-save leaves the old file (or none), never a truncated one.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
 import tempfile
 import zipfile
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -59,23 +60,37 @@ def write_archive(
 def write_atomic(path: str | Path, data: bytes) -> Path:
     """Write ``data`` to ``path`` all or nothing (the module docstring's way); the path written.
 
-    The one atomic writer of tl_gym: saved agents, history CSVs and the benchmark runner's run
-    files. The file gets the permissions a plain ``open(path, "w")`` would give.
+    The one atomic writer of tl_gym (`atomic_path` for a writer that takes a file name): saved agents,
+    history CSVs and the benchmark runner's run files. The file gets the permissions a plain
+    ``open(path, "w")`` would give.
+    """
+    with atomic_path(path) as tmp, tmp.open("wb") as handle:
+        handle.write(data)
+    return Path(path)
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """A temporary file beside ``path`` to write by name; fsynced and moved over ``path`` when the block succeeds.
+
+    For writers that open a path themselves (stable-baselines3's ``save_replay_buffer``), so that a
+    large file streams to disk and still lands all or nothing; the temporary file is removed if the
+    block raises.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    tmp = Path(name)
     try:
         os.chmod(tmp, _file_mode(path))
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-            handle.flush()
+        yield tmp
+        with tmp.open("rb+") as handle:
             os.fsync(handle.fileno())
         os.replace(tmp, path)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise
-    return path
 
 
 def _file_mode(path: Path) -> int:

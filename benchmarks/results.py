@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import csv
 import dataclasses
 import json
 import math
@@ -18,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.runner import DONE, HISTORY, TRAJECTORIES, RunSpec
+from benchmarks.runner import DONE, HISTORY, TRAJECTORIES, RunSpec, read_history_rows
 
 #: Success threshold of the tables' "first iteration with success ≥ 80%" column.
 SUCCESS_TARGET = 0.8
@@ -60,8 +59,7 @@ def load_runs(out_dir: str | Path) -> list[RunResult]:
 
 def read_history(path: str | Path) -> dict[str, np.ndarray]:
     """A history CSV as columns of floats (non-numeric columns are skipped)."""
-    with Path(path).open(newline="") as handle:
-        rows = list(csv.DictReader(handle))
+    rows = read_history_rows(path)
     columns: dict[str, np.ndarray] = {}
     for key in rows[0] if rows else ():
         with contextlib.suppress(TypeError, ValueError):  # a non-numeric column

@@ -278,7 +278,7 @@ def execute_run(spec: RunSpec, run_dir: str | Path, checkpoint_every: int = 0) -
     else:
         agent, traces, state = resumed
         state["resumed_at"].append(len(agent.history))
-        history.rows = read_history_rows(run_dir / HISTORY)[: len(agent.history)]
+        history.rows = read_history_rows(run_dir / HISTORY)[: len(agent.history)]  # written before the checkpoint
 
     def record(agent: Any, row: Mapping[str, Any]) -> bool:
         row = {**row, "eval_success_rate": np.nan, "eval_mean_robustness": np.nan}
@@ -349,11 +349,9 @@ def load_checkpoint(spec: RunSpec, run_dir: Path) -> tuple[Any, dict[str, np.nda
     return agent, traces, json.loads((folder / STATE).read_text())
 
 
-def read_history_rows(path: Path) -> list[dict[str, str]]:
-    """The rows of a ``history.csv`` as written (text values), to be written again as they were."""
-    if not path.is_file():
-        return []
-    with path.open(newline="") as file:
+def read_history_rows(path: str | Path) -> list[dict[str, str]]:
+    """The rows of a ``history.csv`` as written (text values): to write them again, or to read as numbers."""
+    with Path(path).open(newline="") as file:
         return list(csv.DictReader(file))
 
 

@@ -537,6 +537,12 @@ def test_files_are_written_atomically_with_plain_permissions(tmp_path, monkeypat
         serialization.write_atomic(target, b"newer")
     assert target.read_bytes() == b"new"  # the old file, whole
     assert [p.name for p in target.parent.iterdir()] == ["file.bin"]  # no temporary file left behind
+    monkeypatch.undo()
+    with pytest.raises(RuntimeError, match="writer failed"), serialization.atomic_path(target) as tmp:
+        tmp.write_bytes(b"half")  # a writer that takes a file name, as SB3's save_replay_buffer does
+        raise RuntimeError("writer failed")
+    assert target.read_bytes() == b"new"
+    assert [p.name for p in target.parent.iterdir()] == ["file.bin"]
 
 
 def test_eval_callback_keeps_the_best_evaluated_policy(tmp_path):

@@ -194,7 +194,7 @@ def test_the_replay_buffer_saves_and_loads_so_that_training_resumes(tmp_path):
     loaded.learn(1)
     assert loaded.model.num_timesteps == 128 and loaded.model.replay_buffer.size() == 128
     assert [row["env_steps"] for row in loaded.history] == [64, 128]
-    assert not list(tmp_path.glob("*.partial"))
+    assert not list(tmp_path.glob(".*.tmp"))  # the temporary file was moved over buffer.pkl
 
 
 def test_an_on_policy_agent_has_no_replay_buffer_to_save(tmp_path):
