@@ -342,9 +342,10 @@ def test_sweep_options_are_checked_and_failures_go_to_stderr(tmp_path, capsys):
     add_sweep_options(parser)
     assert variant_of(parser, parser.parse_args(["--quick"])) == "quick"
     assert variant_of(parser, parser.parse_args(["--variant", "session"])) == "session"
-    for bad in (["--quick", "--variant", "session"], ["--workers", "-1"]):
+    for bad in (["--quick", "--variant", "session"], ["--workers", "-1"], ["--checkpoint-every", "-2"]):
         with pytest.raises(SystemExit):
             variant_of(parser, parser.parse_args(bad))
+    assert "--checkpoint-every must be >= 0, got -2" in capsys.readouterr().err
     agents = [{"label": "bad", "agent": STAND_IN, "hyperparameters": {"fail": True}},
               {"label": "good", "agent": STAND_IN}]
     sweep = expand_config(config(agents=agents, tasks=[1], seeds=[0]))
