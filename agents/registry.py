@@ -24,8 +24,10 @@ from typing import Any
 EPISODIC_AGENTS = {"tlps": "tl_gym.agents.tlps:TLPS", "reps": "tl_gym.agents.reps:REPS"}
 #: The adapter every SB3 algorithm name is trained through.
 SB3_AGENT = "tl_gym.agents.sb3:SB3Agent"
-#: The names an SB3 algorithm takes here (sb3-contrib's, e.g. "tqc", work too when it is installed).
+#: The names a stable-baselines3 algorithm takes here.
 SB3_ALGORITHMS = ("a2c", "ddpg", "dqn", "ppo", "sac", "td3")
+#: The names of sb3-contrib's algorithms (``pip install sb3-contrib``; `SB3Agent` imports it only when asked).
+SB3_CONTRIB_ALGORITHMS = ("ars", "crossq", "maskableppo", "qrdqn", "recurrentppo", "tqc", "trpo")
 
 
 def check_agent_name(name: Any) -> str:

@@ -56,6 +56,7 @@ from tl_gym.relabel import RELABEL_STRATEGIES, EpisodeRecorder, GoalRelabeller, 
 
 from .base import Agent, _describe_env_source
 from .hindsight import make_hindsight_feeder
+from .registry import SB3_CONTRIB_ALGORITHMS
 from .sampling import env_attribute
 from .serialization import atomic_path, is_jsonable
 
@@ -129,6 +130,9 @@ def resolve_algorithm(algo: Any) -> type:
     try:
         return known[algo.lower()]
     except KeyError:
+        if algo.lower() in SB3_CONTRIB_ALGORITHMS:
+            raise ValueError(f"algorithm {algo!r} is sb3-contrib's, which is not installed: "
+                             f"pip install sb3-contrib") from None
         available = sorted(c.__name__ for c in known.values())
         raise ValueError(f"unknown algorithm {algo!r}; available: {available}") from None
 

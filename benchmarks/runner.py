@@ -187,15 +187,17 @@ def _budget(value: Any, task: int | None, where: str) -> int:
 
 
 def _check_agent(name: Any, where: str) -> str:
-    from tl_gym.agents.registry import SB3_ALGORITHMS, check_agent_name, is_episodic
+    from tl_gym.agents.registry import SB3_ALGORITHMS, SB3_CONTRIB_ALGORITHMS, check_agent_name, is_episodic
 
     try:
         check_agent_name(name)
     except ValueError as exc:
         raise ConfigError(f"{where}: {exc}") from None
-    if ":" not in name and not is_episodic(name) and name.lower() not in SB3_ALGORITHMS:
+    known = SB3_ALGORITHMS + SB3_CONTRIB_ALGORITHMS
+    if ":" not in name and not is_episodic(name) and name.lower() not in known:
         raise ConfigError(f"{where}: unknown agent {name!r}: use tlps, reps, an SB3 algorithm "
-                          f"({', '.join(SB3_ALGORITHMS)}) or package.module:Name")
+                          f"({', '.join(SB3_ALGORITHMS)}), an sb3-contrib one ({', '.join(SB3_CONTRIB_ALGORITHMS)}) "
+                          f"or package.module:Name")
     return name
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import importlib.util
+import sys
 import tempfile
 import zipfile
 
@@ -74,6 +76,18 @@ def test_algorithm_names_and_budget_checks():
     assert resolve_algorithm("sac") is SAC and resolve_algorithm(PPO) is PPO
     with pytest.raises(ValueError, match="unknown algorithm 'nope'.*PPO"):
         SB3Agent("TLCarNav-v0", "nope")
+    if importlib.util.find_spec("sb3_contrib") is not None:
+        from sb3_contrib import TQC
+
+        assert resolve_algorithm("tqc") is TQC
+
+
+def test_an_sb3_contrib_name_without_sb3_contrib_names_the_package(monkeypatch):
+    monkeypatch.setitem(sys.modules, "sb3_contrib", None)  # what an env without sb3-contrib imports
+    with pytest.raises(ValueError, match="'TQC' is sb3-contrib's.*pip install sb3-contrib"):
+        resolve_algorithm("TQC")
+    with pytest.raises(ValueError, match="unknown algorithm 'nope'"):
+        resolve_algorithm("nope")
     with pytest.raises(ValueError, match="5%"):
         SB3Agent("TLCarNav-v0", "PPO", n_envs=8, n_steps=3000)
     with pytest.raises(ValueError, match="n_envs"):
