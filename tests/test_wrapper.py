@@ -2,6 +2,7 @@
 
 import math
 import pickle
+import warnings
 
 import gymnasium as gym
 import numpy as np
@@ -311,3 +312,57 @@ def test_observation_space_an_index_cannot_address():
     # a callable can still read it
     env = TLTLRewardWrapper(gym.make("FrozenLake-v1"), "F(state > 14)", signals={"state": lambda obs: float(obs)})
     assert env.reset(seed=0)[0] == 0 and env.trace["state"].tolist() == [0.0]
+
+
+def _breaks_at(step, length=10):
+    """Scripted values whose b (column 2) reaches 1 at ``step``; a rises past 0.5 after it."""
+    values = np.zeros((length + 1, 3))
+    values[:, 0] = np.linspace(0, 1, length + 1)
+    values[step, 2] = 1.0
+    return values
+
+
+@pytest.mark.parametrize("reward_mode", ["terminal", "dense"])
+def test_end_on_violation_ends_at_the_first_state_that_breaks_an_invariant(reward_mode):
+    values = _breaks_at(3)
+    env = TLTLRewardWrapper(Scripted(values), SPEC, signals={"a": 0, "b": 2}, reward_mode=reward_mode,
+                            end_on_violation=True)
+    env.reset(seed=0)
+    steps = [env.step(np.zeros(1, dtype=np.float32)) for _ in range(3)]
+    assert [s[2] for s in steps] == [False, False, True] and not any(s[3] for s in steps)
+    info = steps[-1][4]
+    assert info["violated"] == "G b < 0.9" and len(info["trace"]["b"]) == 4
+    shorter = {"a": values[:4, 0], "b": values[:4, 2]}
+    assert info["robustness"] == parse(SPEC).robustness(shorter) and not info["satisfied"]
+    assert math.fsum(s[1] for s in steps) == pytest.approx(info["robustness"], abs=1e-12)
+    assert all("violated" not in s[4] for s in steps[:-1])
+    # the verdict is the one the whole episode gets without the option
+    _, whole = run(TLTLRewardWrapper(Scripted(values), SPEC, signals={"a": 0, "b": 2}))
+    assert len(whole["trace"]["b"]) == 11 and whole["satisfied"] == info["satisfied"]
+
+
+def test_end_on_violation_keeps_an_episode_that_breaks_nothing_and_ends_on_a_broken_start():
+    values = _breaks_at(3)
+    values[3, 2] = 0.0
+    rewards, info = run(TLTLRewardWrapper(Scripted(values), SPEC, signals={"a": 0, "b": 2}, end_on_violation=True))
+    assert len(rewards) == 10 and "violated" not in info and info["satisfied"]
+    env = TLTLRewardWrapper(Scripted(_breaks_at(0)), SPEC, signals={"a": 0, "b": 2}, end_on_violation=True)
+    rewards, info = run(env)  # reset cannot end an episode: the first step does
+    assert len(rewards) == 1 and info["violated"] == "G b < 0.9" and len(info["trace"]["b"]) == 2
+    rewards, _ = run(env)  # and a reset starts over
+    assert len(rewards) == 1
+
+
+def test_end_on_violation_needs_an_invariant_and_passes_check_env():
+    from gymnasium.utils.env_checker import check_env
+
+    with pytest.raises(ValueError, match=r"F a > 0.5 has no safety invariant"):
+        TLTLRewardWrapper(Scripted(), "F(a > 0.5)", signals={"a": 0}, end_on_violation=True)
+    with pytest.raises(TypeError, match="end_on_violation"):
+        TLTLRewardWrapper(Scripted(), SPEC, signals={"a": 0, "b": 2}, end_on_violation="yes")
+    env = TLTLRewardWrapper(Scripted(_breaks_at(3)), SPEC, signals={"a": 0, "b": 2}, end_on_violation=True,
+                            observe_monitor=True, reward_mode="dense")
+    with warnings.catch_warnings():  # the checker recommends checking the unwrapped env: we mean the wrapper
+        warnings.filterwarnings("ignore", message=".*different from the unwrapped version")
+        warnings.filterwarnings("ignore", message=".*infinity")  # Scripted's unbounded Box, not the wrapper's doing
+        check_env(env, skip_render_check=True)

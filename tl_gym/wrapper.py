@@ -18,6 +18,7 @@ from tl_gym.errors import TraceError, UnknownSignalError
 from tl_gym.monitor_view import MonitorView, augment, augment_space, split
 from tl_gym.shaping import HierarchicalPotential, discounted_increment
 from tl_gym.tltl.ast import Formula
+from tl_gym.tltl.invariants import InvariantMonitor
 from tl_gym.tltl.online import PrefixMonitor
 from tl_gym.tltl.parser import parse
 
@@ -133,6 +134,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         * v0.1.0 - Initially added.
         * v0.1.0 - ``observe_monitor``, ``monitor_scale``, ``horizon``; ``reward_mode="potential"`` and ``gamma``.
         * v0.1.0 - ``gamma`` also discounts the dense mode's potential (``γ ρ_{t+1} − ρ_t``); 1 is unchanged.
+        * v0.1.0 - ``end_on_violation``: end the episode at the first state that breaks a safety invariant.
     """
 
     def __init__(
@@ -150,6 +152,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         monitor_scale: float = 1.0,
         horizon: int | None = None,
         gamma: float = 1.0,
+        end_on_violation: bool = False,
     ):
         """Check every argument, then wrap ``env``.
 
@@ -181,11 +184,17 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 ``γ Φ(s') − Φ(s)`` (Φ: the prefix robustness, plus the hierarchical potential),
                 so that with the agent's own γ its optimal policies are the terminal reward's
                 (`tl_gym.shaping.discounted_increment`). At 1, the plain prefix increments.
+            end_on_violation: end the episode (``terminated``) at the first state that breaks a safety
+                invariant, a top-level conjunct ``G ψ`` with ψ temporal-free (`tl_gym.tltl.invariants`):
+                from there no continuation can satisfy the formula, so success is what it would have
+                been, while an agent learns at once what the violation cost. ``info["violated"]`` names
+                the invariant. The robustness paid and reported is that of the shorter trace.
 
         Raises:
             SpecError: ``spec`` does not parse.
             UnknownSignalError: the formula reads a name ``signals`` does not map.
-            ValueError, TypeError: a bad option, or a signal the observation space cannot address.
+            ValueError, TypeError: a bad option, or a signal the observation space cannot address;
+                ``end_on_violation`` for a formula without a safety invariant.
         """
         formula = _as_formula(spec)
         settings = RewardSettings(reward=reward, beta=beta, rho_max=rho_max, reward_mode=reward_mode, clip=clip,
@@ -194,6 +203,9 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             raise ValueError(f"env_reward_weight must be a finite number, got {env_reward_weight!r}")
         if not isinstance(env, gym.Env):
             raise TypeError(f"env must be a gymnasium.Env, got {type(env).__name__}")
+        if not isinstance(end_on_violation, bool):
+            raise TypeError(f"end_on_violation must be True or False, got {end_on_violation!r}")
+        invariants = InvariantMonitor(formula, settings.rho_max) if end_on_violation else None
         reader = _SignalReader(formula.signals, signals, env.observation_space)
         view = None
         if observe_monitor:
@@ -206,6 +218,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self, spec=str(formula), signals=signals, reward=reward, beta=beta, rho_max=rho_max,
             reward_mode=reward_mode, env_reward_weight=env_reward_weight, clip=clip,
             observe_monitor=observe_monitor, monitor_scale=monitor_scale, horizon=horizon, gamma=gamma,
+            end_on_violation=end_on_violation,
         )
         gym.Wrapper.__init__(self, env)
         if view is not None:
@@ -229,6 +242,9 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._potential = (
             HierarchicalPotential(formula, self.rho_max, monitor_scale) if reward_mode == "potential" else None
         )
+        self.end_on_violation = end_on_violation
+        self._invariants = invariants
+        self._broken: Formula | None = None  # the invariant the recorded trace breaks
         self._phi = 0.0  # Φ of the state the last step reached
         self._rows: list[list[float]] = []
         self._paid = 0.0  # the clipped prefix robustness of the state the last step reached (0 at the reset)
@@ -241,6 +257,8 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._rows = [row]
         self._paid = 0.0
         self._done = False
+        if self._invariants is not None:  # a broken s_0 ends the first step: reset cannot end an episode
+            self._broken = self._invariants.broken(dict(zip(self._reader.names, row)))
         if self._potential is not None:
             self._potential.reset()
             self._phi = self._potential.update(dict(zip(self._reader.names, row)))
@@ -264,6 +282,12 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             t = len(self._rows) - 1
             value = self.monitor_view.update(dict(zip(self._reader.names, row)), t)
             obs = augment(obs, self.monitor_view.features(t), MONITOR_KEY)
+        if self._invariants is not None:
+            if self._broken is None:
+                self._broken = self._invariants.broken(dict(zip(self._reader.names, row)))
+            if self._broken is not None and not (terminated or truncated):
+                terminated = True
+                info["violated"] = str(self._broken)
         if terminated or truncated:
             self._done = True
             reward = self._terminal_reward(info)
