@@ -26,8 +26,18 @@ EPISODIC_AGENTS = {"tlps": "tl_gym.agents.tlps:TLPS", "reps": "tl_gym.agents.rep
 SB3_AGENT = "tl_gym.agents.sb3:SB3Agent"
 #: The names a stable-baselines3 algorithm takes here.
 SB3_ALGORITHMS = ("a2c", "ddpg", "dqn", "ppo", "sac", "td3")
-#: The names of sb3-contrib's algorithms (``pip install sb3-contrib``; `SB3Agent` imports it only when asked).
+#: The names of sb3-contrib's algorithms (``pip install sb3-contrib``; imported only for one of these names).
 SB3_CONTRIB_ALGORITHMS = ("ars", "crossq", "maskableppo", "qrdqn", "recurrentppo", "tqc", "trpo")
+
+
+def is_known_agent(name: str) -> bool:
+    """Whether ``name`` names an agent without importing anything: episodic, SB3, sb3-contrib or ``module:Name``.
+
+    Example:
+        >>> is_known_agent("TLPS"), is_known_agent("tqc"), is_known_agent("my.module:Agent"), is_known_agent("dqn2")
+        (True, True, True, False)
+    """
+    return ":" in name or is_episodic(name) or name.lower() in SB3_ALGORITHMS + SB3_CONTRIB_ALGORITHMS
 
 
 def check_agent_name(name: Any) -> str:

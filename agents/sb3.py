@@ -108,8 +108,11 @@ _RESERVED_ALGO_ARGS = ("self", "policy", "env", "seed", "verbose", "device", "_i
 def resolve_algorithm(algo: Any) -> type:
     """An SB3 algorithm class from a class or a case-insensitive name (``"ppo"``, ``"SAC"``, ``"TQC"``).
 
+    stable-baselines3's names are looked up first; sb3-contrib is imported only for a name SB3 lacks.
+
     Raises:
-        ValueError: no stable-baselines3 / sb3-contrib algorithm has that name.
+        ValueError: no stable-baselines3 / sb3-contrib algorithm has that name; for one of
+            `SB3_CONTRIB_ALGORITHMS` when sb3-contrib does not import, the pip command and why.
     """
     from stable_baselines3.common.base_class import BaseAlgorithm
 
@@ -121,20 +124,19 @@ def resolve_algorithm(algo: Any) -> type:
     for module_name in _ALGO_MODULES:
         try:
             module = importlib.import_module(module_name)
-        except ImportError:
+        except ImportError as exc:
+            if algo.lower() in SB3_CONTRIB_ALGORITHMS:
+                raise ValueError(f"algorithm {algo!r} is sb3-contrib's, which does not import ({exc}): "
+                                 f"pip install sb3-contrib") from exc
             continue
         for name in dir(module):
             value = getattr(module, name)
             if isinstance(value, type) and issubclass(value, BaseAlgorithm) and value is not BaseAlgorithm:
                 known.setdefault(name.lower(), value)
-    try:
-        return known[algo.lower()]
-    except KeyError:
-        if algo.lower() in SB3_CONTRIB_ALGORITHMS:
-            raise ValueError(f"algorithm {algo!r} is sb3-contrib's, which is not installed: "
-                             f"pip install sb3-contrib") from None
-        available = sorted(c.__name__ for c in known.values())
-        raise ValueError(f"unknown algorithm {algo!r}; available: {available}") from None
+        if algo.lower() in known:
+            return known[algo.lower()]
+    available = sorted(c.__name__ for c in known.values())
+    raise ValueError(f"unknown algorithm {algo!r}; available: {available}")
 
 
 # Checked settings ---------------------------------------------------------------------------------

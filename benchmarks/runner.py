@@ -187,14 +187,13 @@ def _budget(value: Any, task: int | None, where: str) -> int:
 
 
 def _check_agent(name: Any, where: str) -> str:
-    from tl_gym.agents.registry import SB3_ALGORITHMS, SB3_CONTRIB_ALGORITHMS, check_agent_name, is_episodic
+    from tl_gym.agents.registry import SB3_ALGORITHMS, SB3_CONTRIB_ALGORITHMS, check_agent_name, is_known_agent
 
     try:
         check_agent_name(name)
     except ValueError as exc:
         raise ConfigError(f"{where}: {exc}") from None
-    known = SB3_ALGORITHMS + SB3_CONTRIB_ALGORITHMS
-    if ":" not in name and not is_episodic(name) and name.lower() not in known:
+    if not is_known_agent(name):
         raise ConfigError(f"{where}: unknown agent {name!r}: use tlps, reps, an SB3 algorithm "
                           f"({', '.join(SB3_ALGORITHMS)}), an sb3-contrib one ({', '.join(SB3_CONTRIB_ALGORITHMS)}) "
                           f"or package.module:Name")

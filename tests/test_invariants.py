@@ -3,15 +3,15 @@
 from __future__ import annotations
 
 import math
+import pickle
 
-import numpy as np
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from tests import reference
 from tests.strategies import SIGNALS, formulas, traces
-from tl_gym import parse
+from tl_gym import UnknownSignalError, parse
 from tl_gym.tltl import ast as nodes
 from tl_gym.tltl.invariants import InvariantMonitor, safety_invariants
 
@@ -60,7 +60,11 @@ def test_only_top_level_always_of_a_temporal_free_formula_counts():
         InvariantMonitor(parse("F(x > 1)"))
 
 
-def test_a_nan_state_breaks_the_invariant_it_reads():
+def test_bad_input_is_named_and_the_monitor_pickles():
     monitor = InvariantMonitor(parse("F(x > 2) & G(y < 5)"))
-    assert monitor.broken({"x": np.nan, "y": 0.0}) is None
-    assert str(monitor.broken({"x": 0.0, "y": np.nan})) == "G y < 5"
+    with pytest.raises(UnknownSignalError, match="'y'.*G y < 5"):
+        monitor.broken({"x": 0.0})
+    with pytest.raises(ValueError, match="rho_max"):
+        InvariantMonitor(parse("G(y < 5)"), rho_max=-1.0)
+    copy = pickle.loads(pickle.dumps(InvariantMonitor(parse("G(y < 5) & G(x > 0)"), rho_max=2.0)))
+    assert copy.rho_max == 2.0 and str(copy.broken({"x": -1.0, "y": 0.0})) == "G x > 0"

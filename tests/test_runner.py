@@ -124,7 +124,7 @@ def test_expansion_grid_labels_and_quick_overrides():
     assert {(r.env_kwargs["task"], r.iterations) for r in by_task.runs} == {(1, 3), (2, 4)}
     agents = [{"label": "a", "agent": STAND_IN, "iterations": {"1": 2, "2": 9}}]
     assert {r.iterations for r in expand_config(config(agents=agents)).runs} == {2, 4}
-    # sb3-contrib's algorithms are agents too (checked by name, without importing sb3-contrib)
+    # sb3-contrib's algorithms are agents too (checked by name: registry.is_known_agent)
     contrib = expand_config(config(agents=[{"label": "TQC", "agent": "tqc"}], tasks=[1], seeds=[0]))
     assert [r.agent for r in contrib.runs] == ["tqc"]
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import sys
 import tempfile
 import zipfile
@@ -76,10 +75,24 @@ def test_algorithm_names_and_budget_checks():
     assert resolve_algorithm("sac") is SAC and resolve_algorithm(PPO) is PPO
     with pytest.raises(ValueError, match="unknown algorithm 'nope'.*PPO"):
         SB3Agent("TLCarNav-v0", "nope")
-    if importlib.util.find_spec("sb3_contrib") is not None:
-        from sb3_contrib import TQC
+    with pytest.raises(ValueError, match="5%"):
+        SB3Agent("TLCarNav-v0", "PPO", n_envs=8, n_steps=3000)
+    with pytest.raises(ValueError, match="n_envs"):
+        SB3Agent("TLCarNav-v0", "PPO", n_envs=0)
 
-        assert resolve_algorithm("tqc") is TQC
+
+def test_the_registry_names_every_installed_algorithm():
+    sb3_contrib = pytest.importorskip("sb3_contrib")
+    import stable_baselines3
+    from tl_gym.agents.registry import SB3_ALGORITHMS, SB3_CONTRIB_ALGORITHMS
+
+    def names(module):
+        return {name.lower() for name in module.__all__ if isinstance(getattr(module, name), type)
+                and issubclass(getattr(module, name), stable_baselines3.common.base_class.BaseAlgorithm)}
+
+    assert set(SB3_ALGORITHMS) == names(stable_baselines3)
+    assert set(SB3_CONTRIB_ALGORITHMS) == names(sb3_contrib)
+    assert resolve_algorithm("tqc") is sb3_contrib.TQC
 
 
 def test_an_sb3_contrib_name_without_sb3_contrib_names_the_package(monkeypatch):
@@ -88,10 +101,7 @@ def test_an_sb3_contrib_name_without_sb3_contrib_names_the_package(monkeypatch):
         resolve_algorithm("TQC")
     with pytest.raises(ValueError, match="unknown algorithm 'nope'"):
         resolve_algorithm("nope")
-    with pytest.raises(ValueError, match="5%"):
-        SB3Agent("TLCarNav-v0", "PPO", n_envs=8, n_steps=3000)
-    with pytest.raises(ValueError, match="n_envs"):
-        SB3Agent("TLCarNav-v0", "PPO", n_envs=0)
+    assert resolve_algorithm("ppo") is PPO
 
 
 @pytest.mark.parametrize("algo", ["PPO", PPO])

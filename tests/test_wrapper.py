@@ -322,11 +322,11 @@ def _breaks_at(step, length=10):
     return values
 
 
-@pytest.mark.parametrize("reward_mode", ["terminal", "dense"])
-def test_end_on_violation_ends_at_the_first_state_that_breaks_an_invariant(reward_mode):
+@pytest.mark.parametrize("reward_mode, gamma", [("terminal", 1.0), ("dense", 1.0), ("potential", 0.9)])
+def test_end_on_violation_ends_at_the_first_state_that_breaks_an_invariant(reward_mode, gamma):
     values = _breaks_at(3)
     env = TLTLRewardWrapper(Scripted(values), SPEC, signals={"a": 0, "b": 2}, reward_mode=reward_mode,
-                            end_on_violation=True)
+                            gamma=gamma, end_on_violation=True)
     env.reset(seed=0)
     steps = [env.step(np.zeros(1, dtype=np.float32)) for _ in range(3)]
     assert [s[2] for s in steps] == [False, False, True] and not any(s[3] for s in steps)
@@ -334,7 +334,9 @@ def test_end_on_violation_ends_at_the_first_state_that_breaks_an_invariant(rewar
     assert info["violated"] == "G b < 0.9" and len(info["trace"]["b"]) == 4
     shorter = {"a": values[:4, 0], "b": values[:4, 2]}
     assert info["robustness"] == parse(SPEC).robustness(shorter) and not info["satisfied"]
-    assert math.fsum(s[1] for s in steps) == pytest.approx(info["robustness"], abs=1e-12)
+    if reward_mode != "potential":  # the discounted return is γ^(T-1) ρ of the shorter trace (Φ(s_T) = 0)
+        assert math.fsum(s[1] * gamma ** t for t, s in enumerate(steps)) == pytest.approx(
+            gamma ** 2 * info["robustness"], abs=1e-12)
     assert all("violated" not in s[4] for s in steps[:-1])
     # the verdict is the one the whole episode gets without the option
     _, whole = run(TLTLRewardWrapper(Scripted(values), SPEC, signals={"a": 0, "b": 2}))
@@ -351,6 +353,37 @@ def test_end_on_violation_keeps_an_episode_that_breaks_nothing_and_ends_on_a_bro
     assert len(rewards) == 1 and info["violated"] == "G b < 0.9" and len(info["trace"]["b"]) == 2
     rewards, _ = run(env)  # and a reset starts over
     assert len(rewards) == 1
+
+
+@pytest.mark.parametrize("terminate", [False, True])
+def test_a_violation_on_the_envs_last_step_is_a_termination_and_named(terminate):
+    env = TLTLRewardWrapper(Scripted(_breaks_at(10), terminate=terminate), SPEC, signals={"a": 0, "b": 2},
+                            end_on_violation=True)
+    rewards, info = run(env)
+    assert len(rewards) == 10 and info["violated"] == "G b < 0.9" and not info["satisfied"]
+    env.reset()
+    *_, terminated, truncated, _ = [env.step(np.zeros(1, dtype=np.float32)) for _ in range(10)][-1]
+    assert terminated and truncated == (not terminate)
+
+
+def test_end_on_violation_pickles_mid_episode_and_runs_in_a_vector_env_across_autoreset():
+    env = TLTLRewardWrapper(Scripted(_breaks_at(3)), SPEC, signals={"a": 0, "b": 2}, end_on_violation=True)
+    env.reset()
+    env.step(np.zeros(1, dtype=np.float32))
+    clone = pickle.loads(pickle.dumps(env))
+    ends = [clone.step(np.zeros(1, dtype=np.float32))[2] for _ in range(2)]
+    assert ends == [False, True]
+    # the suite's mountain car with a speed limit of 0.01, pushed right from the start: it breaks the limit
+    # within about a dozen steps, far before its 250-step horizon
+    envs = gym.make_vec("TLMountainCar-v0", num_envs=2, vectorization_mode="sync", speed_limit=0.01,
+                        end_on_violation=True)
+    envs.reset(seed=[0, 1])
+    ended = []
+    for t in range(30):
+        *_, terminated, truncated, _ = envs.step(np.ones((2, 1), dtype=np.float32))
+        ended += [(t, i) for i in range(2) if terminated[i]]
+        assert not truncated.any()
+    assert {i for _, i in ended} == {0, 1} and len(ended) >= 4  # both ended, were reset and ended again
 
 
 def test_end_on_violation_needs_an_invariant_and_passes_check_env():

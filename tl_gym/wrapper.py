@@ -103,7 +103,8 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     On the terminal step ``info`` gets ``"robustness"`` (exact, unclipped),
     ``"satisfied"`` (ρ > 0), ``"trace"`` (a read-only mapping signal name -> float64 array s_0 … s_T)
-    and, with ``reward="smooth"``, ``"smooth_robustness"``. Rewards are Python
+    and, with ``reward="smooth"``, ``"smooth_robustness"``; with ``end_on_violation=True``, an episode
+    ended by a broken invariant also gets ``"violated"`` (the invariant, as text). Rewards are Python
     floats clipped to ``[-clip, clip]``, so an infinite robustness (``true`` with
     ``rho_max=inf``, ``X φ`` at the last state) never reaches an agent. Each
     ``reset`` starts a new trace, so the wrapper works across the autoreset of
@@ -285,7 +286,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if self._invariants is not None:
             if self._broken is None:
                 self._broken = self._invariants.broken(dict(zip(self._reader.names, row)))
-            if self._broken is not None and not (terminated or truncated):
+            if self._broken is not None:  # a termination even on the env's own last step: nothing follows
                 terminated = True
                 info["violated"] = str(self._broken)
         if terminated or truncated:

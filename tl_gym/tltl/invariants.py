@@ -27,9 +27,11 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 
+from tl_gym.errors import UnknownSignalError
 from tl_gym.tltl import ast as nodes
 from tl_gym.tltl.ast import Formula, conjuncts
 from tl_gym.tltl.online import compile_state_formula
+from tl_gym.tltl.trace import check_rho_max
 
 
 def safety_invariants(formula: Formula) -> tuple[Formula, ...]:
@@ -58,15 +60,30 @@ class InvariantMonitor:
     """
 
     def __init__(self, formula: Formula, rho_max: float = math.inf):
+        self.formula = formula
+        self.rho_max = check_rho_max(rho_max)
         self.invariants = safety_invariants(formula)
         if not self.invariants:
             raise ValueError(f"{formula} has no safety invariant (a top-level conjunct G ψ with ψ temporal-free), "
                              f"so no state can settle its verdict early")
-        self._checks = [(invariant, compile_state_formula(invariant.child, rho_max)) for invariant in self.invariants]
+        self._checks = [(invariant, compile_state_formula(invariant.child, self.rho_max))
+                        for invariant in self.invariants]
 
     def broken(self, state: Mapping[str, float]) -> Formula | None:
-        """The first invariant ``G ψ`` with ``ψ(state) ≤ 0`` (the formula cannot hold any more), else None."""
+        """The first invariant ``G ψ`` with ``ψ(state) ≤ 0`` (the formula cannot hold any more), else None.
+
+        Raises:
+            UnknownSignalError: ``state`` lacks a signal an invariant reads.
+        """
         for invariant, check in self._checks:
-            if not check(state) > 0:  # NaN counts as broken, as ρ > 0 is false for it
+            try:
+                value = check(state)
+            except KeyError as exc:
+                raise UnknownSignalError(f"the state has no signal {exc.args[0]!r}, which {invariant} reads") from None
+            if not value > 0:
                 return invariant
         return None
+
+    def __reduce__(self) -> tuple[type, tuple[Formula, float]]:
+        """Pickled and copied as its formula: the checks are compiled functions."""
+        return InvariantMonitor, (self.formula, self.rho_max)
