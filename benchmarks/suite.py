@@ -37,6 +37,10 @@ def config_paths(tasks: Sequence[str] = ()) -> list[Path]:
     return [p for p in sorted(CONFIGS.glob("*.toml")) if not tasks or p.stem in tasks]
 
 
+#: Mean ρ beyond which the ρ panel of `plot_task` is drawn on a symlog axis.
+SYMLOG_FROM = 10.0
+
+
 def eval_curve(runs: Sequence[RunResult], key: str = "eval_success_rate") -> tuple[np.ndarray, np.ndarray]:
     """``(env steps, values (seeds, points))`` of the rows where the runs evaluated, cut to the shortest run."""
     masks = [~np.isnan(run.history[key]) for run in runs]
@@ -59,18 +63,25 @@ def plot_task(name: str, runs: Sequence[RunResult], path: Path | None) -> Figure
     """
     fig = Figure(figsize=(11.0, 4.2), constrained_layout=True)
     success_ax, rho_ax = fig.subplots(1, 2)
+    largest_rho = 0.0
     for i, ((_, label), members) in enumerate(group_runs(runs).items()):
         color, legend = colormaps["tab10"](i % 10), f"{label} ({len(members)} seed{'s' if len(members) > 1 else ''})"
         steps, values = eval_curve(members)
         if not steps.size:
             continue
         plot_band(success_ax, steps, values, color, legend, rate=True, markersize=3)
-        plot_band(rho_ax, *eval_curve(members, "eval_mean_robustness"), color, legend, markersize=3)
+        rho_steps, rho_values = eval_curve(members, "eval_mean_robustness")
+        plot_band(rho_ax, rho_steps, rho_values, color, legend, markersize=3)
+        largest_rho = max(largest_rho, float(np.nanmax(np.abs(rho_values), initial=0.0)))
     success_ax.axhline(SOLVED, color="0.4", lw=0.8, ls="--")
     rho_ax.axhline(0.0, color="0.4", lw=0.8, ls="--")
     success_ax.set(xlabel="env steps", ylabel="success on fresh episodes (ρ > 0)", ylim=(-0.02, 1.02))
-    rho_ax.set(xlabel="env steps", ylabel="mean ρ on fresh episodes (symlog)")
-    rho_ax.set_yscale("symlog", linthresh=1.0)  # early policies' ρ can be 100× the late ones'; linear within ±1
+    # early policies' ρ can be 100× the late ones': symlog, linear within ±1; a task whose ρ stays within
+    # ±SYMLOG_FROM keeps a linear axis (symlog would show it as one decade with unreadable ticks)
+    symlog = largest_rho > SYMLOG_FROM
+    rho_ax.set(xlabel="env steps", ylabel="mean ρ on fresh episodes" + (" (symlog)" if symlog else ""))
+    if symlog:
+        rho_ax.set_yscale("symlog", linthresh=1.0)
     success_ax.legend(fontsize=7, loc="best")
     fig.suptitle(name)
     return saved(fig, path)
@@ -115,7 +126,7 @@ def write_report(results: dict[str, tuple[str, list[RunResult], list[str]]], com
              f"Produced by `{command}` (seeds and budgets in `benchmarks/configs/suite/`); success is "
              "ρ > 0 on fresh episodes of the deterministic policy, evaluated along training. "
              "Tasks and formulas: [../tasks.md](../tasks.md). Each task's figure plots the success (left) and "
-             "the mean ρ (right, symlog) of those evaluations against env steps: the mean over seeds with a 95 % "
+             "the mean ρ (right; symlog where it spans beyond ±10) of those evaluations against env steps: the mean over seeds with a 95 % "
              "Student-t band, wide for 2 or 3 seeds.", "",
              "| task | solved by (median final success ≥ 90 %) | at |", "|---|---|---|"]
     sections = []

@@ -71,3 +71,9 @@ def test_runs_evaluate_along_training_and_the_report_reads_them(tmp_path):
     fast_rho = suite.eval_curve([r for r in runs if r.spec.label == "fast"], "eval_mean_robustness")[1].mean(axis=0)
     np.testing.assert_allclose(rho_ax.lines[0].get_ydata(), fast_rho)
     assert [line.get_label() for line in success_ax.lines[:2]] == ["fast (2 seeds)", "slow (2 seeds)"]
+    # the stand-in's ρ stays within ±1: a linear axis; ρ beyond ±SYMLOG_FROM gets a symlog one
+    assert rho_ax.get_yscale() == "linear" and "symlog" not in rho_ax.get_ylabel()
+    for run in runs:
+        run.history["eval_mean_robustness"] = run.history["eval_mean_robustness"] * 100
+    rho_ax = suite.plot_task("tiny", runs, None).axes[1]
+    assert rho_ax.get_yscale() == "symlog" and "(symlog)" in rho_ax.get_ylabel()
