@@ -126,8 +126,8 @@ def write_report(results: dict[str, tuple[str, list[RunResult], list[str]]], com
              f"Produced by `{command}` (seeds and budgets in `benchmarks/configs/suite/`); success is "
              "ρ > 0 on fresh episodes of the deterministic policy, evaluated along training. "
              "Tasks and formulas: [../tasks.md](../tasks.md). Each task's figure plots the success (left) and "
-             "the mean ρ (right; symlog where it spans beyond ±10) of those evaluations against env steps: the mean over seeds with a 95 % "
-             "Student-t band, wide for 2 or 3 seeds.", "",
+             "the mean ρ (right; symlog where it spans beyond ±10) of those evaluations against env steps: "
+             "the mean over seeds with a 95 % Student-t band, wide for 2 or 3 seeds.", "",
              "| task | solved by (median final success ≥ 90 %) | at |", "|---|---|---|"]
     sections = []
     for stem, (title, runs, planned) in results.items():
