@@ -188,8 +188,9 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             end_on_violation: end the episode (``terminated``) at the first state that breaks a safety
                 invariant, a top-level conjunct ``G ψ`` with ψ temporal-free (`tl_gym.tltl.invariants`):
                 from there no continuation can satisfy the formula, so success is what it would have
-                been, while an agent learns at once what the violation cost. ``info["violated"]`` names
-                the invariant. The robustness paid and reported is that of the shorter trace.
+                been, while the return stops there: a violation forfeits what the rest of the episode
+                could still earn. ``info["violated"]`` names the invariant. The robustness paid and
+                reported is that of the shorter trace.
 
         Raises:
             SpecError: ``spec`` does not parse.

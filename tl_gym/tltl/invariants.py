@@ -9,7 +9,8 @@ watches the states one at a time and names the first invariant a state breaks; t
 
 The check is sound but not complete: it sees only the invariants at the top of the formula
 (the operands of its n-ary ``&``, or the formula itself), not every way a prefix can settle a
-verdict (``X``-free reach parts never do; ``G`` under ``|`` or over a temporal ψ is not looked into).
+verdict (``G`` under ``|``, over a temporal ψ, or written ``!F`` is not looked into; a reach part
+``F φ`` never settles one, as the future may still meet it).
 
 Example:
     >>> from tl_gym import parse
