@@ -247,6 +247,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.end_on_violation = end_on_violation
         self._invariants = invariants
         self._broken: Formula | None = None  # the invariant the recorded trace breaks
+        self._monitors_read_states = any(m is not None for m in (self._monitor, self._potential, invariants))
         self._phi = 0.0  # Φ of the state the last step reached
         self._rows: list[list[float]] = []
         self._paid = 0.0  # the clipped prefix robustness of the state the last step reached (0 at the reset)
@@ -259,17 +260,18 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._rows = [row]
         self._paid = 0.0
         self._done = False
+        state = self._state(row)
         if self._invariants is not None:  # a broken s_0 ends the first step: reset cannot end an episode
-            self._broken = self._invariants.broken(dict(zip(self._reader.names, row)))
+            self._broken = self._invariants.broken(state)
         if self._potential is not None:
             self._potential.reset()
-            self._phi = self._potential.update(dict(zip(self._reader.names, row)))
+            self._phi = self._potential.update(state)
         if self.monitor_view is not None:
-            self.monitor_view.update(dict(zip(self._reader.names, row)), 0)
+            self.monitor_view.update(state, 0)
             return augment(obs, self.monitor_view.features(0), MONITOR_KEY), info
         if self._monitor is not None:
             self._monitor.reset()
-            self._monitor.update(dict(zip(self._reader.names, row)))
+            self._monitor.update(state)
         return obs, info
 
     def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
@@ -278,15 +280,16 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         obs, env_reward, terminated, truncated, info = self.env.step(action)
         row = self._reader.read(obs, info, len(self._rows))
         self._rows.append(row)
+        state = self._state(row)
         reward = 0.0
         value = None
         if self.monitor_view is not None:
             t = len(self._rows) - 1
-            value = self.monitor_view.update(dict(zip(self._reader.names, row)), t)
+            value = self.monitor_view.update(state, t)
             obs = augment(obs, self.monitor_view.features(t), MONITOR_KEY)
         if self._invariants is not None:
             if self._broken is None:
-                self._broken = self._invariants.broken(dict(zip(self._reader.names, row)))
+                self._broken = self._invariants.broken(state)
             if self._broken is not None:  # a termination even on the env's own last step: nothing follows
                 terminated = True
                 info["violated"] = str(self._broken)
@@ -295,15 +298,19 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             reward = self._terminal_reward(info)
         elif self.reward_mode != "terminal":
             if value is None:
-                value = self._monitor.update(dict(zip(self._reader.names, row)))  # type: ignore[union-attr]
+                value = self._monitor.update(state)  # type: ignore[union-attr]
             reward, self._paid = discounted_increment(self._clipped(value), self._paid, self.gamma)
         if self._potential is not None:  # γ Φ(s') − Φ(s), with Φ(s_T) = 0 at the last state
-            phi = 0.0 if self._done else self._potential.update(dict(zip(self._reader.names, row)))
+            phi = 0.0 if self._done else self._potential.update(state)
             shaping, self._phi = discounted_increment(phi, self._phi, self.gamma)
             reward += shaping
         if self.env_reward_weight:
             reward += self.env_reward_weight * float(env_reward)
         return obs, reward, terminated, truncated, info
+
+    def _state(self, row: list[float]) -> dict[str, float]:
+        """One recorded state's signals by name, for the monitors: built once a step (empty when none reads it)."""
+        return dict(zip(self._reader.names, row)) if self._monitors_read_states else {}
 
     # Recorded trace -------------------------------------------------------------------------
     @property
