@@ -15,6 +15,7 @@ from gymnasium.utils.env_checker import check_env
 from tl_gym.envs.suite import InfoValue, PendulumAngle, StepClock, pendulum_formula
 
 import tl_gym  # noqa: F401  (registers the ids)
+from benchmarks.parking_starts import ParkingController
 from tl_gym import TLTLRewardWrapper
 
 CLASSIC = ["TLPendulum-v0", "TLMountainCar-v0"]
@@ -67,46 +68,6 @@ def mountain_car_regulated(obs, target=0.039):
 def mountain_car_bang_bang(obs):
     """Full push along the velocity: reaches the flag in about 105 steps, at speeds up to 0.069."""
     return np.array([1.0 if obs[1] >= 0 else -1.0], dtype=np.float32)
-
-
-class Parker:
-    """Line-of-sight pursuit of the slot's centre line, slowing to 0.6 m/s within 6 m of the slot.
-
-    A three-point turn (reverse at full lock) when the line lies behind, a straight reverse
-    and a new attempt when the car overshoots the slot.
-    """
-
-    def __init__(self, lookahead=3.0, gain=3.0):
-        self.lookahead, self.gain, self.mode = lookahead, gain, "forward"
-
-    def __call__(self, obs):
-        o, g = obs["observation"], obs["desired_goal"]
-        p, heading = o[:2] * 100.0, math.atan2(o[5], o[4])
-        speed = float(np.hypot(o[2], o[3]) * 5.0)
-        signed = speed * np.sign(math.cos(math.atan2(o[3], o[2]) - heading)) if speed > 1e-6 else 0.0
-        goal, goal_heading = g[:2] * 100.0, math.atan2(g[5], g[4])
-        axis = np.array([math.cos(goal_heading), math.sin(goal_heading)])
-        s = float((p - goal) @ axis)  # position along the slot's axis, 0 at its centre
-        if s > 0.5:
-            self.mode = "back"
-        if self.mode == "back" and s < -5.0:
-            self.mode = "forward"
-        if self.mode == "back":
-            steer, target = 0.0, -1.0
-        else:
-            d = goal + (s + self.lookahead) * axis - p
-            alpha = (math.atan2(d[1], d[0]) - heading + math.pi) % (2 * math.pi) - math.pi
-            if self.mode == "forward" and abs(alpha) > math.radians(120) and s < -3:
-                self.mode = "turn"
-            if self.mode == "turn" and abs(alpha) < math.radians(60):
-                self.mode = "forward"
-            if self.mode == "turn":
-                steer, target = -math.copysign(1.0, alpha), -1.5
-            else:
-                steer = float(np.clip(self.gain * alpha / (math.pi / 4), -1, 1))
-                distance = float(np.linalg.norm(p - goal))
-                target = 0.6 if distance < 6 else min(3.0, 0.6 + 0.5 * (distance - 6))
-        return np.array([np.clip(2.0 * (target - signed) / 5.0, -1, 1), steer], dtype=np.float32)
 
 
 # ----------------------------------------------------------------------------- every id
@@ -240,7 +201,7 @@ def test_mountain_car_regulated_satisfies_and_bang_bang_speeds(seed):
 def test_parking_controller_parks_and_full_throttle_speeds():
     pytest.importorskip("highway_env")
     env = gym.make("TLParking-v0")
-    steps, _, good = run_episode(env, Parker(), seed=8)
+    steps, _, good = run_episode(env, ParkingController(), seed=8)
     # the slot does not end the episode: the car drives on into it, and ρ measures how well it parked
     assert good["satisfied"] and steps == 100 and good["robustness"] > 0.3
     _, _, fast = run_episode(env, lambda obs: np.array([1.0, 0.0], dtype=np.float32), seed=8)
@@ -250,7 +211,7 @@ def test_parking_controller_parks_and_full_throttle_speeds():
 def test_parking_terminate_on_success_ends_at_the_slots_edge():
     """parking-v0's own rule: the episode ends as the car enters the slot, so ρ is at most a step of travel."""
     pytest.importorskip("highway_env")
-    steps, _, info = run_episode(gym.make("TLParking-v0", terminate_on_success=True), Parker(), seed=8)
+    steps, _, info = run_episode(gym.make("TLParking-v0", terminate_on_success=True), ParkingController(), seed=8)
     assert info["satisfied"] and info["is_success"] and steps < 100
     assert 0 < info["robustness"] < 0.1
 
@@ -284,7 +245,7 @@ def test_parking_numpy_observation_equals_highway_envs(seed):
     assert type(theirs.observation_type).__name__ == "KinematicsGoalObservation"
     obs_ours, _ = ours.reset(seed=seed)
     obs_theirs, _ = theirs.reset(seed=seed)
-    parker, actions = Parker(), np.random.default_rng(seed).uniform(-1, 1, size=(10, 2)).astype(np.float32)
+    parker, actions = ParkingController(), np.random.default_rng(seed).uniform(-1, 1, size=(10, 2)).astype(np.float32)
     for step in range(80):  # random actions, then the parking controller until it parks
         for key in ("observation", "achieved_goal", "desired_goal"):
             np.testing.assert_array_equal(obs_ours[key], obs_theirs[key], err_msg=f"{key} at step {step}")
