@@ -1,20 +1,26 @@
 """Which TLParking-v0 starts saved agents park from, against the start's geometry and a hand controller.
 
 Every agent is evaluated on the same fresh episodes (episode ``i`` resets with seed ``seed + i``, as
-`tl_gym.agents.evaluation.evaluate_policy` seeds them), and so is `ParkingController`. The report splits
-success by how far the slot is and how its axis turns from the line to it, and says how many starts
-*some* policy parks from: evidence for what success a learned policy could reach within the horizon.
-Prints Markdown tables; ``--figure`` draws the lot, each slot coloured by the agents' success there.
+`tl_gym.agents.evaluation.evaluate_policy` seeds them), and so is `ParkingController`. parking-v0 starts the
+car at the lot's centre with a random heading and draws a random slot, so a start is two things: which slot
+(its distance: the slots at the rows' ends lie farthest) and where the car faces (the bearing of the slot from
+the car's heading: 0° ahead, 180° behind). The report splits success by both and says how many starts *some*
+policy parks from: evidence for what success a learned policy could reach within the horizon. Prints
+Markdown tables; ``--figure`` draws the lot, each slot coloured by the agents' success there.
 
     python -m benchmarks.parking_starts RUN_DIR [RUN_DIR ...] --episodes 100 --seed 12345 --figure out.png
 
-A ``RUN_DIR`` is a folder with ``agent.zip`` trained on ``TLParking-v0`` (the experiment runner's run
-folders, ``tl-gym train``'s output). Needs highway-env (``pip install "tl_gym[highway]"``).
+A ``RUN_DIR`` is a folder with ``agent.zip`` trained on ``TLParking-v0`` as registered (the experiment runner's
+run folders, ``tl-gym train``'s output); a run whose env keywords change the task (its horizon, bounds, end or
+parking-v0 config) is refused, since the controller and the starts are those of the registered task. Needs
+highway-env (``pip install "tl_gym[highway]"``).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import inspect
 import json
 import math
 from collections.abc import Callable, Sequence
@@ -23,21 +29,35 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import matplotlib
 import numpy as np
+from matplotlib.cm import ScalarMappable
+from matplotlib.colors import Normalize
+from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
 from tl_gym.agents import Agent
+from tl_gym.envs.suite import make_parking
 
 import tl_gym  # noqa: F401  (registers TLParking-v0)
-from benchmarks.results import table
+from benchmarks.figures import saved
+from benchmarks.results import percent, table
+from benchmarks.runner import AGENT, SPEC
 
 ENV_ID = "TLParking-v0"
-#: What a run folder records of its run: the experiment runner's spec, or `tl-gym train`'s run file.
-RUN_FILES = ("spec.json", "run.json")
+#: What a run folder records of its run: `tl-gym train`'s run file or the experiment runner's spec (the command
+#: line's order of precedence, `tl_gym.cli.commands.read_run`).
+RUN_FILES = ("run.json", SPEC)
+#: TLParking-v0's keywords that change the task (all of `make_parking`'s but the wrapper's and rendering).
+TASK_KWARGS = frozenset(name for name, p in inspect.signature(make_parking).parameters.items()
+                        if p.kind is not p.VAR_KEYWORD and name != "render_mode")
 #: parking-v0's observation scales: positions are divided by 100 m, velocities by 5 m/s.
 POSITION_SCALE, SPEED_SCALE = 100.0, 5.0
-#: Bands of the report: the slot's distance from the start (m) and the angle between the slot's axis and the
-#: line from the start to it (degrees; 0: drive straight in, 90: turn a right angle into the slot).
-DISTANCE_BANDS = (0.0, 20.0, math.inf)
-AXIS_ANGLE_BANDS = (0.0, 30.0, 60.0, 90.0)
+#: Bands of the report: the slot's distance from the start (m; the lot's slots lie 14.1–29.5 m from its centre)
+#: and its bearing from the car's start heading (degrees; 0: straight ahead, 180: straight behind).
+DISTANCE_BANDS = (0.0, 20.0, 25.0, math.inf)
+BEARING_BANDS = (0.0, 45.0, 90.0, 135.0, 180.0)
+#: A slot's size in the lot (m): 4 wide across the rows (x), 8 long along them (y).
+SLOT_WIDTH, SLOT_LENGTH = 4.0, 8.0
 
 
 def _wrap(angle: float) -> float:
@@ -61,6 +81,7 @@ class ParkingController:
         self.cruise, self.lookahead, self.gain, self.mode = cruise, lookahead, gain, "forward"
 
     def __call__(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        """The action (acceleration, steering), each in [-1, 1], for a parking-v0 observation."""
         o, g = obs["observation"], obs["desired_goal"]
         p, heading = o[:2] * POSITION_SCALE, math.atan2(o[5], o[4])
         speed = float(np.hypot(o[2], o[3]) * SPEED_SCALE)
@@ -92,62 +113,80 @@ class ParkingController:
 
 @dataclass(frozen=True)
 class Start:
-    """A start's geometry: the slot's centre (m), its distance, and its axis's angle to the line to it (deg)."""
+    """A start's geometry: the slot's centre (m), its distance, and its bearing from the car's heading (deg)."""
 
     slot: tuple[float, float]
     distance: float
-    axis_angle: float
+    bearing: float
 
 
 def start_of(obs: dict[str, np.ndarray]) -> Start:
-    """The geometry of a reset observation; the axis angle folds a slot entered either way into [0°, 90°]."""
+    """The geometry of a reset observation: where the slot is, and how far the car must turn to face it."""
     o, g = obs["observation"], obs["desired_goal"]
-    line = g[:2] * POSITION_SCALE - o[:2] * POSITION_SCALE
-    angle = abs(math.degrees(_wrap(math.atan2(g[5], g[4]) - math.atan2(line[1], line[0]))))
-    return Start((float(g[0] * POSITION_SCALE), float(g[1] * POSITION_SCALE)), float(np.linalg.norm(line)),
-                 min(angle, 180.0 - angle))
+    line = (g[:2] - o[:2]) * POSITION_SCALE
+    bearing = abs(math.degrees(_wrap(math.atan2(line[1], line[0]) - math.atan2(o[5], o[4]))))
+    return Start((float(g[0] * POSITION_SCALE), float(g[1] * POSITION_SCALE)), float(np.linalg.norm(line)), bearing)
 
 
 def starts(n_episodes: int, seed: int) -> list[Start]:
     """The starts of episodes ``seed``, ``seed + 1``, … of TLParking-v0."""
-    env = gym.make(ENV_ID)
-    return [start_of(env.reset(seed=seed + i)[0]) for i in range(n_episodes)]
+    with contextlib.closing(gym.make(ENV_ID)) as env:
+        return [start_of(env.reset(seed=seed + i)[0]) for i in range(n_episodes)]
 
 
 def policy_successes(policy: Callable[[], Callable[[Any], np.ndarray]], n_episodes: int, seed: int,
                      **env_kwargs: Any) -> np.ndarray:
     """Success (ρ > 0) of each episode ``seed + i`` driven by ``policy()``, a fresh controller per episode."""
-    env = gym.make(ENV_ID, **env_kwargs)
     wins = np.zeros(n_episodes, dtype=bool)
-    for i in range(n_episodes):
-        act, (obs, _) = policy(), env.reset(seed=seed + i)
-        while True:
-            obs, _, terminated, truncated, info = env.step(act(obs))
-            if terminated or truncated:
-                wins[i] = info["satisfied"]
-                break
+    with contextlib.closing(gym.make(ENV_ID, **env_kwargs)) as env:
+        for i in range(n_episodes):
+            act, (obs, _) = policy(), env.reset(seed=seed + i)
+            while True:
+                obs, _, terminated, truncated, info = env.step(act(obs))
+                if terminated or truncated:
+                    wins[i] = info["satisfied"]
+                    break
     return wins
+
+
+def check_run(run_dir: Path) -> Path:
+    """``run_dir`` if it holds an agent trained on the registered TLParking-v0; else an error naming what is off."""
+    run_dir = Path(run_dir)
+    run_file = next((run_dir / name for name in RUN_FILES if (run_dir / name).exists()), None)
+    if run_file is None:
+        raise FileNotFoundError(f"{run_dir} has no {' or '.join(RUN_FILES)}: is it a run folder of `tl-gym train` "
+                                f"or of the experiment runner?")
+    run = json.loads(run_file.read_text())
+    if run.get("env") != ENV_ID or run.get("spec") is not None:
+        raise ValueError(f"{run_file}: trained on {run.get('env')!r}" + (" with --spec" if run.get("spec") else "")
+                         + f", not the registered {ENV_ID}")
+    changed = sorted(TASK_KWARGS & set(run.get("env_kwargs") or {}))
+    if changed:
+        raise ValueError(f"{run_file}: env_kwargs {changed} change the task; the starts and the controller here are "
+                         f"those of {ENV_ID} as registered")
+    if not (run_dir / AGENT).exists():
+        raise FileNotFoundError(f"{run_dir / AGENT} not found: the run has not finished")
+    return run_dir
 
 
 def agent_successes(run_dir: Path, n_episodes: int, seed: int) -> np.ndarray:
     """Success of each episode ``seed + i`` of the run's saved agent (deterministic), in its own env."""
-    run_dir = Path(run_dir)
-    trained_on = next((json.loads((run_dir / name).read_text())["env"] for name in RUN_FILES
-                       if (run_dir / name).exists()), None)
-    if trained_on != ENV_ID:
-        raise ValueError(f"{run_dir}: trained on {trained_on!r}, not {ENV_ID} (read from its {' or '.join(RUN_FILES)})")
-    agent = Agent.load(run_dir / "agent.zip")
-    return np.asarray(agent.evaluate(n_episodes=n_episodes, seed=seed, deterministic=True)["robustness"]) > 0
+    agent = Agent.load(check_run(run_dir) / AGENT)
+    try:
+        result = agent.evaluate(n_episodes=n_episodes, seed=seed, deterministic=True)
+    finally:
+        agent.env.close()
+    return np.asarray(result["robustness"]) > 0
 
 
 def band_rows(wins: dict[str, np.ndarray], values: np.ndarray, edges: Sequence[float], unit: str) -> list[list[str]]:
-    """One row per band ``[lo, hi)`` of ``values``: its number of starts and each policy's success there."""
-    rows = []
-    for lo, hi in zip(edges[:-1], edges[1:]):
-        inside = (values >= lo) & (values < hi)
+    """One row per band ``[lo, hi)`` of ``values`` (the last ``[lo, hi]``): its starts and each policy's success."""
+    rows, last = [], len(edges) - 2
+    for k, (lo, hi) in enumerate(zip(edges[:-1], edges[1:])):
+        inside = (values >= lo) & ((values <= hi) if k == last else (values < hi))  # the last band is closed
         label = f"≥ {lo:g} {unit}" if math.isinf(hi) else f"{lo:g}–{hi:g} {unit}"
         rows.append([label, str(int(inside.sum()))]
-                    + [f"{w[inside].mean():.0%}" if inside.any() else "" for w in wins.values()])
+                    + [percent(w[inside].mean() if inside.any() else None) for w in wins.values()])
     return rows
 
 
@@ -156,45 +195,40 @@ def report(agent_wins: dict[str, np.ndarray], controller_wins: np.ndarray, geome
     agents = np.array(list(agent_wins.values()))
     union = agents.any(axis=0)
     everyone = union | controller_wins
-    lines = [table(["policy", "success"], [[name, f"{w.mean():.0%}"] for name, w in agent_wins.items()]
-                   + [["hand controller (`ParkingController`)", f"{controller_wins.mean():.0%}"],
-                      ["some agent parks", f"{union.mean():.0%}"],
-                      ["some agent or the controller parks", f"{everyone.mean():.0%}"]]), ""]
+    lines = [table(["policy", "success"], [[name, percent(w.mean())] for name, w in agent_wins.items()]
+                   + [["hand controller (`ParkingController`)", percent(controller_wins.mean())],
+                      ["some agent parks", percent(union.mean())],
+                      ["some agent or the controller parks", percent(everyone.mean())]]), ""]
     wins = {**{f"agent {k + 1}": w for k, w in enumerate(agent_wins.values())}, "controller": controller_wins}
     header = ["start", "starts", *wins]
     distance = np.array([s.distance for s in geometry])
-    angle = np.array([s.axis_angle for s in geometry])
-    lines += [table(header, band_rows(wins, distance, DISTANCE_BANDS, "m")), "",
-              table(header, band_rows(wins, angle, AXIS_ANGLE_BANDS, "°")), ""]
+    bearing = np.array([s.bearing for s in geometry])
+    lines += [table(["slot's distance", *header[1:]], band_rows(wins, distance, DISTANCE_BANDS, "m")), "",
+              table(["slot's bearing", *header[1:]], band_rows(wins, bearing, BEARING_BANDS, "°")), ""]
     lines.append(f"Agents in the order given; starts no agent parks from: "
                  f"{np.flatnonzero(~union).tolist()} (episode indices), of which the controller parks "
                  f"{int((controller_wins & ~union).sum())}.")
     return "\n".join(lines)
 
 
-def plot_lot(agent_wins: dict[str, np.ndarray], geometry: Sequence[Start], path: Path) -> None:
-    """Draw each drawn slot at its place in the lot, coloured by the agents' mean success from its starts."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+def plot_lot(agent_wins: dict[str, np.ndarray], geometry: Sequence[Start], path: Path | None = None) -> Figure:
+    """Each drawn slot at its place in the lot, coloured by the agents' mean success from its starts."""
     success = np.mean(list(agent_wins.values()), axis=0)
-    slots = sorted({s.slot for s in geometry})
-    fig, ax = plt.subplots(figsize=(7.5, 4.6))
-    for slot in slots:
+    fig = Figure(figsize=(7.5, 4.6), layout="tight")
+    ax = fig.add_subplot()
+    colours = matplotlib.colormaps["RdYlGn"]
+    for slot in sorted({s.slot for s in geometry}):
         mine = np.array([s.slot == slot for s in geometry])
-        ax.add_patch(plt.Rectangle((slot[0] - 2, slot[1] - 4), 4, 8, color=plt.cm.RdYlGn(success[mine].mean()),
-                                   ec="black", lw=0.5))
+        ax.add_patch(Rectangle((slot[0] - SLOT_WIDTH / 2, slot[1] - SLOT_LENGTH / 2), SLOT_WIDTH, SLOT_LENGTH,
+                               facecolor=colours(success[mine].mean()), edgecolor="black", lw=0.5))
         ax.text(slot[0], slot[1], str(int(mine.sum())), ha="center", va="center", fontsize=7)
     ax.plot(0, 0, "k^", ms=8, label="start (random heading)")
     ax.set(xlim=(-35, 35), ylim=(-21, 21), aspect="equal", xlabel="x (m)", ylabel="y (m)",
            title=f"TLParking-v0: success of {len(agent_wins)} agents by slot (number: starts)")
-    fig.colorbar(plt.cm.ScalarMappable(cmap="RdYlGn", norm=plt.Normalize(0, 1)), ax=ax, label="success")
+    fig.colorbar(ScalarMappable(cmap=colours, norm=Normalize(0, 1)), ax=ax,
+                 label="success")
     ax.legend(loc="lower right", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return saved(fig, path)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -208,6 +242,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
+    if len(set(args.runs)) < len(args.runs):
+        parser.error(f"a run folder is given twice: {[str(run) for run in args.runs]}")
+    for run in args.runs:  # before minutes of evaluation
+        check_run(run)
     geometry = starts(args.episodes, args.seed)
     agent_wins = {str(run): agent_successes(run, args.episodes, args.seed) for run in args.runs}
     controller_wins = policy_successes(lambda: ParkingController(cruise=args.cruise), args.episodes, args.seed)

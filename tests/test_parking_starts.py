@@ -9,8 +9,8 @@ import pytest
 from benchmarks.parking_starts import (
     ParkingController,
     Start,
-    agent_successes,
     band_rows,
+    check_run,
     main,
     plot_lot,
     policy_successes,
@@ -20,23 +20,24 @@ from benchmarks.parking_starts import (
 )
 
 
-def observation(car, slot, slot_heading):
+def observation(car, slot, slot_heading, car_heading=0.0):
     """A parking-v0 reset observation (scaled as parking-v0 scales it): the car at rest at ``car``."""
     scale = np.array([100.0, 100.0, 5.0, 5.0, 1.0, 1.0])
-    o = np.array([*car, 0.0, 0.0, 1.0, 0.0]) / scale
+    o = np.array([*car, 0.0, 0.0, math.cos(car_heading), math.sin(car_heading)]) / scale
     g = np.array([*slot, 0.0, 0.0, math.cos(slot_heading), math.sin(slot_heading)]) / scale
     return {"observation": o, "desired_goal": g, "achieved_goal": o}
 
 
-def test_start_geometry_of_an_end_slot_and_of_a_slot_straight_ahead():
+def test_start_geometry_of_an_end_slot_and_of_a_slot_behind():
     end = start_of(observation((0.0, 0.0), (26.0, 14.0), math.pi / 2))
     assert end.slot == pytest.approx((26.0, 14.0))
     assert end.distance == pytest.approx(math.hypot(26.0, 14.0))
-    assert end.axis_angle == pytest.approx(90.0 - math.degrees(math.atan2(14.0, 26.0)))
-    # a slot is the same whichever way its axis points: the angle folds into [0°, 90°]
-    assert start_of(observation((0.0, 0.0), (26.0, 14.0), -math.pi / 2)).axis_angle == pytest.approx(end.axis_angle)
-    ahead = start_of(observation((0.0, 0.0), (0.0, 14.0), math.pi / 2))
-    assert ahead.distance == pytest.approx(14.0) and ahead.axis_angle == pytest.approx(0.0)
+    assert end.bearing == pytest.approx(math.degrees(math.atan2(14.0, 26.0)))  # the car faces +x
+    # the bearing is the turn from the car's heading to the slot, either way: 0° ahead, 180° behind
+    behind = start_of(observation((0.0, 0.0), (0.0, -14.0), -math.pi / 2, car_heading=math.pi / 2))
+    assert behind.distance == pytest.approx(14.0) and behind.bearing == pytest.approx(180.0)
+    left = start_of(observation((0.0, 0.0), (-26.0, 14.0), math.pi / 2, car_heading=-0.1))
+    assert left.bearing == pytest.approx(180.0 - math.degrees(math.atan2(14.0, 26.0)) + math.degrees(0.1))
 
 
 def test_band_rows_count_starts_and_success_per_band():
@@ -44,17 +45,20 @@ def test_band_rows_count_starts_and_success_per_band():
     rows = band_rows(wins, np.array([5.0, 15.0, 25.0, 35.0]), (0.0, 20.0, math.inf), "m")
     assert rows == [["0–20 m", "2", "50%", "0%"], ["≥ 20 m", "2", "100%", "50%"]]
     empty = band_rows(wins, np.array([5.0, 15.0, 25.0, 35.0]), (0.0, 1.0, 2.0), "m")
-    assert empty[0][1] == "0" and empty[0][2:] == ["", ""]
+    assert empty[0][1] == "0" and empty[0][2:] == ["–", "–"]
+    closed = band_rows(wins, np.array([0.0, 90.0, 135.0, 180.0]), (0.0, 90.0, 180.0), "°")  # 180° is in the last
+    assert [row[1] for row in closed] == ["1", "3"]
 
 
 def test_report_counts_the_unions_and_what_only_the_controller_parks():
     agents = {"run1": np.array([True, False, False, False]), "run2": np.array([True, True, False, False])}
     controller = np.array([False, False, True, False])
-    geometry = [Start((0.0, 14.0), d, a) for d, a in ((14.0, 0.0), (18.0, 40.0), (28.0, 70.0), (29.0, 80.0))]
+    geometry = [Start((0.0, 14.0), d, b) for d, b in ((14.0, 0.0), (18.0, 40.0), (28.0, 70.0), (29.0, 170.0))]
     text = report(agents, controller, geometry)
     assert "| some agent parks | 50% |" in text
     assert "| some agent or the controller parks | 75% |" in text
-    assert "| ≥ 20 m | 2 | 0% | 0% | 50% |" in text
+    assert "| ≥ 25 m | 2 | 0% | 0% | 50% |" in text and "| 20–25 m | 0 | – | – | – |" in text
+    assert "| 135–180 ° | 1 | 0% | 0% | 0% |" in text
     assert "starts no agent parks from: [2, 3] (episode indices), of which the controller parks 1." in text
 
 
@@ -67,31 +71,82 @@ def test_the_controller_parks_the_same_starts_every_time_and_idling_parks_none()
     assert not idle.any()
 
 
+class RecordingPredictor:
+    """An SB3-style predictor that idles and records the observation each episode starts from."""
+
+    def __init__(self):
+        self.first = []
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        for j in np.flatnonzero(episode_start):
+            self.first.append({key: value[j] for key, value in obs.items()})
+        return np.zeros((len(episode_start), 2), dtype=np.float32), state
+
+
+def test_an_agents_evaluation_episodes_start_where_starts_says():
+    """Episode i of `evaluate_policy` (here 2 envs at a time, 5 episodes) starts from reset seed ``seed + i``."""
+    pytest.importorskip("highway_env")
+    import gymnasium as gym
+    from tl_gym.agents.evaluation import evaluate_policy
+
+    predictor = RecordingPredictor()
+    evaluate_policy(predictor, gym.make_vec("TLParking-v0", num_envs=2), n_episodes=5, seed=12345)
+    seen = [start_of(obs) for obs in predictor.first[:5]]
+    assert seen == starts(5, seed=12345)
+    assert len({start.slot for start in seen} | {round(start.bearing, 3) for start in seen}) > 2  # not one start
+
+
 def test_starts_of_the_env_lie_in_the_slot_rows():
     pytest.importorskip("highway_env")
     geometry = starts(5, seed=0)
     assert len(geometry) == 5
+    lot = {round(math.hypot(4 * k - 26, 14.0), 6) for k in range(14)}  # slot centres (4k - 26, ±14), car at (0, 0)
     for start in geometry:
-        assert abs(abs(start.slot[1]) - 14.0) < 1e-6  # slot centres: rows at y = ±14 (parking-v0's lot)
-        assert 10.0 <= start.distance <= 32.0 and 0.0 <= start.axis_angle <= 90.0
+        assert abs(abs(start.slot[1]) - 14.0) < 1e-6
+        assert round(start.distance, 6) in lot and 0.0 <= start.bearing <= 180.0
 
 
-def test_an_agent_of_another_env_or_a_folder_without_a_run_file_is_refused(tmp_path):
-    (tmp_path / "pendulum").mkdir()
-    (tmp_path / "pendulum" / "spec.json").write_text(json.dumps({"env": "TLPendulum-v0"}))
-    with pytest.raises(ValueError, match="trained on 'TLPendulum-v0', not TLParking-v0"):
-        agent_successes(tmp_path / "pendulum", 2, 0)
-    with pytest.raises(ValueError, match="trained on None"):
-        agent_successes(tmp_path, 2, 0)
+def write_run(folder, name="spec.json", **run):
+    folder.mkdir()
+    (folder / name).write_text(json.dumps({"env": "TLParking-v0", "env_kwargs": {}, **run}))
+    return folder
 
 
-def test_no_episodes_is_refused(capsys):
+def test_runs_of_another_task_or_without_an_agent_are_refused_naming_why(tmp_path):
+    with pytest.raises(FileNotFoundError, match="has no run.json or spec.json"):
+        check_run(tmp_path)
+    with pytest.raises(ValueError, match="trained on 'TLPendulum-v0', not the registered TLParking-v0"):
+        check_run(write_run(tmp_path / "pendulum", env="TLPendulum-v0"))
+    with pytest.raises(ValueError, match="with --spec"):
+        check_run(write_run(tmp_path / "spec", "run.json", spec="F(speed < 1)"))
+    with pytest.raises(ValueError, match=r"env_kwargs \['horizon'\] change the task"):
+        check_run(write_run(tmp_path / "longer", env_kwargs={"horizon": 300, "end_on_violation": True}))
+    unfinished = write_run(tmp_path / "unfinished", env_kwargs={"end_on_violation": True, "reward_mode": "potential"})
+    with pytest.raises(FileNotFoundError, match="agent.zip not found"):
+        check_run(unfinished)
+    (unfinished / "agent.zip").write_bytes(b"")
+    assert check_run(unfinished) == unfinished
+
+
+def test_no_episodes_a_run_given_twice_and_a_bad_run_are_refused_before_any_evaluation(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["somewhere", "--episodes", "0"])
     assert "--episodes must be >= 1, got 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["a", "b", "a"])
+    assert "a run folder is given twice" in capsys.readouterr().err
+    good = write_run(tmp_path / "good")
+    (good / "agent.zip").write_bytes(b"")  # not loadable: it must not be reached
+    with pytest.raises(ValueError, match="trained on 'TLPendulum-v0'"):
+        main([str(good), str(write_run(tmp_path / "bad", env="TLPendulum-v0"))])
 
 
-def test_the_lot_figure_is_written(tmp_path):
-    geometry = [Start((26.0, 14.0), 29.5, 61.7), Start((-2.0, -14.0), 14.1, 8.1), Start((26.0, 14.0), 29.5, 61.7)]
-    plot_lot({"a": np.array([False, True, True])}, geometry, tmp_path / "lot.png")
-    assert (tmp_path / "lot.png").stat().st_size > 1000
+def test_the_lot_figure_draws_each_slot_in_place_coloured_by_success(tmp_path):
+    geometry = [Start((26.0, 14.0), 29.5, 20.0), Start((-2.0, -14.0), 14.1, 90.0), Start((26.0, 14.0), 29.5, 160.0)]
+    fig = plot_lot({"a": np.array([False, True, True]), "b": np.array([False, True, False])}, geometry,
+                   tmp_path / "figures" / "lot.png")
+    assert (tmp_path / "figures" / "lot.png").stat().st_size > 1000
+    slots = {(p.get_x(), p.get_y(), p.get_width(), p.get_height()): p.get_facecolor() for p in fig.axes[0].patches}
+    assert set(slots) == {(24.0, 10.0, 4.0, 8.0), (-4.0, -18.0, 4.0, 8.0)}  # 4 m across the row, 8 m along it
+    red, green = slots[(24.0, 10.0, 4.0, 8.0)], slots[(-4.0, -18.0, 4.0, 8.0)]  # success 0.25 and 1
+    assert green[1] > green[0] and red[0] > red[1]
