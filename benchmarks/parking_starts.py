@@ -36,6 +36,8 @@ from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 from tl_gym.agents import Agent
+from tl_gym.agents.evaluation import evaluate_policy
+from tl_gym.envs.dynamics import wrap_angle
 from tl_gym.envs.suite import make_parking
 
 import tl_gym  # noqa: F401  (registers TLParking-v0)
@@ -60,11 +62,6 @@ BEARING_BANDS = (0.0, 45.0, 90.0, 135.0, 180.0)
 SLOT_WIDTH, SLOT_LENGTH = 4.0, 8.0
 
 
-def _wrap(angle: float) -> float:
-    """``angle`` in [-π, π)."""
-    return (angle + math.pi) % (2 * math.pi) - math.pi
-
-
 class ParkingController:
     """A hand controller for TLParking-v0: line-of-sight pursuit of the slot's centre line.
 
@@ -74,7 +71,7 @@ class ParkingController:
 
     Example (success of each of ten fresh episodes; `policy_successes` runs them):
 
-        wins = policy_successes(ParkingController, n_episodes=10, seed=0)
+        wins, starts = policy_successes(ParkingController, n_episodes=10, seed=0)
     """
 
     def __init__(self, cruise: float = 3.0, lookahead: float = 3.0, gain: float = 3.0) -> None:
@@ -97,7 +94,7 @@ class ParkingController:
             steer, target = 0.0, -1.0
         else:
             d = goal + (s + self.lookahead) * axis - p
-            alpha = _wrap(math.atan2(d[1], d[0]) - heading)
+            alpha = wrap_angle(math.atan2(d[1], d[0]) - heading)
             if self.mode == "forward" and abs(alpha) > math.radians(120) and s < -3:
                 self.mode = "turn"
             if self.mode == "turn" and abs(alpha) < math.radians(60):
@@ -124,29 +121,43 @@ def start_of(obs: dict[str, np.ndarray]) -> Start:
     """The geometry of a reset observation: where the slot is, and how far the car must turn to face it."""
     o, g = obs["observation"], obs["desired_goal"]
     line = (g[:2] - o[:2]) * POSITION_SCALE
-    bearing = abs(math.degrees(_wrap(math.atan2(line[1], line[0]) - math.atan2(o[5], o[4]))))
+    bearing = abs(math.degrees(wrap_angle(math.atan2(line[1], line[0]) - math.atan2(o[5], o[4]))))
     return Start((float(g[0] * POSITION_SCALE), float(g[1] * POSITION_SCALE)), float(np.linalg.norm(line)), bearing)
 
 
-def starts(n_episodes: int, seed: int) -> list[Start]:
-    """The starts of episodes ``seed``, ``seed + 1``, … of TLParking-v0."""
+class ControllerPredictor:
+    """A per-episode controller as an SB3-style predictor: a fresh ``make()`` at each episode's start.
+
+    It records the geometry of each episode's start (`start_of` of its first observation) in ``starts``, in the
+    order the episodes start, so the starts come from the very episodes the successes do.
+    """
+
+    def __init__(self, make: Callable[[], Callable[[dict[str, np.ndarray]], np.ndarray]]) -> None:
+        self.make, self.controllers, self.starts = make, {}, []
+
+    def predict(self, obs: dict[str, np.ndarray], state: Any = None, episode_start: np.ndarray | None = None,
+                deterministic: bool = True) -> tuple[np.ndarray, Any]:
+        """Each env's action from its episode's controller."""
+        actions = []
+        for j, starting in enumerate(episode_start):
+            mine = {key: value[j] for key, value in obs.items()}
+            if starting:
+                self.controllers[j] = self.make()
+                self.starts.append(start_of(mine))
+            actions.append(self.controllers[j](mine))
+        return np.stack(actions), state
+
+
+def policy_successes(policy: Callable[[], Callable[[dict[str, np.ndarray]], np.ndarray]], n_episodes: int,
+                     seed: int) -> tuple[np.ndarray, list[Start]]:
+    """Success (ρ > 0) and start of each episode ``seed + i`` driven by ``policy()``, a fresh one per episode.
+
+    The episodes run through `evaluate_policy`, as an agent's do, so episode ``i`` is the agent's episode ``i``.
+    """
+    predictor = ControllerPredictor(policy)
     with contextlib.closing(gym.make(ENV_ID)) as env:
-        return [start_of(env.reset(seed=seed + i)[0]) for i in range(n_episodes)]
-
-
-def policy_successes(policy: Callable[[], Callable[[Any], np.ndarray]], n_episodes: int, seed: int,
-                     **env_kwargs: Any) -> np.ndarray:
-    """Success (ρ > 0) of each episode ``seed + i`` driven by ``policy()``, a fresh controller per episode."""
-    wins = np.zeros(n_episodes, dtype=bool)
-    with contextlib.closing(gym.make(ENV_ID, **env_kwargs)) as env:
-        for i in range(n_episodes):
-            act, (obs, _) = policy(), env.reset(seed=seed + i)
-            while True:
-                obs, _, terminated, truncated, info = env.step(act(obs))
-                if terminated or truncated:
-                    wins[i] = info["satisfied"]
-                    break
-    return wins
+        result = evaluate_policy(predictor, env, n_episodes=n_episodes, seed=seed)
+    return np.asarray(result["robustness"]) > 0, predictor.starts[:n_episodes]
 
 
 def check_run(run_dir: Path) -> Path:
@@ -246,9 +257,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"a run folder is given twice: {[str(run) for run in args.runs]}")
     for run in args.runs:  # before minutes of evaluation
         check_run(run)
-    geometry = starts(args.episodes, args.seed)
     agent_wins = {str(run): agent_successes(run, args.episodes, args.seed) for run in args.runs}
-    controller_wins = policy_successes(lambda: ParkingController(cruise=args.cruise), args.episodes, args.seed)
+    controller_wins, geometry = policy_successes(lambda: ParkingController(cruise=args.cruise), args.episodes,
+                                                 args.seed)
     print(report(agent_wins, controller_wins, geometry))
     if args.figure is not None:
         plot_lot(agent_wins, geometry, args.figure)

@@ -16,7 +16,6 @@ from benchmarks.parking_starts import (
     policy_successes,
     report,
     start_of,
-    starts,
 )
 
 
@@ -64,11 +63,13 @@ def test_report_counts_the_unions_and_what_only_the_controller_parks():
 
 def test_the_controller_parks_the_same_starts_every_time_and_idling_parks_none():
     pytest.importorskip("highway_env")
-    first = policy_successes(ParkingController, n_episodes=3, seed=8)
+    first, first_starts = policy_successes(ParkingController, n_episodes=3, seed=8)
     assert first.dtype == bool and first.shape == (3,) and first[0]  # seed 8: the tests' parking start
-    np.testing.assert_array_equal(policy_successes(ParkingController, n_episodes=3, seed=8), first)
-    idle = policy_successes(lambda: lambda obs: np.zeros(2, dtype=np.float32), n_episodes=3, seed=8)
-    assert not idle.any()
+    again, again_starts = policy_successes(ParkingController, n_episodes=3, seed=8)
+    np.testing.assert_array_equal(again, first)
+    assert again_starts == first_starts
+    idle, idle_starts = policy_successes(lambda: lambda obs: np.zeros(2, dtype=np.float32), n_episodes=3, seed=8)
+    assert not idle.any() and idle_starts == first_starts
 
 
 class RecordingPredictor:
@@ -83,7 +84,7 @@ class RecordingPredictor:
         return np.zeros((len(episode_start), 2), dtype=np.float32), state
 
 
-def test_an_agents_evaluation_episodes_start_where_starts_says():
+def test_an_agents_evaluation_episodes_start_where_the_controllers_do():
     """Episode i of `evaluate_policy` (here 2 envs at a time, 5 episodes) starts from reset seed ``seed + i``."""
     pytest.importorskip("highway_env")
     import gymnasium as gym
@@ -92,13 +93,15 @@ def test_an_agents_evaluation_episodes_start_where_starts_says():
     predictor = RecordingPredictor()
     evaluate_policy(predictor, gym.make_vec("TLParking-v0", num_envs=2), n_episodes=5, seed=12345)
     seen = [start_of(obs) for obs in predictor.first[:5]]
-    assert seen == starts(5, seed=12345)
+    reset = gym.make("TLParking-v0")
+    assert seen == [start_of(reset.reset(seed=12345 + i)[0]) for i in range(5)]
+    assert seen == policy_successes(ParkingController, n_episodes=5, seed=12345)[1]
     assert len({start.slot for start in seen} | {round(start.bearing, 3) for start in seen}) > 2  # not one start
 
 
-def test_starts_of_the_env_lie_in_the_slot_rows():
+def test_the_recorded_starts_lie_in_the_slot_rows():
     pytest.importorskip("highway_env")
-    geometry = starts(5, seed=0)
+    geometry = policy_successes(ParkingController, n_episodes=5, seed=0)[1]
     assert len(geometry) == 5
     lot = {round(math.hypot(4 * k - 26, 14.0), 6) for k in range(14)}  # slot centres (4k - 26, ±14), car at (0, 0)
     for start in geometry:
