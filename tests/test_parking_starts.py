@@ -1,5 +1,6 @@
 """benchmarks/parking_starts.py: the start geometry, the report's arithmetic, the controller's runs, bad input."""
 
+import contextlib
 import json
 import math
 
@@ -7,6 +8,7 @@ import numpy as np
 import pytest
 
 from benchmarks.parking_starts import (
+    ControllerPredictor,
     ParkingController,
     Start,
     band_rows,
@@ -72,29 +74,18 @@ def test_the_controller_parks_the_same_starts_every_time_and_idling_parks_none()
     assert not idle.any() and idle_starts == first_starts
 
 
-class RecordingPredictor:
-    """An SB3-style predictor that idles and records the observation each episode starts from."""
-
-    def __init__(self):
-        self.first = []
-
-    def predict(self, obs, state=None, episode_start=None, deterministic=True):
-        for j in np.flatnonzero(episode_start):
-            self.first.append({key: value[j] for key, value in obs.items()})
-        return np.zeros((len(episode_start), 2), dtype=np.float32), state
-
-
 def test_an_agents_evaluation_episodes_start_where_the_controllers_do():
     """Episode i of `evaluate_policy` (here 2 envs at a time, 5 episodes) starts from reset seed ``seed + i``."""
     pytest.importorskip("highway_env")
     import gymnasium as gym
     from tl_gym.agents.evaluation import evaluate_policy
 
-    predictor = RecordingPredictor()
-    evaluate_policy(predictor, gym.make_vec("TLParking-v0", num_envs=2), n_episodes=5, seed=12345)
-    seen = [start_of(obs) for obs in predictor.first[:5]]
-    reset = gym.make("TLParking-v0")
-    assert seen == [start_of(reset.reset(seed=12345 + i)[0]) for i in range(5)]
+    predictor = ControllerPredictor(lambda: lambda obs: np.zeros(2, dtype=np.float32))  # idles, records the starts
+    with contextlib.closing(gym.make_vec("TLParking-v0", num_envs=2)) as venv:
+        evaluate_policy(predictor, venv, n_episodes=5, seed=12345)
+    seen = predictor.starts[:5]
+    with contextlib.closing(gym.make("TLParking-v0")) as env:
+        assert seen == [start_of(env.reset(seed=12345 + i)[0]) for i in range(5)]
     assert seen == policy_successes(ParkingController, n_episodes=5, seed=12345)[1]
     assert len({start.slot for start in seen} | {round(start.bearing, 3) for start in seen}) > 2  # not one start
 
