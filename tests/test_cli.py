@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import csv
 import json
+import pathlib
+import re
+import shlex
 import zipfile
 
 import pytest
@@ -177,3 +180,22 @@ def test_eval_why_prints_each_conjuncts_breakdown(car_run, capsys):
     for conjunct in formula.operands:  # task 1 is a conjunction: one line each, with the episodes counted
         line = next(line for line in out.splitlines() if line.startswith(str(conjunct)))
         assert " of 6" in line
+
+
+def _documented_command(doc: str, starts: str) -> list[str]:
+    """The arguments of ``doc``'s one ``$ tl-gym <starts>...`` console line (continuation lines joined)."""
+    text = (pathlib.Path(__file__).parents[1] / doc).read_text().replace("\\\n", " ")
+    lines = [line[len("$ tl-gym "):] for line in text.splitlines() if line.startswith("$ tl-gym " + starts)]
+    assert len(lines) == 1, f"{doc} has {len(lines)} console lines starting with 'tl-gym {starts}'"
+    return shlex.split(lines[0])
+
+
+def test_the_documented_own_formula_example_learns(tmp_path, capsys):
+    """docs/cli.md's "your own formula" command, run as printed there, reaches the flag as it says."""
+    args = _documented_command("docs/cli.md", "train --env MountainCarContinuous-v0")
+    args[args.index("--out") + 1] = str(tmp_path / "mountaincar")
+    assert main([*args, "--quiet"]) == 0
+    assert main(["eval", str(tmp_path / "mountaincar"), "--episodes", "100"]) == 0
+    out = capsys.readouterr().out.strip().splitlines()[-1]
+    success = float(re.fullmatch(r".*: 100 episodes, mean robustness \S+, success rate (\S+)%", out).group(1))
+    assert success >= 95.0, out  # 100.0 here; the margin is for other BLAS builds
