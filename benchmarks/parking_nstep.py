@@ -2,8 +2,10 @@
 
 SB3 2.9's n-step replay buffer refuses Dict observations, so this registers ``TLParkingFlat-v0``: TLParking-v0
 with its Dict observation flattened by gymnasium's ``FlattenObservation`` (the same numbers that SB3's
-``CombinedExtractor`` concatenates), gives it TLParking-v0's SAC entry of ``agents/hyperparams/sb3.yml``, and
-runs the suite's protocol (50 iterations of 4,000 env steps, 100 fresh episodes every 5) in this process.
+``CombinedExtractor`` concatenates). The run is the suite's SAC run of ``benchmarks/configs/suite/parking.toml``
+(its iterations, steps per iteration and evaluations) on that id, with TLParking-v0's SAC entry of
+``agents/hyperparams/sb3.yml`` passed explicitly (``hyperparams=False``: the file has no entry for the trial's id),
+an ``MlpPolicy`` and SB3's ``n_steps``; it runs in this process, where the id is registered.
 
     python -m benchmarks.parking_nstep 3 runs/parking_nstep            # n = 3, tuning seed 100
 
@@ -14,6 +16,7 @@ A trial, not a suite entry: the id exists only while this script runs. Needs hig
 from __future__ import annotations
 
 import argparse
+import dataclasses
 
 import gymnasium as gym
 from tl_gym.agents import sb3
@@ -21,6 +24,7 @@ from tl_gym.envs.suite import make_parking
 
 import tl_gym  # noqa: F401  (registers TLParking-v0)
 from benchmarks import runner
+from benchmarks.suite import CONFIGS
 
 FLAT_ID = "TLParkingFlat-v0"
 
@@ -29,15 +33,20 @@ def _flat_parking(**kwargs) -> gym.Env:
     return gym.wrappers.FlattenObservation(make_parking(**kwargs))
 
 
-def _register_flat_parking() -> None:
-    """Register the flattened id and let it look up TLParking-v0's hyperparameters."""
-    gym.register(FLAT_ID, entry_point=_flat_parking)
-    find = sb3.find_hyperparams
+def register_flat_parking() -> None:
+    """Register ``TLParkingFlat-v0`` (once; a second call is a no-op)."""
+    if FLAT_ID not in gym.registry:
+        gym.register(FLAT_ID, entry_point=_flat_parking)
 
-    def find_as_parking(table, env_id, env_kwargs, algo):
-        return find(table, "TLParking-v0" if env_id == FLAT_ID else env_id, env_kwargs, algo)
 
-    sb3.find_hyperparams = find_as_parking
+def trial_spec(n_steps: int, seed: int) -> runner.RunSpec:
+    """The suite's parking SAC run, moved to the flattened id with ``n_steps``-step returns."""
+    suite_sac = next(spec for spec in runner.load_config(CONFIGS / "parking.toml").runs if spec.label == "SAC")
+    entry = sb3.find_hyperparams(sb3.load_hyperparams(), suite_sac.env, suite_sac.env_kwargs, "sac")
+    hyperparameters = {**entry, **suite_sac.hyperparameters, "hyperparams": False, "policy": "MlpPolicy",
+                       "n_steps": n_steps}
+    return dataclasses.replace(suite_sac, env=FLAT_ID, label=f"SAC, {n_steps}-step returns", seed=seed,
+                               hyperparameters=hyperparameters)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -46,14 +55,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("out", help="results folder; a rerun resumes the run's checkpoint there")
     parser.add_argument("--seed", type=int, default=100, help="the tuning seed (default 100)")
     args = parser.parse_args(argv)
-    _register_flat_parking()
-    sweep = runner.expand_config({
-        "name": f"parking-nstep{args.n_steps}", "env": FLAT_ID, "seeds": [args.seed], "iterations": 50,
-        "evaluate_episodes": 100, "evaluate_every": 5,
-        "agents": [{"label": f"SAC, {args.n_steps}-step returns", "agent": "sac",
-                    "hyperparameters": {"steps_per_iteration": 4000, "policy": "MlpPolicy",
-                                        "n_steps": args.n_steps}}]})
-    spec = sweep.runs[0]
+    register_flat_parking()
+    spec = trial_spec(args.n_steps, args.seed)
     print(spec.run_id, flush=True)
     print(runner.execute_run(spec, f"{args.out}/{spec.run_id}", checkpoint_every=5))
 
