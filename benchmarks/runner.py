@@ -247,13 +247,16 @@ def is_done(run_dir: str | Path) -> bool:
     return (Path(run_dir) / DONE).is_file()
 
 
-def execute_run(spec: RunSpec, run_dir: str | Path, checkpoint_every: int = 0) -> dict[str, Any]:
+def execute_run(spec: RunSpec, run_dir: str | Path, checkpoint_every: int = 0,
+                prepare: Callable[[Any], None] | None = None) -> dict[str, Any]:
     """Run ``spec`` into ``run_dir``; return ``done.json``'s content.
 
     A finished run is returned as it is; an unfinished one resumes from its checkpoint when ``run_dir`` has one
     of the same spec, else starts from scratch. ``checkpoint_every``: iterations between checkpoints (0: none).
     A resumed run is not bit-identical to an uninterrupted one (episodes in progress restart, and SB3 keeps no
     random state); ``done.json``'s ``resumed_at`` lists the iterations it resumed after.
+    ``prepare``: called with a new agent before its first iteration (a trial's extra set-up, such as
+    demonstrations in a replay buffer); not on a resumed run, whose checkpoint holds what it did.
     """
     run_dir = Path(run_dir)
     if is_done(run_dir):
@@ -274,6 +277,8 @@ def execute_run(spec: RunSpec, run_dir: str | Path, checkpoint_every: int = 0) -
         write_atomic(run_dir / SPEC, json.dumps(spec.to_json(), indent=1).encode())
         agent = make_agent(spec.agent, spec.env, seed=spec.seed, env_kwargs=dict(spec.env_kwargs),
                            **dict(spec.hyperparameters))
+        if prepare is not None:
+            prepare(agent)
         traces: dict[str, np.ndarray] = {}
         state: dict[str, Any] = {"resumed_at": [], "wall_time": 0.0, "code": code}
     else:
