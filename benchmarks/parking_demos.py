@@ -39,7 +39,8 @@ def add_demonstrations(agent: SB3Agent, n_steps: int,
     SAC samples (and normalises) the demonstrations like its own steps. VecNormalize's observation statistics
     see the demonstrations too. Returns the finished episodes' count and success rate (``info["satisfied"]``).
     """
-    model, env = agent.model, agent._training_env()
+    model = agent.model
+    env = model.get_env()  # the VecEnv SAC steps: VecNormalize over the TL-wrapped envs
     normalizer = agent.vec_normalize
     raw = lambda obs: normalizer.get_original_obs() if normalizer is not None else obs  # noqa: E731
     obs = env.reset()
