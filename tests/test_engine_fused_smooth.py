@@ -107,14 +107,33 @@ def test_deep_and_odd_formulas(text):
     ("F(log(x) > 0)", {"x": [1.0, -1.0]}),
     ("G(x / y > 0)", {"x": [1.0, 1.0], "y": [1.0, 0.0]}),
     ("F(x < 1e300)", {"x": [3.0, 2.0]}),
+    ("0 < min(0, sqrt(x))", {"x": [-1.0]}),  # NaN as min's second operand (it once came out as 0)
+    ("0 < max(0, sqrt(x))", {"x": [-1.0]}),
+    ("F(max(x, log(x), 2) > 0)", {"x": [1.0, -1.0]}),
 ])
 def test_undefined_or_too_large_predicates_are_refused_as_by_numpy(text, trace):
     formula = parse(text)
     with pytest.raises(TraceError) as numpy_error:
         formula.smooth_robustness(trace, 1.0, backend="numpy")
     with pytest.raises(TraceError) as error:
-        formula.smooth_robustness(trace, 1.0)
+        formula.smooth_robustness(trace, 1.0, backend="numba")
     assert str(error.value) == str(numpy_error.value)
+
+
+@given(S.formulas(max_depth=3, leaves=S.predicates(exprs=S.expressions(depth=2, numbers=S.small_numbers()))),
+       S.traces())
+def test_unsafe_arithmetic_is_refused_or_smoothed_as_by_numpy(formula, trace):
+    """Division, log, sqrt and powers of anything: the kernel refuses what numpy refuses, and agrees elsewhere."""
+    try:
+        expected = formula.smooth_robustness(trace, 1.0, backend="numpy")
+    except TraceError as numpy_error:
+        with pytest.raises(TraceError) as error:
+            formula.smooth_robustness(trace, 1.0, backend="numba")
+        assert str(error.value) == str(numpy_error)
+        return
+    got = formula.smooth_robustness(trace, 1.0, backend="numba")
+    scale = max(1.0, abs(expected))
+    assert abs(got - expected) / scale <= 1e-10 or got == expected
 
 
 def test_auto_loads_the_kernel_once_numpy_smoothing_has_cost_the_process_enough(monkeypatch):

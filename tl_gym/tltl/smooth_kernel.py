@@ -91,12 +91,12 @@ def expression(code: Any, numbers: Any, start: int, stop: int, X: Any, sigs: Any
         elif op == LOG:
             for t in range(nt):
                 out[t] = math.log(x[t]) if x[t] > 0.0 else (-math.inf if x[t] == 0.0 else math.nan)
-        elif op == MIN:
+        elif op == MIN:  # NaN in either operand gives NaN (numpy's minimum), which the caller refuses
             for t in range(nt):
-                out[t] = y[t] if y[t] < x[t] else x[t]
+                out[t] = y[t] if y[t] < x[t] or y[t] != y[t] else x[t]
         else:  # MAX
             for t in range(nt):
-                out[t] = y[t] if y[t] > x[t] else x[t]
+                out[t] = y[t] if y[t] > x[t] or y[t] != y[t] else x[t]
 
 
 @njit(cache=True, error_model="numpy")
@@ -149,7 +149,7 @@ def expression_backward(code: Any, start: int, stop: int, X: Any, D: Any, jac: A
                 dx[t] += d[t] / x[t]
         elif op == MIN or op == MAX:  # to the first operand attaining the extreme (times 0 to the other)
             for t in range(nt):
-                second = y[t] < x[t] if op == MIN else y[t] > x[t]
+                second = (y[t] < x[t] if op == MIN else y[t] > x[t]) or y[t] != y[t]
                 dx[t] += d[t] * (0.0 if second else 1.0)
                 dy[t] += d[t] * (1.0 if second else 0.0)
 
