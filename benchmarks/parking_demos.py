@@ -27,7 +27,7 @@ from tl_gym.agents.sb3 import SB3Agent, one_torch_thread
 
 from benchmarks import runner
 from benchmarks.parking_starts import ParkingController
-from benchmarks.suite import CONFIGS
+from benchmarks.suite import suite_run
 
 
 def add_demonstrations(agent: SB3Agent, n_steps: int,
@@ -76,7 +76,7 @@ def pretrain(agent: SB3Agent, gradient_steps: int) -> None:
 
 def trial_spec(demo_steps: int, pretrain_steps: int, seed: int) -> runner.RunSpec:
     """The suite's parking SAC run, labelled with the trial's demonstrations and pre-training."""
-    suite_sac = next(spec for spec in runner.load_config(CONFIGS / "parking.toml").runs if spec.label == "SAC")
+    suite_sac = suite_run("parking", "SAC")
     label = f"SAC, {demo_steps} controller steps in the replay buffer, {pretrain_steps} pre-training steps"
     return dataclasses.replace(suite_sac, label=label, seed=seed)
 

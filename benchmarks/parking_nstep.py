@@ -24,7 +24,7 @@ from tl_gym.envs.suite import make_parking
 
 import tl_gym  # noqa: F401  (registers TLParking-v0)
 from benchmarks import runner
-from benchmarks.suite import CONFIGS
+from benchmarks.suite import suite_run
 
 FLAT_ID = "TLParkingFlat-v0"
 
@@ -41,7 +41,7 @@ def register_flat_parking() -> None:
 
 def trial_spec(n_steps: int, seed: int) -> runner.RunSpec:
     """The suite's parking SAC run, moved to the flattened id with ``n_steps``-step returns."""
-    suite_sac = next(spec for spec in runner.load_config(CONFIGS / "parking.toml").runs if spec.label == "SAC")
+    suite_sac = suite_run("parking", "SAC")
     entry = sb3.find_hyperparams(sb3.load_hyperparams(), suite_sac.env, suite_sac.env_kwargs, "sac")
     hyperparameters = {**entry, **suite_sac.hyperparameters, "hyperparams": False, "policy": "MlpPolicy",
                        "n_steps": n_steps}

@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 
 from benchmarks.figures import plot_band, saved
 from benchmarks.results import RunResult, first_text, group_runs, load_runs, median_first, notes, table
-from benchmarks.runner import add_sweep_options, load_config, run_with_options, variant_of
+from benchmarks.runner import RunSpec, add_sweep_options, load_config, run_with_options, variant_of
 
 HERE = Path(__file__).resolve().parent
 CONFIGS = HERE / "configs" / "suite"
@@ -35,6 +35,20 @@ SOLVED = 0.9
 def config_paths(tasks: Sequence[str] = ()) -> list[Path]:
     """The suite configs, in name order; ``tasks`` picks some by file stem (``car1``, ``pendulum`` ...)."""
     return [p for p in sorted(CONFIGS.glob("*.toml")) if not tasks or p.stem in tasks]
+
+
+def suite_run(task: str, label: str) -> RunSpec:
+    """The run of suite task ``task`` (a config's file stem) labelled ``label``, at its first seed: a trial's base.
+
+    Raises:
+        KeyError: the task's config has no such label (the message lists its labels).
+    """
+    runs = load_config(CONFIGS / f"{task}.toml").runs
+    for spec in runs:
+        if spec.label == label:
+            return spec
+    raise KeyError(f"the suite config {task}.toml has no run labelled {label!r}; its labels: "
+                   f"{sorted({spec.label for spec in runs})}")
 
 
 #: Mean ρ beyond which the ρ panel of `plot_task` is drawn on a symlog axis.

@@ -8,7 +8,7 @@ from tl_gym.agents.registry import make_agent
 
 from benchmarks import parking_demos, runner
 from benchmarks.parking_starts import ParkingController
-from benchmarks.suite import CONFIGS
+from benchmarks.suite import suite_run
 
 SMALL = {"steps_per_iteration": 16, "learning_starts": 8, "batch_size": 8, "buffer_size": 1000,
          "policy_kwargs": "dict(net_arch=[8])"}
@@ -27,7 +27,7 @@ class RecordingController(ParkingController):
 
 def test_trial_is_the_suite_sac_run_under_its_own_label():
     spec = parking_demos.trial_spec(100, 5, seed=100)
-    suite_sac = next(s for s in runner.load_config(CONFIGS / "parking.toml").runs if s.label == "SAC")
+    suite_sac = suite_run("parking", "SAC")
     assert spec.seed == 100 and "100 controller steps" in spec.label
     assert dataclasses.replace(spec, label=suite_sac.label, seed=suite_sac.seed) == suite_sac
     assert spec.run_id != suite_sac.run_id

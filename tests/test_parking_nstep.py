@@ -6,13 +6,13 @@ import pytest
 from tl_gym.agents import sb3
 from tl_gym.agents.registry import make_agent
 
-from benchmarks import parking_nstep, runner
-from benchmarks.suite import CONFIGS
+from benchmarks import parking_nstep
+from benchmarks.suite import suite_run
 
 
 def test_trial_is_the_suite_sac_run_with_the_parking_entry():
     spec = parking_nstep.trial_spec(3, seed=100)
-    suite_sac = next(s for s in runner.load_config(CONFIGS / "parking.toml").runs if s.label == "SAC")
+    suite_sac = suite_run("parking", "SAC")
     entry = sb3.find_hyperparams(sb3.load_hyperparams(), "TLParking-v0", {}, "sac")
     assert entry  # the parking entry exists, so the comparison below can fail
     assert (spec.env, spec.seed) == (parking_nstep.FLAT_ID, 100)

@@ -77,3 +77,10 @@ def test_runs_evaluate_along_training_and_the_report_reads_them(tmp_path):
         run.history["eval_mean_robustness"] = run.history["eval_mean_robustness"] * 100
     rho_ax = suite.plot_task("tiny", runs, None).axes[1]
     assert rho_ax.get_yscale() == "symlog" and "(symlog)" in rho_ax.get_ylabel()
+
+
+def test_suite_run_finds_a_label_and_names_the_labels_it_lacks():
+    spec = suite.suite_run("parking", "SAC")
+    assert (spec.env, spec.agent, spec.label, spec.seed) == ("TLParking-v0", "sac", "SAC", 0)
+    with pytest.raises(KeyError, match=r"parking.toml has no run labelled 'SACC'.*'SAC'"):
+        suite.suite_run("parking", "SACC")
