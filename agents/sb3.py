@@ -18,7 +18,7 @@ A fair baseline uses SB3's own tools the way the zoo does, so by default:
   pay a dense reward, because the terminal robustness alone is not a Markov reward of
   the raw observation. ``tl_reward="terminal"`` is the plain terminal reward, for the ablation.
 - **Per-task hyperparameters** from one YAML file in the zoo's format
-  (``agents/hyperparams/sb3.yml``, see `load_hyperparams`); explicit keyword arguments win.
+  (``agents/hyperparams/sb3.yml``, read by `tl_gym.agents.sb3_settings`); explicit keyword arguments win.
 
 Saving embeds stable-baselines3's own zip as the member ``sb3_model.zip`` and the
 pickled `VecNormalize` as ``vecnormalize.pkl`` (the zoo's file; ``VecNormalize.load``
@@ -31,479 +31,49 @@ saved one; it can continue learning, but not bit-identically to an uninterrupted
 
 from __future__ import annotations
 
-import ast
 import contextlib
 import copy
 import dataclasses
-import functools
-import importlib
 import inspect
 import io
-import math
 import pickle
 import warnings
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
-from tl_gym.checks import check_positive
 from tl_gym.errors import IncompatibleSaveError
-from tl_gym.relabel import RELABEL_STRATEGIES, EpisodeRecorder, GoalRelabeller, find_wrapper
+from tl_gym.relabel import EpisodeRecorder, GoalRelabeller, find_wrapper
 
 from .base import Agent, _describe_env_source
 from .hindsight import make_hindsight_feeder
-from .registry import SB3_CONTRIB_ALGORITHMS
 from .sampling import env_attribute
+from .sb3_settings import (
+    DEFAULT_TL_REWARD,
+    TL_REWARD_ENV_KWARGS,
+    LinearSchedule,
+    SB3Config,
+    activation_class,
+    canonical_settings,
+    check_tl_reward,
+    find_hyperparams,
+    is_linear_schedule,
+    linear_start,
+    load_hyperparams,
+    merge_hyperparameters,
+    parse_normalize,
+    resolve_algorithm,
+)
 from .serialization import atomic_path, is_jsonable
-
-#: Env steps of one TLPS iteration with the paper's settings (N = 40 episodes × T = 200).
-DEFAULT_STEPS_PER_ITERATION = 40 * 200
-
-#: Parallel training envs when neither the user nor the task's hyperparameters say.
-DEFAULT_N_ENVS = 8
 
 #: Archive member holding stable-baselines3's own model file.
 SB3_MEMBER = "sb3_model.zip"
 
 #: Archive member holding the pickled `VecNormalize` (observation and return statistics).
 VECNORMALIZE_MEMBER = "vecnormalize.pkl"
-
-#: Env keywords each ``tl_reward`` adds to an env id's ``env_kwargs`` (the user's own win).
-#: ``"markov"`` appends the online monitor's state to the observation and pays the shaped
-#: reward; ``"terminal"`` is the plain terminal robustness on the raw observation. Change
-#: the shaping here, in one place, once measurements pick the best one.
-TL_REWARD_ENV_KWARGS: dict[str, dict[str, Any]] = {
-    "markov": {"observe_monitor": True, "reward_mode": "dense"},
-    "terminal": {"observe_monitor": False, "reward_mode": "terminal"},
-}
-
-#: ``tl_reward`` of an agent built on an env id when the user does not choose.
-DEFAULT_TL_REWARD = "markov"
-
-#: VecNormalize settings when neither the user nor the task's hyperparameters say: the
-#: observations only (reward normalisation is a per-task choice, as in the zoo).
-DEFAULT_NORMALIZE: dict[str, Any] = {"norm_obs": True, "norm_reward": False}
-
-#: The packaged per-task hyperparameters (the zoo's ``hyperparams/<algo>.yml``, all algorithms in one file).
-HYPERPARAMS_FILE = Path(__file__).with_name("hyperparams") / "sb3.yml"
-
-#: Keys of a hyperparameter entry that are not the algorithm's constructor arguments.
-ENTRY_KEYS = ("n_envs", "policy", "n_timesteps", "normalize", "noise_type", "noise_std")
-
-#: Exploration noise of off-policy algorithms, by the zoo's ``noise_type`` names.
-NOISE_TYPES = ("normal", "ornstein-uhlenbeck")
-
-#: Constructor arguments that may be the zoo's ``"lin_<x>"``, a value decaying linearly to 0 over ``n_timesteps``.
-SCHEDULE_KEYS = ("learning_rate", "clip_range")
-
-_ALGO_MODULES = ("stable_baselines3", "sb3_contrib")
-# constructor arguments that SB3Agent sets itself
-_RESERVED_ALGO_ARGS = ("self", "policy", "env", "seed", "verbose", "device", "_init_setup_model")
-
-
-def resolve_algorithm(algo: Any) -> type:
-    """An SB3 algorithm class from a class or a case-insensitive name (``"ppo"``, ``"SAC"``, ``"TQC"``).
-
-    stable-baselines3's names are looked up first; sb3-contrib is imported only for a name SB3 lacks.
-
-    Raises:
-        ValueError: no stable-baselines3 / sb3-contrib algorithm has that name; for one of
-            `SB3_CONTRIB_ALGORITHMS` when sb3-contrib does not import, the pip command and why.
-    """
-    from stable_baselines3.common.base_class import BaseAlgorithm
-
-    if isinstance(algo, type) and issubclass(algo, BaseAlgorithm):
-        return algo
-    if not isinstance(algo, str):
-        raise TypeError(f"algo must be an SB3 algorithm class or its name, got {algo!r}")
-    known: dict[str, type] = {}
-    for module_name in _ALGO_MODULES:
-        try:
-            module = importlib.import_module(module_name)
-        except ImportError as exc:
-            if algo.lower() in SB3_CONTRIB_ALGORITHMS:
-                raise ValueError(f"algorithm {algo!r} is sb3-contrib's, which does not import ({exc}): "
-                                 f"pip install sb3-contrib") from exc
-            continue
-        for name in dir(module):
-            value = getattr(module, name)
-            if isinstance(value, type) and issubclass(value, BaseAlgorithm) and value is not BaseAlgorithm:
-                known.setdefault(name.lower(), value)
-        if algo.lower() in known:
-            return known[algo.lower()]
-    available = sorted(c.__name__ for c in known.values())
-    raise ValueError(f"unknown algorithm {algo!r}; available: {available}")
-
-
-# Checked settings ---------------------------------------------------------------------------------
-def check_tl_reward(value: Any) -> str:
-    """Return ``value`` if it is a key of `TL_REWARD_ENV_KWARGS`.
-
-    Raises:
-        ValueError: naming the field and the allowed values.
-    """
-    if not isinstance(value, str) or value not in TL_REWARD_ENV_KWARGS:
-        raise ValueError(f"tl_reward must be one of {sorted(TL_REWARD_ENV_KWARGS)}, got {value!r}")
-    return value
-
-
-def parse_normalize(value: Any) -> dict[str, Any] | None:
-    """VecNormalize keyword arguments from a zoo-style ``normalize`` value; ``None`` means off.
-
-    ``True`` is VecNormalize's defaults (observations and rewards, as ``normalize: true`` in
-    the zoo), ``False`` is off, and a dict or its text (``"{'norm_obs': True, 'norm_reward':
-    False}"``, read with `ast.literal_eval`, never `eval`) gives the keywords.
-
-    Example:
-        >>> parse_normalize("{'norm_obs': True, 'norm_reward': False}")
-        {'norm_obs': True, 'norm_reward': False}
-        >>> parse_normalize(True), parse_normalize(False)
-        ({}, None)
-
-    Raises:
-        ValueError: a keyword VecNormalize does not take, or text that is not a literal dict.
-    """
-    if isinstance(value, str):
-        try:
-            value = ast.literal_eval(value.strip())
-        except (ValueError, SyntaxError):
-            raise ValueError(f"normalize must be true, false or a dict of VecNormalize keywords, got {value!r}") \
-                from None
-    if value is None or value is False:
-        return None
-    if value is True:
-        return {}
-    if not isinstance(value, Mapping):
-        raise ValueError(f"normalize must be true, false or a dict of VecNormalize keywords, got {value!r}")
-    allowed = _vecnormalize_keywords()
-    unknown = sorted(set(value) - set(allowed))
-    if unknown:
-        raise ValueError(f"normalize has keyword(s) {unknown} that VecNormalize does not take; valid ones: {allowed}")
-    return dict(value)
-
-
-@functools.lru_cache(maxsize=1)
-def _vecnormalize_keywords() -> list[str]:
-    from stable_baselines3.common.vec_env import VecNormalize
-
-    return [n for n in inspect.signature(VecNormalize.__init__).parameters if n not in ("self", "venv", "training")]
-
-
-def parse_policy_kwargs(value: Any) -> dict[str, Any] | None:
-    """``policy_kwargs`` as a JSON-able dict, activations named by string.
-
-    Takes a dict (activation as a `torch.nn` class or its name) or the zoo's text,
-    ``"dict(net_arch=[64, 64], activation_fn=nn.Tanh)"``, read safely: only ``dict(...)``
-    calls, ``{...}`` literals, plain literals and ``nn.<Activation>`` names are accepted.
-
-    Example:
-        >>> parse_policy_kwargs("dict(log_std_init=-2, net_arch=dict(pi=[64], vf=[64]), activation_fn=nn.ReLU)")
-        {'log_std_init': -2, 'net_arch': {'pi': [64], 'vf': [64]}, 'activation_fn': 'ReLU'}
-
-    Raises:
-        ValueError: text that is not such an expression, or an unknown activation.
-    """
-    if value is None:
-        return None
-    if isinstance(value, str):
-        try:
-            tree = ast.parse(value.strip(), mode="eval").body
-        except SyntaxError:
-            raise ValueError(f"policy_kwargs text does not parse: {value!r}") from None
-        value = _policy_kwargs_node(tree, value)
-    if not isinstance(value, Mapping):
-        raise ValueError(f"policy_kwargs must be a dict or its text, got {value!r}")
-    out = dict(value)
-    if "activation_fn" in out:
-        out["activation_fn"] = _activation(out["activation_fn"]).__name__
-    return out
-
-
-def _policy_kwargs_node(node: ast.AST, text: str) -> Any:
-    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "dict" and not node.args:
-        return {kw.arg: _policy_kwargs_node(kw.value, text) for kw in node.keywords}
-    if isinstance(node, ast.Dict):
-        return {ast.literal_eval(k): _policy_kwargs_node(v, text) for k, v in zip(node.keys, node.values)}
-    if isinstance(node, (ast.List, ast.Tuple)):
-        return [_policy_kwargs_node(e, text) for e in node.elts]
-    if isinstance(node, ast.Attribute):  # nn.Tanh, th.nn.Tanh, torch.nn.Tanh
-        return node.attr
-    try:
-        return ast.literal_eval(node)
-    except ValueError:
-        raise ValueError(f"policy_kwargs {text!r}: cannot read {ast.unparse(node)!r} (only literals, dict(...) "
-                         "and nn.<Activation> are allowed)") from None
-
-
-def _activation(value: Any) -> type:
-    """A `torch.nn` activation class from the class or its case-insensitive name (``"tanh"``, ``"nn.ReLU"``)."""
-    import torch.nn.modules.activation as activations
-
-    known = {name.lower(): cls for name, cls in vars(activations).items()
-             if isinstance(cls, type) and issubclass(cls, activations.Module)
-             and cls.__module__ == activations.__name__}
-    if isinstance(value, type) and value in known.values():
-        return value
-    name = value.rsplit(".", 1)[-1].lower() if isinstance(value, str) else None
-    if name not in known:
-        raise ValueError(f"unknown activation_fn {value!r}; use a torch.nn activation name, e.g. 'Tanh' or 'ReLU'")
-    return known[name]
-
-
-@dataclass(frozen=True)
-class SB3Config:
-    """Hyperparameters of `SB3Agent` (the algorithm's own go in ``algo_kwargs``)."""
-
-    algo: str
-    """Algorithm class name, e.g. ``"PPO"``."""
-    steps_per_iteration: int = DEFAULT_STEPS_PER_ITERATION
-    """Env steps per iteration; on-policy algorithms get ``n_steps = steps_per_iteration // n_envs`` by default."""
-    n_envs: int = DEFAULT_N_ENVS
-    """Parallel envs of SB3's ``DummyVecEnv``."""
-    policy: str | None = None
-    """SB3 policy name; ``None`` picks ``"MultiInputPolicy"`` for Dict observations, else ``"MlpPolicy"``."""
-    tl_reward: str = DEFAULT_TL_REWARD
-    """``"markov"`` (monitor view + shaped reward) or ``"terminal"`` (the ablation); see `TL_REWARD_ENV_KWARGS`."""
-    normalize: bool | dict[str, Any] = field(default_factory=lambda: dict(DEFAULT_NORMALIZE))
-    """VecNormalize: ``False`` (off), ``True`` (its defaults) or its keywords (see `parse_normalize`)."""
-    hyperparams: bool | str = True
-    """Per-task hyperparameters: ``True`` the packaged file, ``False`` none, or the path of a file."""
-    n_timesteps: int | None = None
-    """The env-step budget the task's hyperparameters were set for (``tl-gym train`` uses it by default)."""
-    noise_type: str | None = None
-    """Off-policy exploration noise: ``None``, ``"normal"`` or ``"ornstein-uhlenbeck"`` (std ``noise_std``)."""
-    noise_std: float = 0.1
-    """Standard deviation of ``noise_type`` noise, in action units."""
-    end_is_terminal: bool = True
-    """Report the end of every episode to SB3 as a termination. The robustness is of the finite trace
-    s_0 … s_T: nothing after its end counts, so SB3 must not add a bootstrapped value past a time-limit
-    truncation (which it does, as for infinite-horizon tasks). ``False`` keeps Gymnasium's flags."""
-    her_goals: int = 0
-    """Hindsight relabelling on goal-conditioned envs (off-policy algorithms): every finished episode is also
-    added to the replay buffer ``her_goals`` times, each time with a goal it achieved later and the TL reward
-    recomputed for that goal (`tl_gym.relabel`, `agents.hindsight`). 0 is off."""
-    her_strategy: str = "future"
-    """Which achieved goals `her_goals` relabels with: ``"future"`` (HER's: steps drawn uniformly) or
-    ``"satisfied"`` (goals under which the episode satisfies the formula first; `GoalRelabeller.sample`)."""
-    algo_kwargs: dict[str, Any] = field(default_factory=dict)
-    """Keyword arguments for the algorithm's constructor (``learning_rate``, ``n_steps``, ...)."""
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.steps_per_iteration, (int, np.integer)) or self.steps_per_iteration < 1:
-            raise ValueError(f"steps_per_iteration must be an int >= 1, got {self.steps_per_iteration!r}")
-        if not isinstance(self.n_envs, (int, np.integer)) or self.n_envs < 1:
-            raise ValueError(f"n_envs must be an int >= 1, got {self.n_envs!r}")
-        check_tl_reward(self.tl_reward)
-        if not (isinstance(self.normalize, bool) or isinstance(self.normalize, Mapping)):
-            raise ValueError(f"normalize must be a bool or a dict of VecNormalize keywords, got {self.normalize!r}")
-        parse_normalize(self.normalize)
-        if not isinstance(self.hyperparams, (bool, str)):
-            raise ValueError(f"hyperparams must be true, false or a file path, got {self.hyperparams!r}")
-        if self.n_timesteps is not None and (not isinstance(self.n_timesteps, (int, np.integer))
-                                             or self.n_timesteps < 1):
-            raise ValueError(f"n_timesteps must be an int >= 1 or None, got {self.n_timesteps!r}")
-        if not isinstance(self.end_is_terminal, bool):
-            raise ValueError(f"end_is_terminal must be true or false, got {self.end_is_terminal!r}")
-        if not isinstance(self.her_goals, (int, np.integer)) or isinstance(self.her_goals, bool) or self.her_goals < 0:
-            raise ValueError(f"her_goals must be an int >= 0, got {self.her_goals!r}")
-        if self.her_strategy not in RELABEL_STRATEGIES:
-            raise ValueError(f"her_strategy must be one of {RELABEL_STRATEGIES}, got {self.her_strategy!r}")
-        if self.noise_type is not None and self.noise_type not in NOISE_TYPES:
-            raise ValueError(f"noise_type must be None or one of {NOISE_TYPES}, got {self.noise_type!r}")
-        check_positive("noise_std", self.noise_std, allow_zero=True)
-        for key, value in self.algo_kwargs.items():
-            if is_linear_schedule(value):
-                linear_start(key, value)
-                if self.n_timesteps is None:
-                    raise ValueError(f"{key}={value!r} decays over n_timesteps, which is not set; give n_timesteps")
-
-
-# The hyperparameter file --------------------------------------------------------------------------
-def load_hyperparams(path: str | Path | None = None) -> dict[str, dict[str, dict[str, Any]]]:
-    """Read and check a per-task hyperparameter file (by default the packaged ``sb3.yml``).
-
-    The file maps an env key to algorithm names to settings, like rl-baselines3-zoo's
-    ``hyperparams/<algo>.yml`` with the algorithm as a second level::
-
-        TLCarNav-v0:task=2:          # env id, then optional env keywords it applies to
-          ppo:
-            n_envs: 8                # tl_gym / zoo keys: n_envs, policy, n_timesteps, normalize,
-            n_timesteps: 1.5e6       #   noise_type, noise_std
-            normalize: "{'norm_obs': True, 'norm_reward': False}"
-            gamma: 0.999             # everything else: the algorithm's constructor arguments
-            policy_kwargs: "dict(net_arch=[64, 64], activation_fn=nn.Tanh)"
-
-    Values come back checked and in canonical form: ``n_timesteps`` an int, ``normalize``
-    a dict or ``None`` (`parse_normalize`), ``policy_kwargs`` a dict (`parse_policy_kwargs`),
-    ``train_freq`` lists as tuples.
-
-    Raises:
-        ValueError: naming the entry and the culprit: an unknown algorithm, a key that is neither
-            in `ENTRY_KEYS` nor an argument of the algorithm, or a bad value.
-    """
-    import yaml
-
-    path = HYPERPARAMS_FILE if path is None else Path(path)
-    table = yaml.safe_load(path.read_text()) or {}
-    if not isinstance(table, Mapping):
-        raise ValueError(f"{path}: expected a mapping of env keys to algorithms")
-    checked: dict[str, dict[str, dict[str, Any]]] = {}
-    for env_key, algos in table.items():
-        _split_env_key(str(env_key))
-        if not isinstance(algos, Mapping):
-            raise ValueError(f"{path}: {env_key}: expected a mapping of algorithm names to settings")
-        checked[str(env_key)] = {}
-        for algo_name, settings in algos.items():
-            where = f"{path}: {env_key} / {algo_name}"
-            try:
-                algo_class = resolve_algorithm(str(algo_name))
-            except ValueError as error:
-                raise ValueError(f"{where}: {error}") from None
-            if not isinstance(settings, Mapping):
-                raise ValueError(f"{where}: expected a mapping of settings")
-            checked[str(env_key)][str(algo_name).lower()] = _check_entry(dict(settings), algo_class, where)
-    return checked
-
-
-def _check_entry(settings: dict[str, Any], algo_class: type, where: str) -> dict[str, Any]:
-    allowed = set(ENTRY_KEYS) | (set(inspect.signature(algo_class.__init__).parameters) - set(_RESERVED_ALGO_ARGS))
-    for key in settings:
-        if key not in allowed:
-            raise ValueError(f"{where}: unknown key {key!r}: neither one of {list(ENTRY_KEYS)} nor an argument of "
-                             f"{algo_class.__name__}")
-    try:
-        return _canonical(settings)
-    except ValueError as error:
-        raise ValueError(f"{where}: {error}") from None
-
-
-def _canonical(settings: Mapping[str, Any]) -> dict[str, Any]:
-    """Settings in the form the config holds (JSON-able where the value allows)."""
-    out = dict(settings)
-    for key, value in out.items():
-        if is_linear_schedule(value):
-            linear_start(key, value)  # checked here, built by the agent
-    if "n_timesteps" in out:
-        value = float(out["n_timesteps"])
-        if not math.isfinite(value) or value < 1 or value != int(value):
-            raise ValueError(f"n_timesteps must be a whole number >= 1, got {out['n_timesteps']!r}")
-        out["n_timesteps"] = int(value)
-    if "normalize" in out and not isinstance(out["normalize"], bool):
-        normalize = parse_normalize(out["normalize"])
-        out["normalize"] = False if normalize is None else normalize
-    if "policy_kwargs" in out:
-        out["policy_kwargs"] = parse_policy_kwargs(out["policy_kwargs"])
-    if isinstance(out.get("train_freq"), list):
-        out["train_freq"] = tuple(out["train_freq"])
-    return out
-
-
-def _split_env_key(key: str) -> tuple[str, dict[str, Any]]:
-    """``"TLCarNav-v0:task=2"`` -> ``("TLCarNav-v0", {"task": 2})`` (values read as YAML scalars)."""
-    import yaml
-
-    env_id, _, conditions = key.partition(":")
-    wanted: dict[str, Any] = {}
-    for item in filter(None, (c.strip() for c in conditions.split(","))):
-        name, sep, value = item.partition("=")
-        if not sep or not name.strip():
-            raise ValueError(f"bad env key {key!r}: expected ID or ID:name=value,...")
-        wanted[name.strip()] = yaml.safe_load(value)
-    return env_id.strip(), wanted
-
-
-def find_hyperparams(table: Mapping[str, Mapping[str, Mapping[str, Any]]], env_id: str | None,
-                     env_kwargs: Mapping[str, Any], algo: str) -> dict[str, Any]:
-    """The settings for ``algo`` on ``env_id`` with ``env_kwargs``; ``{}`` when the table has none.
-
-    Among the keys naming ``env_id`` whose every ``name=value`` condition holds in
-    ``env_kwargs`` and that list ``algo``, the one with the most conditions wins
-    (``TLCarNav-v0:task=2`` over ``TLCarNav-v0``).
-
-    Example:
-        >>> table = {"Car": {"ppo": {"gamma": 0.99}}, "Car:task=2": {"ppo": {"gamma": 0.999}}}
-        >>> find_hyperparams(table, "Car", {"task": 2}, "PPO"), find_hyperparams(table, "Car", {}, "ppo")
-        ({'gamma': 0.999}, {'gamma': 0.99})
-    """
-    best: tuple[int, dict[str, Any]] = (-1, {})
-    for key, algos in table.items():
-        key_id, wanted = _split_env_key(key)
-        if key_id != env_id or algo.lower() not in algos:
-            continue
-        if all(k in env_kwargs and env_kwargs[k] == v for k, v in wanted.items()) and len(wanted) > best[0]:
-            best = (len(wanted), dict(algos[algo.lower()]))
-    return best[1]
-
-
-def merge_hyperparameters(entry: Mapping[str, Any], explicit: Mapping[str, Any], on_policy: bool) -> dict[str, Any]:
-    """The task's settings overridden by the user's, name by name.
-
-    One exception keeps an iteration at the size the user asked for: when the user sets
-    ``steps_per_iteration`` or ``n_envs`` but not ``n_steps``, an on-policy entry's ``n_steps``
-    is dropped (``n_steps`` then follows ``steps_per_iteration // n_envs``).
-
-    Example:
-        >>> merge_hyperparameters({"n_envs": 8, "n_steps": 1000, "gamma": 0.999}, {"n_envs": 2}, on_policy=True)
-        {'n_envs': 2, 'gamma': 0.999}
-    """
-    merged = {**entry, **explicit}
-    if on_policy and "n_steps" not in explicit and {"steps_per_iteration", "n_envs"} & set(explicit):
-        merged.pop("n_steps", None)
-    return merged
-
-
-def is_linear_schedule(value: Any) -> bool:
-    """Whether a hyperparameter's value is the zoo's ``"lin_<x>"`` schedule."""
-    return isinstance(value, str) and value.startswith("lin_")
-
-
-def linear_start(key: str, value: str) -> float:
-    """The start value of the zoo's ``"lin_<x>"`` schedule ``value`` given for ``key``.
-
-    Raises:
-        ValueError: ``key`` is not one of `SCHEDULE_KEYS`, or ``<x>`` is not a number > 0.
-
-    Example:
-        >>> linear_start("learning_rate", "lin_3e-4")
-        0.0003
-    """
-    if key not in SCHEDULE_KEYS:
-        raise ValueError(f"{key}={value!r}: a 'lin_' schedule is only for {list(SCHEDULE_KEYS)}")
-    try:
-        start = float(value.removeprefix("lin_"))
-    except ValueError:
-        raise ValueError(f"{key}={value!r}: expected 'lin_<number>', e.g. 'lin_3e-4'") from None
-    if not math.isfinite(start) or start <= 0:
-        raise ValueError(f"{key}={value!r}: the start value must be a finite number > 0")
-    return start
-
-
-class LinearSchedule:
-    """rl-baselines3-zoo's ``lin_<start>``: ``start`` decaying linearly to 0 over ``budget`` env steps.
-
-    SB3 calls a schedule with the progress remaining of the current ``learn`` call, counted
-    against the call's last env step. The agent learns in iterations (a ``learn`` call each), so
-    it sets `span` to that step before each call, and the schedule turns SB3's progress back into
-    the budget's: ``start * (1 - steps / budget)``, the zoo's decay over its ``n_timesteps``, 0
-    after the budget.
-
-    Example:
-        >>> schedule = LinearSchedule(1e-3, budget=1000)
-        >>> schedule.span = 500  # a learn call from step 0 to step 500
-        >>> schedule(1.0), schedule(0.0)  # at its start, and at its end (step 500: half the budget)
-        (0.001, 0.0005)
-    """
-
-    def __init__(self, start: float, budget: int):
-        self.start, self.budget, self.span = float(start), int(budget), int(budget)
-
-    def __call__(self, progress_remaining: float) -> float:
-        steps = (1.0 - progress_remaining) * self.span
-        return self.start * max(0.0, 1.0 - steps / self.budget)
 
 
 # The agent ------------------------------------------------------------------------------------------
@@ -574,7 +144,7 @@ class SB3Agent(Agent):
         explicit = {k: v for k, v in dict(
             steps_per_iteration=steps_per_iteration, n_envs=n_envs, policy=policy, normalize=normalize,
             n_timesteps=n_timesteps, noise_type=noise_type, noise_std=noise_std).items() if v is not None}
-        explicit = _canonical({**explicit, **algo_kwargs})
+        explicit = canonical_settings({**explicit, **algo_kwargs})
         entry = {}
         if hyperparams is not False:
             table = load_hyperparams(None if hyperparams is True else hyperparams)
@@ -629,7 +199,7 @@ class SB3Agent(Agent):
             )
         if kwargs.get("policy_kwargs") and "activation_fn" in kwargs["policy_kwargs"]:
             kwargs["policy_kwargs"] = {**kwargs["policy_kwargs"],
-                                       "activation_fn": _activation(kwargs["policy_kwargs"]["activation_fn"])}
+                                       "activation_fn": activation_class(kwargs["policy_kwargs"]["activation_fn"])}
         if self.config.noise_type is not None and "action_noise" not in kwargs:
             kwargs["action_noise"] = _action_noise(self.config.noise_type, self.config.noise_std, self.action_space)
         factories = _single_env_factories(self._env_argument, self._train_env_kwargs, self.config.n_envs)

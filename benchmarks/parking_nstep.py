@@ -19,7 +19,7 @@ import argparse
 import dataclasses
 
 import gymnasium as gym
-from tl_gym.agents import sb3
+from tl_gym.agents import sb3_settings
 from tl_gym.envs.suite import make_parking
 
 import tl_gym  # noqa: F401  (registers TLParking-v0)
@@ -42,7 +42,7 @@ def register_flat_parking() -> None:
 def trial_spec(n_steps: int, seed: int) -> runner.RunSpec:
     """The suite's parking SAC run, moved to the flattened id with ``n_steps``-step returns."""
     suite_sac = suite_run("parking", "SAC")
-    entry = sb3.find_hyperparams(sb3.load_hyperparams(), suite_sac.env, suite_sac.env_kwargs, "sac")
+    entry = sb3_settings.find_hyperparams(sb3_settings.load_hyperparams(), suite_sac.env, suite_sac.env_kwargs, "sac")
     hyperparameters = {**entry, **suite_sac.hyperparameters, "hyperparams": False, "policy": "MlpPolicy",
                        "n_steps": n_steps}
     return dataclasses.replace(suite_sac, env=FLAT_ID, label=f"SAC, {n_steps}-step returns", seed=seed,

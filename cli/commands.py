@@ -65,7 +65,7 @@ EVALUATIONS_FILE = "evaluations.csv"
 def build_env(run: dict[str, Any], render_mode: str | None = None) -> Any:
     """The env of a run: its id (the agent adds the kwargs), or the env wrapped with ``--spec``.
 
-    SB3 agents get the env keywords of their ``tl_reward`` (`tl_gym.agents.sb3.TL_REWARD_ENV_KWARGS`)
+    SB3 agents get the env keywords of their ``tl_reward`` (`tl_gym.agents.sb3_settings.TL_REWARD_ENV_KWARGS`)
     here too, since they cannot rewrap an env object: with ``--spec`` they go to the wrapper, for a
     rendered env to the id (the run's own ``env_kwargs`` win, as in the agent).
     """
@@ -84,7 +84,7 @@ def _tl_reward_env_kwargs(run: dict[str, Any]) -> dict[str, Any]:
     """The env keywords an SB3 run's ``tl_reward`` implies; none for TLPS and REPS."""
     if is_episodic(run["agent"]):
         return {}
-    from tl_gym.agents.sb3 import DEFAULT_TL_REWARD, TL_REWARD_ENV_KWARGS, check_tl_reward
+    from tl_gym.agents.sb3_settings import DEFAULT_TL_REWARD, TL_REWARD_ENV_KWARGS, check_tl_reward
 
     return dict(TL_REWARD_ENV_KWARGS[check_tl_reward(run["hyperparameters"].get("tl_reward", DEFAULT_TL_REWARD))])
 

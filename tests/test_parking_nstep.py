@@ -3,7 +3,7 @@
 import gymnasium as gym
 import numpy as np
 import pytest
-from tl_gym.agents import sb3
+from tl_gym.agents import sb3_settings
 from tl_gym.agents.registry import make_agent
 
 from benchmarks import parking_nstep
@@ -13,7 +13,7 @@ from benchmarks.suite import suite_run
 def test_trial_is_the_suite_sac_run_with_the_parking_entry():
     spec = parking_nstep.trial_spec(3, seed=100)
     suite_sac = suite_run("parking", "SAC")
-    entry = sb3.find_hyperparams(sb3.load_hyperparams(), "TLParking-v0", {}, "sac")
+    entry = sb3_settings.find_hyperparams(sb3_settings.load_hyperparams(), "TLParking-v0", {}, "sac")
     assert entry  # the parking entry exists, so the comparison below can fail
     assert (spec.env, spec.seed) == (parking_nstep.FLAT_ID, 100)
     assert (spec.iterations, spec.evaluate_episodes, spec.evaluate_every) == (

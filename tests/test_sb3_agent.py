@@ -14,12 +14,11 @@ from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.noise import NormalActionNoise
 from stable_baselines3.common.vec_env import VecNormalize
 from tl_gym.agents import Agent, SB3Agent
-from tl_gym.agents.sb3 import (
+from tl_gym.agents.sb3 import VECNORMALIZE_MEMBER, one_torch_thread
+from tl_gym.agents.sb3_settings import (
     TL_REWARD_ENV_KWARGS,
-    VECNORMALIZE_MEMBER,
     find_hyperparams,
     load_hyperparams,
-    one_torch_thread,
     parse_normalize,
     resolve_algorithm,
 )
