@@ -230,7 +230,7 @@ def make_car_env(task: int = 1, no_revisit: str = "leave", **kwargs: Any) -> TLT
 
         reward: ``"exact"`` or ``"smooth"`` robustness (`TLTLRewardWrapper`).
         beta: smoothing sharpness for ``reward="smooth"``; 9 as in the paper.
-        reward_mode: ``"terminal"`` or ``"dense"`` (`TLTLRewardWrapper`).
+        reward_mode: ``"terminal"``, ``"dense"`` or ``"potential"`` (`TLTLRewardWrapper`).
         rho_max: robustness of ``true`` (and minus that of ``X φ`` at the last state).
         clip: bound of the rewards (`TLTLRewardWrapper`).
         observe_monitor: append the task monitor's state to the observation (the Markov view,

@@ -2,8 +2,8 @@
 
 The engine (`parse`, `Formula`) turns TLTL formulas and trajectories into exact
 and smoothed robustness; `TLTLRewardWrapper` pays it as reward on any Gymnasium
-env; `tl_gym.envs` registers the paper's car tasks and `tl_gym.agents` holds
-TLPS, REPS and stable-baselines3 adapters.
+env; `import tl_gym` registers the paper's car task and the TL task suite (their code is in
+`tl_gym.envs`), and `tl_gym.agents` holds TLPS, REPS and stable-baselines3 adapters.
 """
 
 from importlib.metadata import PackageNotFoundError, version
