@@ -88,8 +88,15 @@ def test_smoothed_robustness_and_its_gradient(case):
     below, above = formula.smoothing_bracket(len(X0), BETA)
     assert expected - below - 1e-9 <= value.item() <= expected + above + 1e-9
     assert torch.isfinite(x.grad).all()
-    if slope is None:  # F over F …: softmax weights over time sum to one
-        assert x.grad.sum().item() == pytest.approx(1.0)
+    if slope is None:  # F over F …: the soft max over t … T-1 of the level below, 10,000 times
+        reference_x = torch.tensor(X0, dtype=torch.float64, requires_grad=True)
+        level = reference_x - 1.0
+        for _ in range(10_000):
+            level = torch.stack([torch.logsumexp(BETA * level[t:], 0) / BETA for t in range(len(X0))])
+        level[0].backward()
+        assert value.item() == pytest.approx(level[0].item(), rel=1e-9)
+        np.testing.assert_allclose(x.grad.numpy(), reference_x.grad.numpy(), rtol=1e-9)
+        assert x.grad.sum().item() == pytest.approx(1.0)  # softmax weights over time
     else:
         assert x.grad[0].item() == pytest.approx(slope)
         assert x.grad[1:].abs().max().item() == 0.0

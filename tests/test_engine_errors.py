@@ -174,9 +174,9 @@ def test_formulas_have_no_truth_value():
 
 
 def test_builders_reject_non_formulas_and_non_numbers():
-    with pytest.raises(TypeError):
+    with pytest.raises(TypeError, match="expected a Formula, got str"):
         F(signal("x") > 1) & "y > 1"  # type: ignore[operator]  # noqa: B015
-    with pytest.raises(TypeError):
+    with pytest.raises(TypeError, match="expected an expression or a number, got str"):
         signal("x") < "3"  # type: ignore[operator]  # noqa: B015
     with pytest.raises(ValueError, match="finite"):
         signal("x") < math.inf  # noqa: B015

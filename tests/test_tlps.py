@@ -1,11 +1,13 @@
 """Tests of the TLPS agent (agents/tlps.py) on the car env."""
 
 import dataclasses
+import itertools
 import math
 
 import numpy as np
 import pytest
 from tl_gym.agents.tlps import TLPS, TLPSConfig
+from tl_gym.agents.weights import WEIGHTINGS
 
 
 @pytest.mark.parametrize(
@@ -80,10 +82,18 @@ def test_same_seed_same_history_and_save_load_round_trip(tmp_path):
     assert loaded.history[-1]["mean_robustness"] == first.history[-1]["mean_robustness"]
 
 
-@pytest.mark.parametrize("weights", ["importance", "paper"])
-def test_every_weighting_and_a_fixed_alpha_run(weights):
-    agent = TLPS("TLCarNav-v0", seed=1, n_episodes=6, solver_steps=2, weights=weights, alpha=0.5).learn(1)
-    assert agent.history[-1]["alpha"] == 0.5
+def test_every_weighting_runs_with_a_fixed_alpha_and_steers_the_refit():
+    """The same seed samples the same batch; each weighting then refits the policy to its own weights."""
+    means, kls = {}, {}
+    for weights in WEIGHTINGS:
+        agent = TLPS("TLCarNav-v0", seed=1, n_episodes=6, solver_steps=2, weights=weights, alpha=0.5).learn(1)
+        row = agent.history[-1]
+        assert row["alpha"] == 0.5
+        assert 0.0 < row["kl"] <= np.log(6)  # not uniform, within KL's bound against 6 episodes
+        means[weights], kls[weights] = agent.policy.mean.copy(), row["kl"]
+    for a, b in itertools.combinations(WEIGHTINGS, 2):
+        assert not np.allclose(means[a], means[b]), (a, b)
+        assert kls[a] != kls[b], (a, b)
 
 
 def test_slsqp_solver_runs():

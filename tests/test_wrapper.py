@@ -158,9 +158,9 @@ def test_trace_property_is_read_only_and_grows():
     env.step(np.zeros(1))
     trace = env.trace
     assert len(trace["a"]) == 2
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="read-only"):
         trace["a"][0] = 1.0
-    with pytest.raises(AttributeError):
+    with pytest.raises(AttributeError, match="no setter"):
         env.trace = {}
 
 
