@@ -21,6 +21,7 @@ import pytest
 import tomllib
 
 from benchmarks import results
+from benchmarks.report import write_per_seed_report
 from benchmarks.runner import (
     AGENT,
     CHECKPOINT,
@@ -192,7 +193,7 @@ def test_per_seed_report_tables_summary_and_curves(tmp_path):
     sweep = expand_config(config(tasks=[1, 2], seeds=[0, 1, 2]))
     run_sweep(sweep, tmp_path / "out", workers=0)
     runs = results.load_runs(tmp_path / "out")
-    written = results.write_per_seed_report(runs, tmp_path / "report")
+    written = write_per_seed_report(runs, tmp_path / "report")
     assert {p.name for p in written} == {"tables.md", "summary.csv", *(f"task{t}_{k}.png" for t in (1, 2)
                                                                      for k in ("success", "robustness", "medians"))}
     text = (tmp_path / "report" / "tables.md").read_text()
