@@ -416,21 +416,9 @@ class Formula:
             >>> round(value, 4), np.round(grad["s"], 4).tolist()
             (1.0, [0.0, 1.0])
         """
-        import numpy as np
-
         from tl_gym.tltl import smooth
-        from tl_gym.tltl.trace import prepare
 
-        smooth._check(beta, rho_max, form, backend)
-        prepared = prepare(self.signals, trace)
-        z, jac = smooth._at_position_zero(self, prepared.signals, prepared.n, prepared.length, beta, rho_max, form,
-                                          prepared.magnitudes, jacobian=True, backend=backend)
-        values = smooth._to_rho(z, beta)[0]
-        shape = (prepared.n, prepared.length)
-        grads = {name: jac[name] if name in jac else np.zeros(shape) for name in prepared.signals}
-        if prepared.batched:
-            return values.copy(), grads
-        return float(values[0]), {name: grad[0] for name, grad in grads.items()}
+        return smooth.smooth_robustness_and_gradient(self, trace, beta, rho_max, form, backend)
 
     def smooth_robustness_over_time(
         self, trace: Trace, beta: float, rho_max: float = math.inf, form: str = "nested"

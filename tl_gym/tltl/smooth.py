@@ -687,6 +687,27 @@ def smooth_robustness(
     return _smooth(formula, trace, beta, rho_max, form, first_only=True, backend=backend)
 
 
+def smooth_robustness_and_gradient(
+    formula: Formula, trace: Trace, beta: float, rho_max: float = math.inf, form: str = "nested",
+    backend: str = "auto",
+) -> tuple[Any, dict[str, np.ndarray]]:
+    """`smooth_robustness` of numpy signals and, per signal, its gradient by the reverse pass (no autograd).
+
+    A float and ``{signal: (T,)}``, or ``(N,)`` and ``{signal: (N, T)}`` for a batch; zero gradient
+    for a signal the value does not depend on (`Formula.smooth_robustness_and_gradient`).
+    """
+    _check(beta, rho_max, form, backend)
+    prepared = prepare(formula.signals, trace)
+    z, jac = _at_position_zero(formula, prepared.signals, prepared.n, prepared.length, beta, rho_max, form,
+                               prepared.magnitudes, jacobian=True, backend=backend)
+    values = _to_rho(z, beta)[0]
+    shape = (prepared.n, prepared.length)
+    grads = {name: jac[name] if name in jac else np.zeros(shape) for name in prepared.signals}
+    if prepared.batched:
+        return values.copy(), grads
+    return float(values[0]), {name: grad[0] for name, grad in grads.items()}
+
+
 def smooth_over_time(
     formula: Formula, trace: Trace, beta: float, rho_max: float = math.inf, form: str = "nested"
 ) -> Any:
