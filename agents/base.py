@@ -101,7 +101,7 @@ class Agent(abc.ABC):
         self.config = self._make_config(dict(hyperparameters))
         self.seed = None if seed is None else int(seed)
         self.env_kwargs = dict(env_kwargs or {})
-        self._env_source = _describe_env_source(env, self.env_kwargs)
+        self._env_source = describe_env_source(env, self.env_kwargs)
         self.env: gym.vector.VectorEnv = make_vector_env(env, self._num_envs(), self.env_kwargs)
         self.formula = find_formula(self.env)
         self.observation_space = self.env.single_observation_space
@@ -316,7 +316,7 @@ def _agent_class(name: str) -> type[Agent]:
         raise IncompatibleSaveError(str(exc)) from None
 
 
-def _describe_env_source(env: Any, env_kwargs: dict[str, Any]) -> dict[str, Any]:
+def describe_env_source(env: Any, env_kwargs: dict[str, Any]) -> dict[str, Any]:
     """What `load` needs to rebuild the env: its id, kwargs and, when it can, its full spec."""
     if isinstance(env, str):
         return {"id": env, "kwargs": to_json(env_kwargs) if is_jsonable(env_kwargs) else None, "spec_json": None}

@@ -48,7 +48,7 @@ import numpy as np
 from tl_gym.errors import IncompatibleSaveError
 from tl_gym.relabel import EpisodeRecorder, GoalRelabeller, find_wrapper
 
-from .base import Agent, _describe_env_source
+from .base import Agent, describe_env_source
 from .hindsight import make_hindsight_feeder
 from .sampling import env_attribute
 from .sb3_settings import (
@@ -165,7 +165,7 @@ class SB3Agent(Agent):
             venv = _make_sync_vec(env, config.n_envs, self._train_env_kwargs, TL_REWARD_ENV_KWARGS[tl_reward])
             super().__init__(venv, seed=seed, **hyperparameters)
             self.env_kwargs = dict(self._train_env_kwargs)
-            self._env_source = _describe_env_source(env, self.env_kwargs)
+            self._env_source = describe_env_source(env, self.env_kwargs)
         else:
             super().__init__(env, seed=seed, env_kwargs=env_kwargs, **hyperparameters)
 

@@ -581,7 +581,7 @@ class _Combine(_Node):
         return pos
 
 
-def _then_chain(formula: Formula) -> list[Formula] | None:
+def then_chain(formula: Formula) -> list[Formula] | None:
     """The operands of ``φ1 T (φ2 T …)`` when all are temporal-free, else None."""
     operands: list[Formula] = []
     node = formula
@@ -595,7 +595,7 @@ def _then_chain(formula: Formula) -> list[Formula] | None:
     return [*operands, node]
 
 
-def _never_again_parts(child: Formula) -> tuple[Formula, Formula] | None:
+def never_again_parts(child: Formula) -> tuple[Formula, Formula] | None:
     """``(A, B)`` when ``child`` is ``A | X G B`` or ``L -> X G B`` (A = !L), B temporal-free."""
 
     def is_next_always(f: Formula) -> bool:
@@ -672,7 +672,7 @@ def _compile_part(formula: Formula, rho_max: float, names: tuple[str, ...], dept
         if depth is not None:
             window = compile_window_formula(inner, rho_max)
             return _Extremum(window, depth, isinstance(formula, nodes.Eventually), names)
-        parts = _never_again_parts(inner) if isinstance(formula, nodes.Always) else None
+        parts = never_again_parts(inner) if isinstance(formula, nodes.Always) else None
         if parts is not None:
             a, b = parts
             return _NeverAgain(
@@ -685,7 +685,7 @@ def _compile_part(formula: Formula, rho_max: float, names: tuple[str, ...], dept
             return None
         return _Until(compile_state_formula(formula.left, rho_max), compile_state_formula(formula.right, rho_max))
     if isinstance(formula, nodes.Then):
-        chain = _then_chain(formula)
+        chain = then_chain(formula)
         if chain is None:
             return None
         return _ThenChain([compile_state_formula(f, rho_max) for f in chain])

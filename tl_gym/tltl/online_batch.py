@@ -453,13 +453,13 @@ class BatchPrefixMonitor:
                 return (_AtEnd, True), (self._part(phi),), None, slots
             return (_AtEnd, False), (), phi, slots
         if isinstance(node, online._NeverAgain):
-            a, b = online._never_again_parts(formula.child)  # type: ignore[attr-defined, misc]
+            a, b = online.never_again_parts(formula.child)  # type: ignore[attr-defined, misc]
             self._lookahead = max(self._lookahead, node.depth)
             return (_NeverAgain, node.depth, node.bottom, width), (self._part(a), self._part(b)), None, slots
         if isinstance(node, online._Until):
             return (_Until,), (self._part(formula.left), self._part(formula.right)), None, slots  # type: ignore[attr-defined]
         if isinstance(node, online._ThenChain):
-            chain = [self._part(f) for f in online._then_chain(formula)]  # type: ignore[union-attr]
+            chain = [self._part(f) for f in online.then_chain(formula)]  # type: ignore[union-attr]
             return (_ThenChain, len(chain)), tuple(chain), None, slots
         raise TypeError(f"no batched twin of {type(node).__name__}")  # not reached: every node kind is above
 
