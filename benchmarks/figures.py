@@ -43,6 +43,19 @@ def plot_band(ax: Any, x: np.ndarray, values: np.ndarray, color: Any, label: str
     ax.fill_between(x, low, high, color=color, alpha=0.2, lw=0)
 
 
+def plot_seeds(ax: Any, x: np.ndarray, values: np.ndarray, color: Any, label: str, markersize: float = 3) -> None:
+    """Each seed of ``values`` ``(seeds, len(x))`` as a thin line, their median as the thick one.
+
+    For the few seeds of a suite task (5 or fewer) whose outcomes split, solved or not, a band
+    around the mean covers the whole axis and hides which seed does what; the lines show it, and
+    the median is what the tables report.
+    """
+    if len(values) > 1:
+        ax.plot(x, values.T, color=color, lw=0.8, alpha=0.45)
+    ax.plot(x, np.median(values, axis=0), color=color, lw=1.8, marker="o" if len(x) <= 5 else None,
+            markersize=markersize, label=label)
+
+
 def plot_trajectory_distribution(run: RunResult, path: str | Path | None = None, title: str | None = None) -> Figure:
     """The sampled x-y paths of one run at its recorded iterations, mean ± 2σ, lighter = earlier (ValueError: none)."""
     import gymnasium as gym

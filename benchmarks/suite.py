@@ -16,8 +16,9 @@ from pathlib import Path
 import numpy as np
 from matplotlib import colormaps
 from matplotlib.figure import Figure
+from matplotlib.ticker import EngFormatter
 
-from benchmarks.figures import plot_band, saved
+from benchmarks.figures import plot_seeds, saved
 from benchmarks.results import RunResult, first_text, group_runs, load_runs, median_first, notes, table
 from benchmarks.runner import RunSpec, add_sweep_options, load_config, run_with_options, variant_of
 
@@ -70,7 +71,7 @@ def steps_to_solve(steps: np.ndarray, values: np.ndarray) -> float | None:
 
 
 def plot_task(name: str, runs: Sequence[RunResult], path: Path | None) -> Figure:
-    """Fresh-episode success (left) and mean ρ (right) against env steps, mean over seeds with a 95% band.
+    """Fresh-episode success (left) and mean ρ (right) against env steps: each seed thin, the median thick.
 
     The ρ panel shows progress where success is still 0 on every seed (a rising mean ρ is a policy
     getting closer to the formula).
@@ -83,9 +84,9 @@ def plot_task(name: str, runs: Sequence[RunResult], path: Path | None) -> Figure
         steps, values = eval_curve(members)
         if not steps.size:
             continue
-        plot_band(success_ax, steps, values, color, legend, rate=True, markersize=3)
+        plot_seeds(success_ax, steps, values, color, legend)
         rho_steps, rho_values = eval_curve(members, "eval_mean_robustness")
-        plot_band(rho_ax, rho_steps, rho_values, color, legend, markersize=3)
+        plot_seeds(rho_ax, rho_steps, rho_values, color, legend)
         largest_rho = max(largest_rho, float(np.nanmax(np.abs(rho_values), initial=0.0)))
     success_ax.axhline(SOLVED, color="0.4", lw=0.8, ls="--")
     rho_ax.axhline(0.0, color="0.4", lw=0.8, ls="--")
@@ -96,6 +97,8 @@ def plot_task(name: str, runs: Sequence[RunResult], path: Path | None) -> Figure
     rho_ax.set(xlabel="env steps", ylabel="mean ρ on fresh episodes" + (" (symlog)" if symlog else ""))
     if symlog:
         rho_ax.set_yscale("symlog", linthresh=1.0)
+    for ax in (success_ax, rho_ax):
+        ax.xaxis.set_major_formatter(EngFormatter(sep=""))  # 100k, 1.5M
     success_ax.legend(fontsize=7, loc="best")
     fig.suptitle(name)
     return saved(fig, path)
@@ -141,7 +144,7 @@ def write_report(results: dict[str, tuple[str, list[RunResult], list[str]]], com
              "ρ > 0 on fresh episodes of the deterministic policy, evaluated along training. "
              "Tasks and formulas: [../tasks.md](../tasks.md). Each task's figure plots the success (left) and "
              "the mean ρ (right; symlog where it spans beyond ±10) of those evaluations against env steps: "
-             "the mean over seeds with a 95 % Student-t band, wide for 2 or 3 seeds.", "",
+             "each seed as a thin line, the median over seeds (what the tables report) as the thick one.", "",
              "| task | solved by (median final success ≥ 90 %) | at |", "|---|---|---|"]
     sections = []
     for stem, (title, runs, planned) in results.items():

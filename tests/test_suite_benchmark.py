@@ -66,11 +66,16 @@ def test_runs_evaluate_along_training_and_the_report_reads_them(tmp_path):
     assert (tmp_path / "suite_tiny.png").is_file() and "| tiny | fast |" in text
     assert "Not run for this report: SAC; PPO, terminal." in text
     assert "| empty | not run for this report | |" in text
-    # the figure: success on the left, the mean ρ of the same evaluations on the right, one curve per agent
+    # the figure: success on the left, the mean ρ of the same evaluations on the right; per agent each seed
+    # as a thin unlabelled line, then the median over seeds as the labelled one
     success_ax, rho_ax = suite.plot_task("tiny", runs, None).axes
-    fast_rho = suite.eval_curve([r for r in runs if r.spec.label == "fast"], "eval_mean_robustness")[1].mean(axis=0)
-    np.testing.assert_allclose(rho_ax.lines[0].get_ydata(), fast_rho)
-    assert [line.get_label() for line in success_ax.lines[:2]] == ["fast (2 seeds)", "slow (2 seeds)"]
+    fast_rho = suite.eval_curve([r for r in runs if r.spec.label == "fast"], "eval_mean_robustness")[1]
+    seed_lines, median_line = rho_ax.lines[:2], rho_ax.lines[2]
+    np.testing.assert_allclose([line.get_ydata() for line in seed_lines], fast_rho)
+    np.testing.assert_allclose(median_line.get_ydata(), np.median(fast_rho, axis=0))
+    assert all(line.get_label().startswith("_") for line in seed_lines)  # not in the legend
+    labelled = [line.get_label() for line in success_ax.lines if not line.get_label().startswith("_")]
+    assert labelled == ["fast (2 seeds)", "slow (2 seeds)"]
     # the stand-in's ρ stays within ±1: a linear axis; ρ beyond ±SYMLOG_FROM gets a symlog one
     assert rho_ax.get_yscale() == "linear" and "symlog" not in rho_ax.get_ylabel()
     for run in runs:
