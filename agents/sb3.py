@@ -54,7 +54,7 @@ from .sampling import env_attribute
 from .sb3_settings import (
     DEFAULT_TL_REWARD,
     TL_REWARD_ENV_KWARGS,
-    LinearSchedule,
+    LinearSchedule,  # here too for agents saved before sb3_settings: they pickle tl_gym.agents.sb3.LinearSchedule
     SB3Config,
     activation_class,
     canonical_settings,

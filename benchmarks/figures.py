@@ -1,4 +1,7 @@
-"""Figures of a sweep: learning curves with 95% bands (Figure 3), trajectories (Figure 2), per-seed panels."""
+"""Figures of a sweep: learning curves with 95% bands (Figure 3), trajectories (Figure 2), per-seed panels.
+
+The suite's figures draw each seed and the median instead of a band (`plot_seeds`).
+"""
 
 from __future__ import annotations
 

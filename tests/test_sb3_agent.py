@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pickle
 import sys
 import tempfile
 import zipfile
@@ -349,3 +350,10 @@ def test_potential_shaping_gets_the_agents_discount():
     mine = SB3Agent("TLCarNav-v0", "PPO", seed=0, env_kwargs={"reward_mode": "potential", "gamma": 1.0, "horizon": 4},
                     steps_per_iteration=8, n_envs=2, n_steps=4, batch_size=8, gamma=0.97)
     assert mine.env_kwargs["gamma"] == 1.0  # the user's own wins
+
+
+def test_agents_saved_before_the_settings_split_still_find_their_schedule_class():
+    """SB3 model zips saved before agents/sb3_settings.py existed pickle ``tl_gym.agents.sb3.LinearSchedule``."""
+    from tl_gym.agents.sb3_settings import LinearSchedule
+
+    assert pickle.loads(b"ctl_gym.agents.sb3\nLinearSchedule\n.") is LinearSchedule

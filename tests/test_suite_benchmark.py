@@ -89,3 +89,17 @@ def test_suite_run_finds_a_label_and_names_the_labels_it_lacks():
     assert (spec.env, spec.agent, spec.label, spec.seed) == ("TLParking-v0", "sac", "SAC", 0)
     with pytest.raises(KeyError, match=r"parking.toml has no run labelled 'SACC'.*'SAC'"):
         suite.suite_run("parking", "SACC")
+
+
+def test_plot_seeds_draws_every_seed_and_the_median_not_the_mean():
+    from matplotlib.figure import Figure
+
+    from benchmarks.figures import plot_seeds
+
+    ax = Figure().subplots()
+    values = np.array([[0.0, 0.0], [0.0, 0.2], [1.0, 1.0]])  # median (0, 0.2), mean (1/3, 0.4)
+    plot_seeds(ax, np.array([1.0, 2.0]), values, "C0", "agent (3 seeds)")
+    *seeds, median = ax.lines
+    np.testing.assert_array_equal([line.get_ydata() for line in seeds], values)
+    np.testing.assert_array_equal(median.get_ydata(), [0.0, 0.2])
+    assert median.get_label() == "agent (3 seeds)" and all(line.get_label().startswith("_") for line in seeds)
