@@ -29,6 +29,9 @@ RESULTS = HERE.parent / "docs" / "results"
 #: ``--report-only`` redraws the report on any clone. (Until 2026-12-02 they lived in the git-ignored ``runs/suite``
 #: and were lost with that machine.) ``--quick`` runs go to ``runs/suite-quick``.
 RECORDS = HERE / "results" / "suite"
+#: Record folders beside a task's own whose runs its report also shows, by config stem: runs of the task as it was
+#: before a change, kept for comparison (parking's episode ended at the slot until 2026-12-03; docs/results/parking.md).
+EARLIER_RECORDS = {"parking": ["suite-parking-terminate-on-success-session"]}
 #: Success on fresh episodes that counts as "solved" (the issue's target).
 SOLVED = 0.9
 
@@ -125,26 +128,41 @@ def task_table(runs: Sequence[RunResult]) -> tuple[str, list[tuple[str, float, f
 
 
 def headline(task: str, rows: Sequence[tuple[str, float, float | None, int, int]]) -> str:
-    """One README-style line: which agent solves the task (median final success ≥ 90 %), at how many steps."""
+    """One README-style line: which agent solves the task (median final success ≥ 90 %), at how many steps.
+
+    An agent listed after the first with another number of seeds says how many (``SAC (1 seed)``).
+    """
     solved = [r for r in rows if r[1] >= SOLVED and r[2] is not None]
     if not solved:
         best = max(rows, key=lambda r: r[1]) if rows else None
-        tail = f"best: {best[0]} at {best[1]:.0%}" if best else "no runs"
+        tail = f"best: {best[0]} at {best[1]:.0%} (median of {_seeds(best[4])})" if best else "no runs"
         return f"| {task} | none solved it (≥ 90 % on fresh episodes) | {tail} |"
     first = min(solved, key=lambda r: r[2])  # type: ignore[arg-type, return-value]
-    others = "; ".join(r[0] for r in solved if r is not first)  # labels may hold commas
+    others = "; ".join(r[0] + (f" ({_seeds(r[4])})" if r[4] != first[4] else "")
+                       for r in solved if r is not first)  # labels may hold commas
     return (f"| {task} | {first[0]} | {first[2]:,.0f} env steps (median, {first[3]}/{first[4]} seeds)"
             + (f"; also {others}" if others else "") + " |")
 
 
+def _seeds(count: int) -> str:
+    return f"{count} seed{'s' if count != 1 else ''}"
+
+
 def write_report(results: dict[str, tuple[str, list[RunResult], list[str]]], command: str, out: Path) -> Path:
-    """``suite.md`` in ``out``: the headline, then each config's table and figure, and its planned labels not run."""
+    """``suite.md`` in ``out``: the headline, then each config's table and figure, and its planned labels not run.
+
+    The notes written by hand into an earlier ``suite.md`` there stay (`hand_notes`): the page's own after its
+    first paragraph, each task's after its table, so that redrawing the report from the records loses no word.
+    """
+    path = out / "suite.md"
+    top_notes, section_notes = hand_notes(path.read_text()) if path.is_file() else ([], {})
     lines = ["# The TL task suite", "",
              f"Produced by `{command}` (seeds and budgets in `benchmarks/configs/suite/`); success is "
              "ρ > 0 on fresh episodes of the deterministic policy, evaluated along training. "
              "Tasks and formulas: [../tasks.md](../tasks.md). Each task's figure plots the success (left) and "
              "the mean ρ (right; symlog where it spans beyond ±10) of those evaluations against env steps: "
              "each seed as a thin line, the median over seeds (what the tables report) as the thick one.", "",
+             *(line for note in top_notes for line in (*note, "")),
              "| task | solved by (median final success ≥ 90 %) | at |", "|---|---|---|"]
     sections = []
     for stem, (title, runs, planned) in results.items():
@@ -161,10 +179,42 @@ def write_report(results: dict[str, tuple[str, list[RunResult], list[str]]], com
         missing = [label for label in planned if label not in done]
         if missing:
             sections += ["", f"Not run for this report: {'; '.join(missing)}."]
+        sections += [line for note in section_notes.get(title, []) for line in ("", *note)]
         sections += ["", f"![{title}]({figure})"]
-    path = out / "suite.md"
     path.write_text("\n".join(lines + sections) + "\n")
     return path
+
+
+#: Paragraphs of ``suite.md`` that `write_report` writes itself (a task's first table is its own too).
+_GENERATED = ("# The TL task suite", "Produced by `", "Not run for this report", "No finished run for this report",
+              "![")
+
+
+def hand_notes(text: str) -> tuple[list[list[str]], dict[str, list[list[str]]]]:
+    r"""The paragraphs of a ``suite.md`` that `write_report` did not generate: the page's own, and each task's by title.
+
+    A paragraph is a block of lines between blank ones. Generated are the title, the "Produced by" paragraph, the
+    first table of the page and of each task, the "Not run" line and the figure; every other paragraph is a note.
+
+    Example:
+        >>> page = ["# The TL task suite", "Produced by `x`.", "A note.", "| a |", "## T", "| b |", "Why.", "![T](t)"]
+        >>> hand_notes("\n\n".join(page))
+        ([['A note.']], {'T': [['Why.']]})
+    """
+    top: list[list[str]] = []
+    sections: dict[str, list[list[str]]] = {}
+    notes, table_seen = top, False
+    for block in (b.strip("\n").split("\n") for b in text.split("\n\n") if b.strip()):
+        if block[0].startswith("## "):
+            notes, table_seen = sections.setdefault(block[0][3:].strip(), []), False
+            block = block[1:]
+            if not block:
+                continue
+        if all(line.startswith("|") for line in block) and not table_seen:
+            table_seen = True
+        elif not block[0].startswith(_GENERATED):
+            notes.append(block)
+    return top, sections
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -189,6 +239,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not args.report_only:
             failed += len(run_with_options(sweep, out_dir, args).failed)
         runs = load_runs(out_dir) if (out_dir / "sweep.json").is_file() else []
+        runs += [run for name in EARLIER_RECORDS.get(path.stem, []) if (Path(args.out) / name / "sweep.json").is_file()
+                 for run in load_runs(Path(args.out) / name)]
         planned = list(dict.fromkeys(run.label for run in sweep.runs))
         results[path.stem] = (sweep.description or path.stem, runs, planned)  # a task without runs says so
     command = "python -m benchmarks.suite" + (f" --variant {variant}" if variant and not args.quick else "")

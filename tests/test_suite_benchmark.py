@@ -66,6 +66,14 @@ def test_runs_evaluate_along_training_and_the_report_reads_them(tmp_path):
     assert (tmp_path / "suite_tiny.png").is_file() and "| tiny | fast |" in text
     assert "Not run for this report: SAC; PPO, terminal." in text
     assert "| empty | not run for this report | |" in text
+    # notes written by hand into the page survive a redraw, each where it stood; the generated parts are redrawn
+    edited = text.replace("\n\n| task |", "\n\nA page note.\n\n| task |", 1).replace(
+        "\n\n![tiny]", "\n\nWhy fast is fast.\n\n| a hand table |\n|---|\n\n![tiny]", 1)
+    page.write_text(edited)
+    again = suite.write_report({"tiny": ("tiny", runs, planned[:2]), "empty": ("empty", [], [])},
+                               "python -m benchmarks.suite", tmp_path).read_text()
+    assert again == edited.replace("\n\nNot run for this report: SAC; PPO, terminal.", "")  # all planned ran now
+    assert again.count("A page note.") == 1 and again.count("Why fast is fast.") == 1
     # the figure: success on the left, the mean ρ of the same evaluations on the right; per agent each seed
     # as a thin unlabelled line, then the median over seeds as the labelled one
     success_ax, rho_ax = suite.plot_task("tiny", runs, None).axes
