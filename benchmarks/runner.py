@@ -496,11 +496,42 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, workers: int | None = None, ray
                 _workers_die_with_the_sweep(pool):
             jobs = {pool.submit(execute_run, run, out_dir / "runs" / run.run_id, checkpoint_every): run
                     for run in pending}
-            for done, job in enumerate(futures.as_completed(jobs), 1):
-                report.attempt(jobs[job], job.result)
-                print(f"{sweep.name}: {done}/{len(pending)} runs", file=sys.stderr, flush=True)
+            _wait_with_progress(jobs, report, sweep.name, out_dir)
     report.wall_time = time.perf_counter() - start
     return report
+
+
+def iterations_done(runs: Sequence[RunSpec], out_dir: str | Path) -> int:
+    """Iterations the runs have written to their ``history.csv`` so far (a finished run: all of them)."""
+    total = 0
+    for run in runs:
+        path = Path(out_dir) / "runs" / run.run_id / HISTORY
+        with contextlib.suppress(FileNotFoundError, csv.Error):
+            total += min(run.iterations, len(read_history_rows(path)))
+    return total
+
+
+def _wait_with_progress(jobs: Mapping[futures.Future, RunSpec], report: SweepReport, name: str, out_dir: Path,
+                        poll_seconds: float = 10.0) -> None:
+    """Collect the workers' runs as they end, with a progress bar over all their iterations on a terminal.
+
+    The workers write each iteration to their run's ``history.csv``; the bar reads those every
+    ``poll_seconds`` (a run of SAC on the car takes hours, and its end is the only other sign of life). Off a
+    terminal (a log file) tqdm draws nothing, and the line per finished run is what the log shows.
+    """
+    from tqdm.auto import tqdm
+
+    runs = list(jobs.values())
+    with tqdm(total=sum(run.iterations for run in runs), initial=iterations_done(runs, out_dir), desc=name,
+              unit="it", file=sys.stderr, disable=None, dynamic_ncols=True) as bar:
+        waiting, finished = set(jobs), 0
+        while waiting:
+            done, waiting = futures.wait(waiting, timeout=poll_seconds, return_when=futures.FIRST_COMPLETED)
+            for job in done:
+                report.attempt(jobs[job], job.result)
+                finished += 1
+                bar.write(f"{name}: {finished}/{len(jobs)} runs", file=sys.stderr)
+            bar.update(iterations_done(runs, out_dir) - bar.n)
 
 
 @contextlib.contextmanager

@@ -32,6 +32,7 @@ from benchmarks.runner import (
     execute_run,
     expand_config,
     install_files,
+    iterations_done,
     load_config,
     run_files,
     run_sweep,
@@ -157,10 +158,13 @@ def test_shipped_configs_expand():
             assert load_config(path, variant=variant).runs, (path, variant)
 
 
-def test_tiny_sweep_runs_in_parallel_resumes_and_aggregates(tmp_path):
+def test_tiny_sweep_runs_in_parallel_resumes_and_aggregates(tmp_path, capsys):
     sweep = expand_config(config())
+    assert iterations_done(sweep.runs, tmp_path) == 0  # nothing written yet
     report = run_sweep(sweep, tmp_path, workers=2)
     assert not report.failed and len(report.finished) == 8 and not report.skipped
+    assert iterations_done(sweep.runs, tmp_path) == sum(run.iterations for run in sweep.runs)  # what the bar ends at
+    assert capsys.readouterr().err.count(f"{sweep.name}: ") == 8  # a line per finished run, also off a terminal
     run_dir = tmp_path / "runs" / sweep.runs[0].run_id
     stamp = (run_dir / DONE).stat().st_mtime_ns
     # rerun: every run is finished already, nothing is redone
