@@ -111,3 +111,11 @@ def test_plot_seeds_draws_every_seed_and_the_median_not_the_mean():
     np.testing.assert_array_equal([line.get_ydata() for line in seeds], values)
     np.testing.assert_array_equal(median.get_ydata(), [0.0, 0.2])
     assert median.get_label() == "agent (3 seeds)" and all(line.get_label().startswith("_") for line in seeds)
+
+
+def test_report_covers_every_task_whatever_tasks_run(tmp_path):
+    """--tasks chooses what runs; the page it rewrites keeps a section for every task (from the records there are)."""
+    assert suite.main(["--quick", "--report-only", "--tasks", "pendulum", "--out", str(tmp_path)]) == 0
+    text = (tmp_path / "suite.md").read_text()
+    titles = [load_config(path).description for path in suite.config_paths()]
+    assert all(f"## {title}\n" in text for title in titles) and len(titles) == 7
