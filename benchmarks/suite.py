@@ -32,6 +32,9 @@ RECORDS = HERE / "results" / "suite"
 #: Record folders beside a task's own whose runs its report also shows, by config stem: runs of the task as it was
 #: before a change, kept for comparison (parking's episode ended at the slot until 2026-12-03; docs/results/parking.md).
 EARLIER_RECORDS = {"parking": ["suite-parking-terminate-on-success-session"]}
+#: The report's fixed words: `write_report` writes them, `hand_notes` tells its own paragraphs from the notes by them.
+PAGE_TITLE, PRODUCED_BY = "# The TL task suite", "Produced by "
+NOT_RUN, NO_RUN = "Not run for this report", "No finished run for this report"
 #: Success on fresh episodes that counts as "solved" (the issue's target).
 SOLVED = 0.9
 
@@ -83,7 +86,7 @@ def plot_task(name: str, runs: Sequence[RunResult], path: Path | None) -> Figure
     success_ax, rho_ax = fig.subplots(1, 2)
     largest_rho = 0.0
     for i, ((_, label), members) in enumerate(group_runs(runs).items()):
-        color, legend = colormaps["tab10"](i % 10), f"{label} ({len(members)} seed{'s' if len(members) > 1 else ''})"
+        color, legend = colormaps["tab10"](i % 10), f"{label} ({_seeds(len(members))})"
         steps, values = eval_curve(members)
         if not steps.size:
             continue
@@ -156,8 +159,8 @@ def write_report(results: dict[str, tuple[str, list[RunResult], list[str]]], com
     """
     path = out / "suite.md"
     top_notes, section_notes = hand_notes(path.read_text()) if path.is_file() else ([], {})
-    lines = ["# The TL task suite", "",
-             f"Produced by `{command}` (seeds and budgets in `benchmarks/configs/suite/`); success is "
+    lines = [PAGE_TITLE, "",
+             f"{PRODUCED_BY}`{command}` (seeds and budgets in `benchmarks/configs/suite/`); success is "
              "ρ > 0 on fresh episodes of the deterministic policy, evaluated along training. "
              "Tasks and formulas: [../tasks.md](../tasks.md). Each task's figure plots the success (left) and "
              "the mean ρ (right; symlog where it spans beyond ±10) of those evaluations against env steps: "
@@ -168,7 +171,7 @@ def write_report(results: dict[str, tuple[str, list[RunResult], list[str]]], com
     for stem, (title, runs, planned) in results.items():
         if not runs:
             lines.append(f"| {title} | not run for this report | |")
-            sections += ["", f"## {title}", "", "No finished run for this report."]
+            sections += ["", f"## {title}", "", f"{NO_RUN}."]
             continue
         task_markdown, rows = task_table(runs)
         lines.append(headline(title, rows))
@@ -178,7 +181,7 @@ def write_report(results: dict[str, tuple[str, list[RunResult], list[str]]], com
         done = {run.spec.label for run in runs}
         missing = [label for label in planned if label not in done]
         if missing:
-            sections += ["", f"Not run for this report: {'; '.join(missing)}."]
+            sections += ["", f"{NOT_RUN}: {'; '.join(missing)}."]
         sections += [line for note in section_notes.get(title, []) for line in ("", *note)]
         sections += ["", f"![{title}]({figure})"]
     path.write_text("\n".join(lines + sections) + "\n")
@@ -186,8 +189,7 @@ def write_report(results: dict[str, tuple[str, list[RunResult], list[str]]], com
 
 
 #: Paragraphs of ``suite.md`` that `write_report` writes itself (a task's first table is its own too).
-_GENERATED = ("# The TL task suite", "Produced by `", "Not run for this report", "No finished run for this report",
-              "![")
+_GENERATED = (PAGE_TITLE, PRODUCED_BY + "`", NOT_RUN, NO_RUN, "![")
 
 
 def hand_notes(text: str) -> tuple[list[list[str]], dict[str, list[list[str]]]]:

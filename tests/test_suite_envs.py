@@ -120,11 +120,11 @@ def test_envs_pickle_and_deepcopy(env_id):
     env.reset(seed=0)
     actions = np.random.default_rng(0).uniform(env.action_space.low, env.action_space.high,
                                                size=(env.get_wrapper_attr("horizon"),) + env.action_space.shape)
+    actions = actions.astype(env.action_space.dtype)
     for action in actions[:5]:
-        env.step(action.astype(env.action_space.dtype))
+        env.step(action)
     clones = [pickle.loads(pickle.dumps(env)), copy.deepcopy(env)]
     for action in actions[5:]:
-        action = action.astype(env.action_space.dtype)
         original = env.step(action)
         for clone in clones:
             copied = clone.step(action)
