@@ -11,7 +11,7 @@ from tl_gym.logic import X, signal
 from tl_gym.tltl import ast as nodes
 from tl_gym.tltl import operators
 from tl_gym.tltl.codegen import CodeWriter, state_formula_source, writable
-from tl_gym.tltl.online import _state_closure, _window_closure, compile_state_formula, compile_window_formula
+from tl_gym.tltl.windowed import _state_closure, _window_closure, compile_state_formula, compile_window_formula
 
 from .test_online import rho_maxes, state_formulas, windowed
 

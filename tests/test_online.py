@@ -14,7 +14,8 @@ from hypothesis import strategies as st
 from tl_gym import TraceError, UnknownSignalError, parse
 from tl_gym.logic import F, G, T, U, X, signal
 from tl_gym.tltl.ast import Always, Constant, Eventually, Formula
-from tl_gym.tltl.online import PrefixMonitor, is_incremental, outside_fragment
+from tl_gym.tltl.online import PrefixMonitor
+from tl_gym.tltl.online_nodes import is_incremental, outside_fragment
 
 a, b = signal("a"), signal("b")
 
@@ -174,11 +175,12 @@ def test_missing_signal_and_bad_arguments():
         PrefixMonitor("F(a > 0)")  # type: ignore[arg-type]
 
 
-def test_online_module_does_not_import_gymnasium():
+@pytest.mark.parametrize("module", ["tl_gym.tltl.online", "tl_gym.tltl.online_nodes", "tl_gym.tltl.windowed"])
+def test_online_module_does_not_import_gymnasium(module):
     import ast
     import importlib.util
 
-    with open(importlib.util.find_spec("tl_gym.tltl.online").origin) as handle:
+    with open(importlib.util.find_spec(module).origin) as handle:
         source = handle.read()
     imported = set()
     for node in ast.walk(ast.parse(source)):
@@ -211,6 +213,14 @@ def test_state_outside_the_fragment_names_the_culprit():
     with pytest.raises(ValueError, match=r"'G \(a > 2 -> F b < 0\)' is outside the incremental fragment"):
         monitor.state()
     assert outside_fragment(parse("F(a > 1)")) is None
+
+
+def test_the_monitor_module_keeps_its_public_names():
+    """`Slot`, `is_incremental` and `outside_fragment` live in online_nodes and import from online too."""
+    from tl_gym.tltl import online, online_nodes
+
+    for name in ("Slot", "is_incremental", "outside_fragment"):
+        assert getattr(online, name) is getattr(online_nodes, name)
 
 
 def test_value_of_state_checks_the_length():

@@ -48,7 +48,8 @@ from gymnasium import spaces
 from tl_gym.checks import check_positive
 from tl_gym.shaping import discounted_increment
 from tl_gym.tltl.codegen import CodeWriter
-from tl_gym.tltl.online import SIGNAL, VALUE, PrefixMonitor
+from tl_gym.tltl.online import PrefixMonitor
+from tl_gym.tltl.online_nodes import SIGNAL, VALUE
 
 
 class MonitorView:

@@ -40,7 +40,8 @@ from typing import Any
 
 from tl_gym.checks import check_positive
 from tl_gym.tltl.ast import Eventually, Formula, Then, Until, conjuncts
-from tl_gym.tltl.online import PrefixMonitor, compile_state_formula
+from tl_gym.tltl.online import PrefixMonitor
+from tl_gym.tltl.windowed import compile_state_formula
 
 State = Mapping[str, float]
 

@@ -1,10 +1,11 @@
 """Python source written at construction: formulas on one state, and monitor states, as flat functions.
 
-The online monitor (`tl_gym.tltl.online`) judges small formulas on one state, or on a window
-of a few states, several times per env step. As nested closures (one call per operator and
-per predicate, a list per connective) that costs several times the arithmetic; the same
-formula written out as one Python expression, e.g. ``min(s['x'] - 210.0, 240.0 - s['x'])``
-for ``x > 210 & x < 240``, and compiled once, does only the arithmetic. `CodeWriter` collects
+The online monitor (`tl_gym.tltl.online`, through `tl_gym.tltl.windowed`) judges small formulas
+on one state, or on a window of a few states, several times per env step. As nested closures
+(one call per operator and per predicate, a list per connective) that costs several times the
+arithmetic; the same formula written out as one Python expression, e.g.
+``min(s['x'] - 210.0, 240.0 - s['x'])`` for ``x > 210 & x < 240``, and compiled once, does only
+the arithmetic. `CodeWriter` collects
 such expressions and the objects they read, and compiles them into functions. The Markov view
 uses it too: the monitor's nodes write their state's floats as expressions over their own
 attributes (`tl_gym.tltl.online.PrefixMonitor.state_source`), compiled into the view's encoder.
@@ -128,7 +129,7 @@ def window_formula_source(formula: Formula, rho_max: float, code: CodeWriter, ch
                           offset: int = 0) -> str:
     """The robustness at ``w[i + offset]`` of a formula with bounded lookahead, as an expression in ``w`` and ``i``.
 
-    ``X φ`` past the window's end is −ρ_max, as in `tl_gym.tltl.online.compile_window_formula`.
+    ``X φ`` past the window's end is −ρ_max, as in `tl_gym.tltl.windowed.compile_window_formula`.
     """
     if not formula.is_temporal:
         return state_formula_source(formula, rho_max, f"w[i + {offset}]" if offset else "w[i]", code, checked)

@@ -31,8 +31,8 @@ from collections.abc import Mapping
 from tl_gym.errors import UnknownSignalError
 from tl_gym.tltl import ast as nodes
 from tl_gym.tltl.ast import Formula, conjuncts
-from tl_gym.tltl.online import compile_state_formula
 from tl_gym.tltl.trace import check_rho_max
+from tl_gym.tltl.windowed import compile_state_formula
 
 
 def safety_invariants(formula: Formula) -> tuple[Formula, ...]:

@@ -44,10 +44,12 @@ from typing import Any
 import numpy as np
 
 from tl_gym.errors import TraceError, UnknownSignalError
-from tl_gym.tltl import online, operators
+from tl_gym.tltl import online_nodes, operators
 from tl_gym.tltl.ast import And, Constant, Formula, Num, Or, Predicate, Var
 from tl_gym.tltl.expressions import can_be_non_finite, evaluate_expression
-from tl_gym.tltl.online import PrefixMonitor, Slot, lookahead
+from tl_gym.tltl.online import PrefixMonitor
+from tl_gym.tltl.online_nodes import Slot
+from tl_gym.tltl.windowed import lookahead
 
 # The online rules of `operators` on arrays: the same code as on floats, with numpy's max and min.
 ARRAY = (np.maximum, np.minimum)
@@ -214,7 +216,7 @@ def _column_min(values: np.ndarray, start: int, stop: int) -> np.ndarray:
 
 
 class _AtStart(_Group):
-    """Formulas with lookahead d, judged on s_0 … s_d (`online._AtStart`)."""
+    """Formulas with lookahead d, judged on s_0 … s_d (`online_nodes._AtStart`)."""
 
     def __init__(self, parts: list[tuple[int, ...]], depth: int, names: int):
         super().__init__(parts)
@@ -237,7 +239,7 @@ class _AtStart(_Group):
 
 
 class _Extremum(_Group):
-    """``F φ`` / ``G φ``, φ with lookahead d: positions up to t − d folded, the last d judged (`online._Extremum`)."""
+    """``F φ`` / ``G φ``, φ with lookahead d: positions ≤ t − d folded, the last d judged (`online_nodes._Extremum`)."""
 
     def __init__(self, parts: list[tuple[int, ...]], depth: int, is_max: bool, names: int):
         super().__init__(parts)
@@ -263,7 +265,7 @@ class _Extremum(_Group):
 
 
 class _AtEnd(_Group):
-    """``F G φ`` / ``G F φ``: φ judged at the last state alone (`online._AtEnd`).
+    """``F G φ`` / ``G F φ``: φ judged at the last state alone (`online_nodes._AtEnd`).
 
     ``formulas`` are the φ's without bounded lookahead, judged by the exact engine on the
     one-state trace; the others are parts.
@@ -291,7 +293,7 @@ class _AtEnd(_Group):
 
 
 class _NeverAgain(_Group):
-    """``G(A | X G B)``: two running values and the last d positions judged (`online._NeverAgain`)."""
+    """``G(A | X G B)``: two running values and the last d positions judged (`online_nodes._NeverAgain`)."""
 
     def __init__(self, parts: list[tuple[int, ...]], depth: int, bottom: float, names: int):
         super().__init__(parts)
@@ -321,7 +323,7 @@ class _NeverAgain(_Group):
 
 
 class _Until(_Group):
-    """``φ U ψ``, temporal-free operands (`online._Until`)."""
+    """``φ U ψ``, temporal-free operands (`online_nodes._Until`)."""
 
     size = 2
 
@@ -335,7 +337,7 @@ class _Until(_Group):
 
 
 class _ThenChain(_Group):
-    """``φ1 T (φ2 T (… T φm))``, temporal-free operands (`online._ThenChain`)."""
+    """``φ1 T (φ2 T (… T φm))``, temporal-free operands (`online_nodes._ThenChain`)."""
 
     def __init__(self, parts: list[tuple[int, ...]], length: int):
         super().__init__(parts)
@@ -388,7 +390,7 @@ class BatchPrefixMonitor:
         self._t = -1
 
     # building ------------------------------------------------------------------------------
-    def _build(self, formula: Formula, root: online._Node) -> None:
+    def _build(self, formula: Formula, root: online_nodes._Node) -> None:
         """Mirror the scalar tree: leaves grouped by kind, connectives as a flat program over their values.
 
         The leaves are visited depth-first, left to right (the order of `PrefixMonitor.state`);
@@ -397,10 +399,10 @@ class BatchPrefixMonitor:
         leaves: list[tuple[tuple, tuple[int, ...], Formula | None, int]] = []  # (group key, parts, φ, slots)
         combine: list[tuple[Callable[..., np.ndarray], list[int]]] = []  # (rule, operand value ids)
         built: list[tuple[bool, int]] = []  # (is a leaf, index) of each finished sub-tree
-        stack: list[tuple[Formula, online._Node, bool]] = [(formula, root, False)]
+        stack: list[tuple[Formula, online_nodes._Node, bool]] = [(formula, root, False)]
         while stack:  # post-order on an explicit stack: any depth
             f, node, expanded = stack.pop()
-            if not isinstance(node, online._Combine):
+            if not isinstance(node, online_nodes._Combine):
                 leaves.append(self._leaf(f, node))
                 built.append((True, len(leaves) - 1))
             elif not expanded:
@@ -440,26 +442,26 @@ class BatchPrefixMonitor:
         self._lookahead = max(self._lookahead, lookahead(formula) or 0)
         return self._parts.add(formula)
 
-    def _leaf(self, formula: Formula, node: online._Node) -> tuple[tuple, tuple[int, ...], Formula | None, int]:
+    def _leaf(self, formula: Formula, node: online_nodes._Node) -> tuple[tuple, tuple[int, ...], Formula | None, int]:
         """``(group key, parts, φ judged by the engine or None, number of slots)`` of a leaf of the scalar tree."""
         width, slots = len(self.names), len(node.slots)
-        if isinstance(node, online._AtStart):
+        if isinstance(node, online_nodes._AtStart):
             return (_AtStart, node.depth, width), (self._part(formula),), None, slots
-        if isinstance(node, online._Extremum):
+        if isinstance(node, online_nodes._Extremum):
             return (_Extremum, node.depth, node.is_max, width), (self._part(formula.child),), None, slots  # type: ignore[attr-defined]
-        if isinstance(node, online._AtEnd):
+        if isinstance(node, online_nodes._AtEnd):
             phi = formula.child.child  # type: ignore[attr-defined]
             if lookahead(phi) is not None:
                 return (_AtEnd, True), (self._part(phi),), None, slots
             return (_AtEnd, False), (), phi, slots
-        if isinstance(node, online._NeverAgain):
-            a, b = online.never_again_parts(formula.child)  # type: ignore[attr-defined, misc]
+        if isinstance(node, online_nodes._NeverAgain):
+            a, b = online_nodes.never_again_parts(formula.child)  # type: ignore[attr-defined, misc]
             self._lookahead = max(self._lookahead, node.depth)
             return (_NeverAgain, node.depth, node.bottom, width), (self._part(a), self._part(b)), None, slots
-        if isinstance(node, online._Until):
+        if isinstance(node, online_nodes._Until):
             return (_Until,), (self._part(formula.left), self._part(formula.right)), None, slots  # type: ignore[attr-defined]
-        if isinstance(node, online._ThenChain):
-            chain = [self._part(f) for f in online.then_chain(formula)]  # type: ignore[union-attr]
+        if isinstance(node, online_nodes._ThenChain):
+            chain = [self._part(f) for f in online_nodes.then_chain(formula)]  # type: ignore[union-attr]
             return (_ThenChain, len(chain)), tuple(chain), None, slots
         raise TypeError(f"no batched twin of {type(node).__name__}")  # not reached: every node kind is above
 

@@ -14,7 +14,7 @@ links here; ``tests/reference.py`` is the independent naive check). For each ope
   whose ``spare`` flag is set (nothing else reads it); they must return fresh arrays.
 * **bracket** — Lemma 1: how far the smoothing can err, from the operands' brackets.
 * **online** — how the value at position 0 of a growing prefix changes when one state
-  is appended (scalars; the monitor of `tl_gym.tltl.online` is built from these).
+  is appended (scalars; the monitor's nodes, `tl_gym.tltl.online_nodes`, are built from these).
 
 The compiler (`tl_gym.tltl.plan`) turns a formula into a flat list of these
 operations; the evaluators' optimisations are rewrites of that list.
