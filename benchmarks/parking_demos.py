@@ -25,9 +25,10 @@ from typing import Any
 import numpy as np
 from tl_gym.agents.sb3 import SB3Agent, one_torch_thread
 
-from benchmarks import runner
 from benchmarks.parking_starts import ParkingController
+from benchmarks.run_one import execute_run
 from benchmarks.suite import suite_run
+from benchmarks.sweep_config import RunSpec
 
 
 def add_demonstrations(agent: SB3Agent, n_steps: int,
@@ -74,7 +75,7 @@ def pretrain(agent: SB3Agent, gradient_steps: int) -> None:
             agent.model.train(gradient_steps=gradient_steps, batch_size=agent.model.batch_size)
 
 
-def trial_spec(demo_steps: int, pretrain_steps: int, seed: int) -> runner.RunSpec:
+def trial_spec(demo_steps: int, pretrain_steps: int, seed: int) -> RunSpec:
     """The suite's parking SAC run, labelled with the trial's demonstrations and pre-training."""
     suite_sac = suite_run("parking", "SAC")
     label = f"SAC, {demo_steps} controller steps in the replay buffer, {pretrain_steps} pre-training steps"
@@ -82,7 +83,7 @@ def trial_spec(demo_steps: int, pretrain_steps: int, seed: int) -> runner.RunSpe
 
 
 def preparation(demo_steps: int, pretrain_steps: int) -> Callable[[Any], None]:
-    """What `runner.execute_run` does to the new agent: demonstrations, then pre-training."""
+    """What `execute_run` does to the new agent: demonstrations, then pre-training."""
     def prepare(agent: SB3Agent) -> None:
         print("demonstrations:", add_demonstrations(agent, demo_steps), flush=True)
         pretrain(agent, pretrain_steps)
@@ -98,8 +99,8 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     spec = trial_spec(args.demo_steps, args.pretrain_steps, args.seed)
     print(spec.run_id, flush=True)
-    print(runner.execute_run(spec, f"{args.out}/{spec.run_id}", checkpoint_every=5,
-                             prepare=preparation(args.demo_steps, args.pretrain_steps)))
+    print(execute_run(spec, f"{args.out}/{spec.run_id}", checkpoint_every=5,
+                      prepare=preparation(args.demo_steps, args.pretrain_steps)))
 
 
 if __name__ == "__main__":

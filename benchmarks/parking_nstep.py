@@ -23,8 +23,9 @@ from tl_gym.agents import sb3_settings
 from tl_gym.envs.suite import make_parking
 
 import tl_gym  # noqa: F401  (registers TLParking-v0)
-from benchmarks import runner
+from benchmarks.run_one import execute_run
 from benchmarks.suite import suite_run
+from benchmarks.sweep_config import RunSpec
 
 FLAT_ID = "TLParkingFlat-v0"
 
@@ -39,7 +40,7 @@ def register_flat_parking() -> None:
         gym.register(FLAT_ID, entry_point=_flat_parking)
 
 
-def trial_spec(n_steps: int, seed: int) -> runner.RunSpec:
+def trial_spec(n_steps: int, seed: int) -> RunSpec:
     """The suite's parking SAC run, moved to the flattened id with ``n_steps``-step returns."""
     suite_sac = suite_run("parking", "SAC")
     entry = sb3_settings.find_hyperparams(sb3_settings.load_hyperparams(), suite_sac.env, suite_sac.env_kwargs, "sac")
@@ -58,7 +59,7 @@ def main(argv: list[str] | None = None) -> None:
     register_flat_parking()
     spec = trial_spec(args.n_steps, args.seed)
     print(spec.run_id, flush=True)
-    print(runner.execute_run(spec, f"{args.out}/{spec.run_id}", checkpoint_every=5))
+    print(execute_run(spec, f"{args.out}/{spec.run_id}", checkpoint_every=5))
 
 
 if __name__ == "__main__":

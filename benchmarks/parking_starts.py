@@ -43,7 +43,7 @@ from tl_gym.envs.suite import make_parking
 import tl_gym  # noqa: F401  (registers TLParking-v0)
 from benchmarks.figures import saved
 from benchmarks.results import percent, table
-from benchmarks.runner import AGENT, SPEC
+from benchmarks.run_one import AGENT, SPEC
 
 ENV_ID = "TLParking-v0"
 #: What a run folder records of its run: `tl-gym train`'s run file or the experiment runner's spec (the command

@@ -16,7 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.runner import DONE, HISTORY, TRAJECTORIES, RunSpec, read_history_rows
+from benchmarks.run_one import DONE, HISTORY, TRAJECTORIES, read_history_rows
+from benchmarks.sweep_config import RunSpec
 
 #: Success threshold of the tables' "first iteration with success ≥ 80%" column.
 SUCCESS_TARGET = 0.8

@@ -20,7 +20,8 @@ from matplotlib.ticker import EngFormatter
 
 from benchmarks.figures import plot_seeds, saved
 from benchmarks.results import RunResult, first_text, group_runs, load_runs, median_first, notes, table
-from benchmarks.runner import RunSpec, add_sweep_options, load_config, run_with_options, variant_of
+from benchmarks.runner import add_sweep_options, run_with_options, variant_of
+from benchmarks.sweep_config import RunSpec, load_config
 
 HERE = Path(__file__).resolve().parent
 CONFIGS = HERE / "configs" / "suite"

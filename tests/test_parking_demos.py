@@ -6,9 +6,11 @@ import numpy as np
 import pytest
 from tl_gym.agents.registry import make_agent
 
-from benchmarks import parking_demos, runner
+from benchmarks import parking_demos
 from benchmarks.parking_starts import ParkingController
+from benchmarks.run_one import execute_run
 from benchmarks.suite import suite_run
+from benchmarks.sweep_config import RunSpec
 
 SMALL = {"steps_per_iteration": 16, "learning_starts": 8, "batch_size": 8, "buffer_size": 1000,
          "policy_kwargs": "dict(net_arch=[8])"}
@@ -68,9 +70,9 @@ def test_pretraining_moves_the_policy_and_learning_goes_on(agent):
 
 
 def test_runner_prepares_a_new_run_once(tmp_path):
-    spec = runner.RunSpec(env="TLCarNav-v0", env_kwargs={}, agent="reps", label="REPS",
-                          hyperparameters={"n_episodes": 2}, seed=0, iterations=1)
+    spec = RunSpec(env="TLCarNav-v0", env_kwargs={}, agent="reps", label="REPS",
+                   hyperparameters={"n_episodes": 2}, seed=0, iterations=1)
     prepared = []
-    runner.execute_run(spec, tmp_path / "run", prepare=prepared.append)
-    runner.execute_run(spec, tmp_path / "run", prepare=prepared.append)  # done already: not prepared again
+    execute_run(spec, tmp_path / "run", prepare=prepared.append)
+    execute_run(spec, tmp_path / "run", prepare=prepared.append)  # done already: not prepared again
     assert len(prepared) == 1 and prepared[0].__class__.__name__ == "REPS"

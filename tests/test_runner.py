@@ -22,21 +22,9 @@ import tomllib
 
 from benchmarks import results
 from benchmarks.report import write_per_seed_report
-from benchmarks.runner import (
-    AGENT,
-    CHECKPOINT,
-    DONE,
-    HISTORY,
-    ConfigError,
-    RunSpec,
-    execute_run,
-    expand_config,
-    install_files,
-    iterations_done,
-    load_config,
-    run_files,
-    run_sweep,
-)
+from benchmarks.run_one import AGENT, CHECKPOINT, DONE, HISTORY, execute_run, install_files, run_files
+from benchmarks.runner import iterations_done, run_sweep
+from benchmarks.sweep_config import ConfigError, RunSpec, expand_config, load_config
 
 ROOT = Path(__file__).resolve().parents[1]
 STAND_IN = "tests.test_runner:StandInAgent"
@@ -378,11 +366,11 @@ def test_aggregation_helpers_and_run_folder_names():
 
 def test_done_records_the_code_the_run_started_with(tmp_path, monkeypatch):
     """A commit made while a run trains does not relabel it: the version is read when the run starts."""
-    import benchmarks.runner as runner
+    import benchmarks.run_one as run_one
 
     run_dir = tmp_path / "run"
     # the version "changes" once training has written its first history row
-    monkeypatch.setattr(runner, "code_version",
+    monkeypatch.setattr(run_one, "code_version",
                         lambda: "0.1.0 (a later commit)" if (run_dir / HISTORY).exists() else "0.1.0 (at the start)")
     spec = expand_config(config(tasks=[1], seeds=[0], agents=[{"label": "stand-in", "agent": STAND_IN}])).runs[0]
     assert execute_run(spec, run_dir)["code"] == "0.1.0 (at the start)"

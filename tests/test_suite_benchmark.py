@@ -9,7 +9,8 @@ import pytest
 import tomllib
 
 from benchmarks import results, suite
-from benchmarks.runner import expand_config, load_config, run_sweep
+from benchmarks.runner import run_sweep
+from benchmarks.sweep_config import expand_config, load_config
 
 from .test_runner import STAND_IN
 

@@ -1,0 +1,239 @@
+"""One run of the experiment runner: train a `RunSpec`'s agent into its folder, checkpoint it, resume it.
+
+The folder holds ``spec.json``, ``history.csv`` (a row per iteration), ``trajectories.npz`` (the episodes sampled
+at the spec's ``trajectory_iterations``), ``agent.zip`` (the final agent) and ``done.json``, written last and
+atomically: it alone marks the run finished (`is_done`). Until then ``checkpoint/`` holds the latest checkpoint,
+from which `execute_run` resumes. Kept apart from the sweep (`benchmarks.runner`), which only decides where each
+run executes (a worker process, this process, or a Ray task through `run_files` and `install_files`), so that the
+trials that run one spec of their own (`benchmarks.parking_demos`, `benchmarks.parking_nstep`) call it alone; the
+reports (`benchmarks.results`) read the folders through the file names here. Run files: ``docs/benchmarks.md``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tl_gym.agents.serialization import write_atomic
+
+from benchmarks.sweep_config import RunSpec
+from tl_gym.errors import IncompatibleSaveError
+
+DONE, SPEC, HISTORY, TRAJECTORIES, AGENT = "done.json", "spec.json", "history.csv", "trajectories.npz", "agent.zip"
+#: A run's latest checkpoint: a folder of the agent (written last: it marks a whole checkpoint), the replay buffer
+#: of an off-policy agent, the trajectories sampled so far and STATE; removed once the run is done.
+CHECKPOINT, REPLAY_BUFFER, STATE = "checkpoint", "replay_buffer.pkl", "state.json"
+
+
+def is_done(run_dir: str | Path) -> bool:
+    """Whether ``run_dir`` holds a finished run."""
+    return (Path(run_dir) / DONE).is_file()
+
+
+def execute_run(spec: RunSpec, run_dir: str | Path, checkpoint_every: int = 0,
+                prepare: Callable[[Any], None] | None = None) -> dict[str, Any]:
+    """Run ``spec`` into ``run_dir``; return ``done.json``'s content.
+
+    A finished run is returned as it is; an unfinished one resumes from its checkpoint when ``run_dir`` has one
+    of the same spec, else starts from scratch. ``checkpoint_every``: iterations between checkpoints (0: none).
+    A resumed run is not bit-identical to an uninterrupted one (episodes in progress restart, and SB3 keeps no
+    random state); ``done.json``'s ``resumed_at`` lists the iterations it resumed after.
+    ``prepare``: called with a new agent before its first iteration (a trial's extra set-up, such as
+    demonstrations in a replay buffer); not on a resumed run, whose checkpoint holds what it did.
+    """
+    run_dir = Path(run_dir)
+    if is_done(run_dir):
+        return json.loads((run_dir / DONE).read_text())
+    for name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"):  # runs are parallel processes: one thread each
+        os.environ.setdefault(name, "1")
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(1)
+    from tl_gym.agents.callbacks import HistoryCSV
+    from tl_gym.agents.registry import make_agent
+
+    start, code = time.perf_counter(), code_version()  # the code this process imports now, not at the end
+    history = HistoryCSV(run_dir / HISTORY)
+    resumed = load_checkpoint(spec, run_dir)
+    if resumed is None:
+        shutil.rmtree(run_dir, ignore_errors=True)
+        run_dir.mkdir(parents=True)
+        write_atomic(run_dir / SPEC, json.dumps(spec.to_json(), indent=1).encode())
+        agent = make_agent(spec.agent, spec.env, seed=spec.seed, env_kwargs=dict(spec.env_kwargs),
+                           **dict(spec.hyperparameters))
+        if prepare is not None:
+            prepare(agent)
+        traces: dict[str, np.ndarray] = {}
+        state: dict[str, Any] = {"resumed_at": [], "wall_time": 0.0, "code": code}
+    else:
+        agent, traces, state = resumed
+        state["resumed_at"].append(len(agent.history))
+        history.rows = read_history_rows(run_dir / HISTORY)[: len(agent.history)]  # written before the checkpoint
+
+    def record(agent: Any, row: Mapping[str, Any]) -> bool:
+        row = {**row, "eval_success_rate": np.nan, "eval_mean_robustness": np.nan}
+        every, iteration = spec.evaluate_every, row["iteration"]
+        if every and spec.evaluate_episodes and (iteration % every == 0 or iteration == spec.iterations):
+            result = agent.evaluate(n_episodes=spec.evaluate_episodes, seed=20_000_033 + spec.seed)
+            row.update(eval_success_rate=float(result["success_rate"]),
+                       eval_mean_robustness=float(result["mean_robustness"]))
+        history.on_iteration(agent, row)
+        if iteration in spec.trajectory_iterations:
+            traces.update(sample_traces(agent, spec, int(iteration)))
+        if checkpoint_every and iteration % checkpoint_every == 0 and iteration < spec.iterations:
+            save_checkpoint(agent, run_dir, traces, {**state, "wall_time": state["wall_time"] + time.perf_counter()
+                                                     - start})
+        return True
+
+    with contextlib.closing(agent):
+        if resumed is None and 0 in spec.trajectory_iterations:
+            traces.update(sample_traces(agent, spec, 0))
+        agent.learn(spec.iterations - len(agent.history), callback=record)
+        started_with = state["code"] if state["code"] == code else f"{state['code']}, resumed with {code}"
+        summary = _summarise(spec, agent, state["wall_time"] + time.perf_counter() - start, started_with)
+        summary["resumed_at"] = state["resumed_at"]
+        agent.save(run_dir / AGENT)  # the final agent, for `tl-gym eval RUN_DIR --why` (not kept in git)
+    if traces:
+        write_atomic(run_dir / TRAJECTORIES, compressed_arrays(traces))
+    write_atomic(run_dir / DONE, json.dumps(summary, indent=1).encode())
+    shutil.rmtree(run_dir / CHECKPOINT, ignore_errors=True)
+    return summary
+
+
+def save_checkpoint(agent: Any, run_dir: Path, traces: Mapping[str, np.ndarray], state: Mapping[str, Any]) -> None:
+    """Write ``run_dir/checkpoint``: what `load_checkpoint` needs to go on from the agent's last iteration."""
+    folder = run_dir / CHECKPOINT
+    folder.mkdir(exist_ok=True)
+    (folder / AGENT).unlink(missing_ok=True)  # until the new agent is written, the checkpoint is not whole
+    if getattr(agent, "off_policy", False):
+        agent.save_replay_buffer(folder / REPLAY_BUFFER)
+    (folder / TRAJECTORIES).unlink(missing_ok=True)
+    if traces:
+        write_atomic(folder / TRAJECTORIES, compressed_arrays(traces))
+    write_atomic(folder / STATE, json.dumps(dict(state), indent=1).encode())
+    agent.save(folder / AGENT)
+
+
+def load_checkpoint(spec: RunSpec, run_dir: Path) -> tuple[Any, dict[str, np.ndarray], dict[str, Any]] | None:
+    """The agent, sampled trajectories and state of ``run_dir``'s checkpoint; ``None`` if it has none for ``spec``."""
+    from tl_gym.agents.registry import agent_class
+
+    folder = run_dir / CHECKPOINT
+    try:
+        same_spec = json.loads((run_dir / SPEC).read_text()) == json.loads(json.dumps(spec.to_json()))
+    except (OSError, ValueError):
+        return None
+    if not same_spec or not (folder / AGENT).is_file():
+        return None
+    try:
+        agent = agent_class(spec.agent).load(folder / AGENT)
+    except IncompatibleSaveError as error:  # saved by code that differs too much: start again
+        print(f"{run_dir}: checkpoint not loadable ({error}); restarting the run", file=sys.stderr)
+        return None
+    if (folder / REPLAY_BUFFER).is_file():
+        agent.load_replay_buffer(folder / REPLAY_BUFFER)
+    traces = {}
+    if (folder / TRAJECTORIES).is_file():
+        with np.load(folder / TRAJECTORIES) as saved:
+            traces = {name: saved[name] for name in saved.files}
+    return agent, traces, json.loads((folder / STATE).read_text())
+
+
+def read_history_rows(path: str | Path) -> list[dict[str, str]]:
+    """The rows of a ``history.csv`` as written (text values): to write them again, or to read as numbers."""
+    with Path(path).open(newline="") as file:
+        return list(csv.DictReader(file))
+
+
+def compressed_arrays(arrays: Mapping[str, np.ndarray]) -> bytes:
+    """``arrays`` as the bytes of a compressed ``.npz``."""
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, **arrays)
+    return buffer.getvalue()
+
+
+def sample_traces(agent: Any, spec: RunSpec, iteration: int) -> dict[str, np.ndarray]:
+    """``trajectory_episodes`` episodes of the stochastic policy on the agent's own env view.
+
+    ``it<k>_<signal>`` (the signals ρ was computed on) -> ``(episodes, T+1)`` float32, NaN-padded; ``it<k>_robustness``.
+    """
+    from tl_gym.agents.evaluation import collect_episodes
+    from tl_gym.agents.sampling import make_vector_env
+
+    n = spec.trajectory_episodes
+    with contextlib.closing(make_vector_env(spec.env, n, getattr(agent, "env_kwargs", spec.env_kwargs))) as venv:
+        robustness, traces = collect_episodes(agent, venv, n, seed=1_000_003 * (iteration + 1) + spec.seed)
+    out = {f"it{iteration}_robustness": robustness}
+    for name, episodes in traces.items():
+        padded = np.full((n, max(len(e) for e in episodes)), np.nan)
+        for i, values in enumerate(episodes):
+            padded[i, : len(values)] = values
+        out[f"it{iteration}_{name}"] = padded.astype(np.float32)
+    return out
+
+
+def _summarise(spec: RunSpec, agent: Any, elapsed: float, code: str) -> dict[str, Any]:
+    last = agent.history[-1] if agent.history else {}
+    summary: dict[str, Any] = {
+        "run_id": spec.run_id, "label": spec.label, "iterations": len(agent.history),
+        "env_steps": int(last.get("env_steps", 0)), "train_wall_time": float(last.get("wall_time", 0.0)),
+        "total_wall_time": elapsed, "final_mean_robustness": float(last.get("mean_robustness", np.nan)),
+        "final_success_rate": float(last.get("success_rate", np.nan)), "note": spec.note, "code": code,
+    }
+    for deterministic in (True, False) if spec.evaluate_episodes > 0 else ():
+        result = agent.evaluate(n_episodes=spec.evaluate_episodes, seed=10_000_019 + spec.seed,
+                                deterministic=deterministic)
+        summary["eval_deterministic" if deterministic else "eval_stochastic"] = {
+            "mean_robustness": float(result["mean_robustness"]), "success_rate": float(result["success_rate"]),
+            "episodes": spec.evaluate_episodes}
+    return summary
+
+
+def code_version() -> str:
+    """The tl_gym version and, in a git checkout, the commit (``+dirty`` if library code is modified)."""
+    import tl_gym
+
+    root = Path(tl_gym.__file__).resolve().parents[1]
+    commit = git("rev-parse", "--short", "HEAD", cwd=root)
+    if commit is None:
+        return tl_gym.__version__
+    dirty = git("status", "--porcelain", "--", "tl_gym", "agents", "envs", cwd=root)
+    return f"{tl_gym.__version__} ({commit}{'+dirty' if dirty else ''})"
+
+
+def git(*args: str, cwd: str | Path | None = None) -> str | None:
+    """The output of ``git ARGS`` (stripped), or None outside a checkout or without git."""
+    try:
+        return subprocess.run(["git", *args], cwd=cwd, capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None
+
+
+def run_files(spec: RunSpec) -> dict[str, bytes]:
+    """Run ``spec`` in a scratch folder and return its files (the Ray path: no shared filesystem)."""
+    with tempfile.TemporaryDirectory(prefix="tl_gym_run_") as scratch:
+        execute_run(spec, Path(scratch) / "run")
+        return {p.name: p.read_bytes() for p in (Path(scratch) / "run").iterdir() if p.is_file()}
+
+
+def install_files(files: Mapping[str, bytes], run_dir: str | Path) -> None:
+    """Write a finished run's files (from `run_files`) into ``run_dir``, ``done.json`` last (ValueError if none)."""
+    if DONE not in files:
+        raise ValueError(f"not a finished run: no {DONE} among {sorted(files)}")
+    run_dir = Path(run_dir)
+    if not is_done(run_dir):
+        shutil.rmtree(run_dir, ignore_errors=True)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    for name in sorted(files, key=lambda n: n == DONE):
+        write_atomic(run_dir / name, files[name])
