@@ -17,7 +17,7 @@ independent of the trace length: Boolean combinations (``! & | ->``) of
 * chains ``φ1 T (φ2 T (… T φm))`` of temporal-free operands (best value of every
   leading sub-chain),
 * ``G(A | X G B)`` and ``G(L -> X G B)`` ("never again"), with A, L of bounded
-  lookahead and B temporal-free (two running values, see `online_nodes._NeverAgain`),
+  lookahead and B temporal-free (two running values, see `online_nodes.NeverAgainNode`),
 * ``F G φ`` and ``G F φ`` for any φ: on a finite trace both equal φ judged at the last
   state alone (a one-state suffix).
 
@@ -63,7 +63,7 @@ import numpy as np
 from tl_gym.errors import TraceError, UnknownSignalError
 from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.codegen import CodeWriter
-from tl_gym.tltl.online_nodes import Slot, _compile_incremental, _Node, is_incremental, outside_fragment
+from tl_gym.tltl.online_nodes import MonitorNode, Slot, compile_incremental, is_incremental, outside_fragment
 from tl_gym.tltl.trace import check_rho_max
 
 __all__ = ["PrefixMonitor", "Slot", "is_incremental", "outside_fragment"]
@@ -87,9 +87,9 @@ class PrefixMonitor:
         self.formula = formula
         self.rho_max = check_rho_max(rho_max)
         self._names = formula.signals
-        self._root = _compile_incremental(formula, self.rho_max, self._names)
+        self._root = compile_incremental(formula, self.rho_max, self._names)
         self.incremental = self._root is not None
-        self._pure: _Node | None = None  # a second tree, for value_of_state
+        self._pure: MonitorNode | None = None  # a second tree, for value_of_state
         self._state = self._written_out_state()
         self._history: np.ndarray = np.empty((len(self._names), 64), dtype=np.float64)
         self._length = 0
@@ -167,7 +167,7 @@ class PrefixMonitor:
         if len(values) != len(self._root.slots):
             raise ValueError(f"a state of this monitor has {len(self._root.slots)} floats, got {len(values)}")
         if self._pure is None:
-            self._pure = _compile_incremental(self.formula, self.rho_max, self._names)
+            self._pure = compile_incremental(self.formula, self.rho_max, self._names)
         self._pure.load(values, 0)  # type: ignore[union-attr]
         return self._pure.value()  # type: ignore[union-attr]
 

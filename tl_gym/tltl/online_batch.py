@@ -216,7 +216,7 @@ def _column_min(values: np.ndarray, start: int, stop: int) -> np.ndarray:
 
 
 class _AtStart(_Group):
-    """Formulas with lookahead d, judged on s_0 … s_d (`online_nodes._AtStart`)."""
+    """Formulas with lookahead d, judged on s_0 … s_d (`online_nodes.AtStartNode`)."""
 
     def __init__(self, parts: list[tuple[int, ...]], depth: int, names: int):
         super().__init__(parts)
@@ -239,7 +239,10 @@ class _AtStart(_Group):
 
 
 class _Extremum(_Group):
-    """``F φ`` / ``G φ``, φ with lookahead d: positions ≤ t − d folded, the last d judged (`online_nodes._Extremum`)."""
+    """``F φ`` / ``G φ``, φ with lookahead d: the positions ≤ t − d folded, the last d judged.
+
+    The batched `online_nodes.ExtremumNode`.
+    """
 
     def __init__(self, parts: list[tuple[int, ...]], depth: int, is_max: bool, names: int):
         super().__init__(parts)
@@ -265,7 +268,7 @@ class _Extremum(_Group):
 
 
 class _AtEnd(_Group):
-    """``F G φ`` / ``G F φ``: φ judged at the last state alone (`online_nodes._AtEnd`).
+    """``F G φ`` / ``G F φ``: φ judged at the last state alone (`online_nodes.AtEndNode`).
 
     ``formulas`` are the φ's without bounded lookahead, judged by the exact engine on the
     one-state trace; the others are parts.
@@ -293,7 +296,7 @@ class _AtEnd(_Group):
 
 
 class _NeverAgain(_Group):
-    """``G(A | X G B)``: two running values and the last d positions judged (`online_nodes._NeverAgain`)."""
+    """``G(A | X G B)``: two running values and the last d positions judged (`online_nodes.NeverAgainNode`)."""
 
     def __init__(self, parts: list[tuple[int, ...]], depth: int, bottom: float, names: int):
         super().__init__(parts)
@@ -323,7 +326,7 @@ class _NeverAgain(_Group):
 
 
 class _Until(_Group):
-    """``φ U ψ``, temporal-free operands (`online_nodes._Until`)."""
+    """``φ U ψ``, temporal-free operands (`online_nodes.UntilNode`)."""
 
     size = 2
 
@@ -337,7 +340,7 @@ class _Until(_Group):
 
 
 class _ThenChain(_Group):
-    """``φ1 T (φ2 T (… T φm))``, temporal-free operands (`online_nodes._ThenChain`)."""
+    """``φ1 T (φ2 T (… T φm))``, temporal-free operands (`online_nodes.ThenChainNode`)."""
 
     def __init__(self, parts: list[tuple[int, ...]], length: int):
         super().__init__(parts)
@@ -390,7 +393,7 @@ class BatchPrefixMonitor:
         self._t = -1
 
     # building ------------------------------------------------------------------------------
-    def _build(self, formula: Formula, root: online_nodes._Node) -> None:
+    def _build(self, formula: Formula, root: online_nodes.MonitorNode) -> None:
         """Mirror the scalar tree: leaves grouped by kind, connectives as a flat program over their values.
 
         The leaves are visited depth-first, left to right (the order of `PrefixMonitor.state`);
@@ -399,10 +402,10 @@ class BatchPrefixMonitor:
         leaves: list[tuple[tuple, tuple[int, ...], Formula | None, int]] = []  # (group key, parts, φ, slots)
         combine: list[tuple[Callable[..., np.ndarray], list[int]]] = []  # (rule, operand value ids)
         built: list[tuple[bool, int]] = []  # (is a leaf, index) of each finished sub-tree
-        stack: list[tuple[Formula, online_nodes._Node, bool]] = [(formula, root, False)]
+        stack: list[tuple[Formula, online_nodes.MonitorNode, bool]] = [(formula, root, False)]
         while stack:  # post-order on an explicit stack: any depth
             f, node, expanded = stack.pop()
-            if not isinstance(node, online_nodes._Combine):
+            if not isinstance(node, online_nodes.CombineNode):
                 leaves.append(self._leaf(f, node))
                 built.append((True, len(leaves) - 1))
             elif not expanded:
@@ -442,25 +445,27 @@ class BatchPrefixMonitor:
         self._lookahead = max(self._lookahead, lookahead(formula) or 0)
         return self._parts.add(formula)
 
-    def _leaf(self, formula: Formula, node: online_nodes._Node) -> tuple[tuple, tuple[int, ...], Formula | None, int]:
+    def _leaf(
+        self, formula: Formula, node: online_nodes.MonitorNode
+    ) -> tuple[tuple, tuple[int, ...], Formula | None, int]:
         """``(group key, parts, φ judged by the engine or None, number of slots)`` of a leaf of the scalar tree."""
         width, slots = len(self.names), len(node.slots)
-        if isinstance(node, online_nodes._AtStart):
+        if isinstance(node, online_nodes.AtStartNode):
             return (_AtStart, node.depth, width), (self._part(formula),), None, slots
-        if isinstance(node, online_nodes._Extremum):
+        if isinstance(node, online_nodes.ExtremumNode):
             return (_Extremum, node.depth, node.is_max, width), (self._part(formula.child),), None, slots  # type: ignore[attr-defined]
-        if isinstance(node, online_nodes._AtEnd):
+        if isinstance(node, online_nodes.AtEndNode):
             phi = formula.child.child  # type: ignore[attr-defined]
             if lookahead(phi) is not None:
                 return (_AtEnd, True), (self._part(phi),), None, slots
             return (_AtEnd, False), (), phi, slots
-        if isinstance(node, online_nodes._NeverAgain):
+        if isinstance(node, online_nodes.NeverAgainNode):
             a, b = online_nodes.never_again_parts(formula.child)  # type: ignore[attr-defined, misc]
             self._lookahead = max(self._lookahead, node.depth)
             return (_NeverAgain, node.depth, node.bottom, width), (self._part(a), self._part(b)), None, slots
-        if isinstance(node, online_nodes._Until):
+        if isinstance(node, online_nodes.UntilNode):
             return (_Until,), (self._part(formula.left), self._part(formula.right)), None, slots  # type: ignore[attr-defined]
-        if isinstance(node, online_nodes._ThenChain):
+        if isinstance(node, online_nodes.ThenChainNode):
             chain = [self._part(f) for f in online_nodes.then_chain(formula)]  # type: ignore[union-attr]
             return (_ThenChain, len(chain)), tuple(chain), None, slots
         raise TypeError(f"no batched twin of {type(node).__name__}")  # not reached: every node kind is above

@@ -1,16 +1,16 @@
 """The incremental monitor's nodes: one per shape of the incremental fragment, O(1) per state each.
 
-`_compile_incremental` builds the tree of nodes that `tl_gym.tltl.online.PrefixMonitor` steps
+`compile_incremental` builds the tree of nodes that `tl_gym.tltl.online.PrefixMonitor` steps
 for a formula of the fragment (the fragment and its costs: `tl_gym.tltl.online`), and None
 outside it; `is_incremental` and `outside_fragment` answer for a formula without a monitor.
-Boolean connectives over temporal parts are `_Combine`; the other parts are
+Boolean connectives over temporal parts are `CombineNode`; the other parts are
 
-* `_AtStart`: a formula with bounded lookahead d, judged on s_0 … s_d;
-* `_Extremum`: ``F φ`` / ``G φ`` of such a formula (a running max/min);
-* `_AtEnd`: ``F G φ`` / ``G F φ`` for any φ: φ judged at the last state alone;
-* `_NeverAgain`: ``G(A | X G B)`` and ``G(L -> X G B)`` (`never_again_parts`);
-* `_Until`: ``φ U ψ`` of temporal-free operands;
-* `_ThenChain`: ``φ1 T (φ2 T (… T φm))`` of temporal-free operands (`then_chain`).
+* `AtStartNode`: a formula with bounded lookahead d, judged on s_0 … s_d;
+* `ExtremumNode`: ``F φ`` / ``G φ`` of such a formula (a running max/min);
+* `AtEndNode`: ``F G φ`` / ``G F φ`` for any φ: φ judged at the last state alone;
+* `NeverAgainNode`: ``G(A | X G B)`` and ``G(L -> X G B)`` (`never_again_parts`);
+* `UntilNode`: ``φ U ψ`` of temporal-free operands;
+* `ThenChainNode`: ``φ1 T (φ2 T (… T φm))`` of temporal-free operands (`then_chain`).
 
 The formulas they judge on one state or on a window are compiled by `tl_gym.tltl.windowed`;
 their updates are the online rules of `tl_gym.tltl.operators`. `tl_gym.tltl.online_batch`
@@ -39,12 +39,12 @@ from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.codegen import CodeWriter
 from tl_gym.tltl.windowed import (
     State,
-    _lookaheads,
-    _Scalar,
-    _WindowFn,
+    StateFn,
+    WindowFn,
     compile_state_formula,
     compile_window_formula,
     lookahead,
+    lookaheads_by_node,
 )
 
 VALUE, SIGNAL, COUNT = "value", "signal", "count"
@@ -62,7 +62,7 @@ class Slot(NamedTuple):
     bound: int = 0
 
 
-class _Node:
+class MonitorNode:
     """Robustness at position 0 of a growing prefix, for one node of the fragment."""
 
     slots: list[Slot]
@@ -87,7 +87,7 @@ class _Node:
         raise NotImplementedError
 
 
-class _Window:
+class StateWindow:
     """The last ``size`` states (oldest first), shown as ``size × len(names)`` signal slots."""
 
     def __init__(self, names: tuple[str, ...], size: int):
@@ -114,13 +114,13 @@ class _Window:
         return pos + self.size * width
 
 
-class _AtStart(_Node):
+class AtStartNode(MonitorNode):
     """A formula with lookahead d: judged on s_0 … s_d (truncated while the trace is shorter)."""
 
-    def __init__(self, fn: _WindowFn, depth: int, names: tuple[str, ...]):
+    def __init__(self, fn: WindowFn, depth: int, names: tuple[str, ...]):
         self.fn = fn
         self.depth = depth
-        self.window = _Window(names, depth + 1)
+        self.window = StateWindow(names, depth + 1)
         self.slots = [Slot(VALUE)] if depth == 0 else [Slot(COUNT, depth + 1), *self.window.slots]
         self.first = 0.0
 
@@ -153,19 +153,19 @@ class _AtStart(_Node):
         return pos
 
 
-class _Extremum(_Node):
+class ExtremumNode(MonitorNode):
     """``F φ`` (running max) or ``G φ`` (running min) of a formula with lookahead d.
 
     Positions k ≤ t − d are final and folded into one running value; the last d
     positions are judged on their truncated windows at every update (O(d²)).
     """
 
-    def __init__(self, fn: _WindowFn, depth: int, is_max: bool, names: tuple[str, ...]):
+    def __init__(self, fn: WindowFn, depth: int, is_max: bool, names: tuple[str, ...]):
         self.fn = fn
         self.depth = depth
         self.is_max = is_max
         self.empty = -math.inf if is_max else math.inf
-        self.window = _Window(names, depth + 1)
+        self.window = StateWindow(names, depth + 1)
         self.slots = [Slot(VALUE)] + ([] if depth == 0 else [Slot(COUNT, depth + 1), *self.window.slots])
         self.reset()
 
@@ -204,14 +204,14 @@ class _Extremum(_Node):
         return self.window.load(values, pos + 2, self.count)
 
 
-class _AtEnd(_Node):
+class AtEndNode(MonitorNode):
     """``F G φ`` or ``G F φ``, for any φ: on a finite trace both are φ judged at the last state alone.
 
     (The max over t of the min over t' ≥ t of φ(t') is bounded by φ(last), reached at
     t = last; dually for ``G F``.) φ at the last state sees a one-state suffix.
     """
 
-    def __init__(self, fn: _Scalar):
+    def __init__(self, fn: StateFn):
         self.fn = fn
         self.slots = [Slot(VALUE)]
         self.last = 0.0
@@ -234,7 +234,7 @@ class _AtEnd(_Node):
         return pos + 1
 
 
-class _NeverAgain(_Node):
+class NeverAgainNode(MonitorNode):
     """``G(A | X G B)`` (so also ``G(¬L -> X G B)``): A with lookahead d, B temporal-free.
 
     At prefix length n the value is min over k of max(A_k, M_k) with M_k the min of
@@ -243,11 +243,11 @@ class _NeverAgain(_Node):
     are judged directly.
     """
 
-    def __init__(self, a: _WindowFn, depth: int, b: _Scalar, rho_max: float, names: tuple[str, ...]):
+    def __init__(self, a: WindowFn, depth: int, b: StateFn, rho_max: float, names: tuple[str, ...]):
         self.a, self.b = a, b
         self.depth = max(depth, 1)  # X G B at the last state is −ρ_max: that position is never final
         self.bottom = -float(rho_max)
-        self.window = _Window(names, self.depth + 1)
+        self.window = StateWindow(names, self.depth + 1)
         self.slots = [Slot(VALUE), Slot(VALUE), Slot(COUNT, self.depth + 1), *self.window.slots]
         self.reset()
 
@@ -291,12 +291,12 @@ class _NeverAgain(_Node):
         return pos
 
 
-class _Until(_Node):
+class UntilNode(MonitorNode):
     """``φ U ψ`` = max over t' of min(ψ(t'), min of φ before t')."""
 
     slots = [Slot(VALUE), Slot(VALUE)]
 
-    def __init__(self, left: _Scalar, right: _Scalar):
+    def __init__(self, left: StateFn, right: StateFn):
         self.left, self.right = left, right
         self.reset()
 
@@ -320,14 +320,14 @@ class _Until(_Node):
         return pos + 2
 
 
-class _ThenChain(_Node):
+class ThenChainNode(MonitorNode):
     """``φ1 T (φ2 T (… T φm))`` = max over s1 < … < sm of min(φ1(s1), …, φm(sm)).
 
     ``best[i]`` is that max for the first i operands; a new state updates them from
     the last to the first, each from the previous one's value before this state.
     """
 
-    def __init__(self, fns: list[_Scalar]):
+    def __init__(self, fns: list[StateFn]):
         self.fns = fns
         self.slots = [Slot(VALUE)] * len(fns)
         self.reset()
@@ -351,10 +351,10 @@ class _ThenChain(_Node):
         return pos + len(self.fns)
 
 
-class _Combine(_Node):
+class CombineNode(MonitorNode):
     """A Boolean connective over incremental children."""
 
-    def __init__(self, kind: type[Formula], children: list[_Node]):
+    def __init__(self, kind: type[Formula], children: list[MonitorNode]):
         self.kind = kind
         self.children = children
         self.slots = [slot for child in children for slot in child.slots]
@@ -412,15 +412,15 @@ def never_again_parts(child: Formula) -> tuple[Formula, Formula] | None:
     return None
 
 
-def _compile_incremental(formula: Formula, rho_max: float, names: tuple[str, ...],
-                         verdicts: dict[int, bool] | None = None) -> _Node | None:
+def compile_incremental(formula: Formula, rho_max: float, names: tuple[str, ...],
+                         verdicts: dict[int, bool] | None = None) -> MonitorNode | None:
     """The incremental monitor of ``formula`` over the signals ``names``, or None outside the fragment.
 
     Boolean connectives over temporal parts are compiled bottom-up on an explicit stack (any
     depth); ``verdicts`` receives, by node identity, whether each visited node is in the fragment.
     """
-    lookaheads = _lookaheads(formula)
-    built: list[_Node | None] = []  # compiled operands awaiting their connective (one per occurrence)
+    lookaheads = lookaheads_by_node(formula)
+    built: list[MonitorNode | None] = []  # compiled operands awaiting their connective (one per occurrence)
     stack: list[tuple[Formula, bool]] = [(formula, False)]
     while stack:
         node, expanded = stack.pop()
@@ -433,7 +433,7 @@ def _compile_incremental(formula: Formula, rho_max: float, names: tuple[str, ...
             k = len(built) - len(node.children)
             children = built[k:]
             del built[k:]
-            compiled = None if any(c is None for c in children) else _Combine(type(node), children)  # type: ignore[arg-type]
+            compiled = None if any(c is None for c in children) else CombineNode(type(node), children)  # type: ignore[arg-type]
         else:
             compiled = _compile_part(node, rho_max, names, lookaheads[id(node)])
         if verdicts is not None:
@@ -442,22 +442,22 @@ def _compile_incremental(formula: Formula, rho_max: float, names: tuple[str, ...
     return built[0]
 
 
-def _compile_part(formula: Formula, rho_max: float, names: tuple[str, ...], depth: int | None) -> _Node | None:
+def _compile_part(formula: Formula, rho_max: float, names: tuple[str, ...], depth: int | None) -> MonitorNode | None:
     """The incremental monitor of a formula that is not a Boolean connective over temporal parts."""
     if depth is not None:
-        return _AtStart(compile_window_formula(formula, rho_max), depth, names)
+        return AtStartNode(compile_window_formula(formula, rho_max), depth, names)
     if isinstance(formula, (nodes.Eventually, nodes.Always)):
         inner = formula.child
         if isinstance(inner, (nodes.Eventually, nodes.Always)) and type(inner) is not type(formula):
-            return _AtEnd(_at_last_state(inner.child, rho_max, names))  # F G φ, G F φ
+            return AtEndNode(_at_last_state(inner.child, rho_max, names))  # F G φ, G F φ
         depth = lookahead(inner)
         if depth is not None:
             window = compile_window_formula(inner, rho_max)
-            return _Extremum(window, depth, isinstance(formula, nodes.Eventually), names)
+            return ExtremumNode(window, depth, isinstance(formula, nodes.Eventually), names)
         parts = never_again_parts(inner) if isinstance(formula, nodes.Always) else None
         if parts is not None:
             a, b = parts
-            return _NeverAgain(
+            return NeverAgainNode(
                 compile_window_formula(a, rho_max), lookahead(a) or 0, compile_state_formula(b, rho_max), rho_max,
                 names,
             )
@@ -465,16 +465,16 @@ def _compile_part(formula: Formula, rho_max: float, names: tuple[str, ...], dept
     if isinstance(formula, nodes.Until):
         if formula.left.is_temporal or formula.right.is_temporal:
             return None
-        return _Until(compile_state_formula(formula.left, rho_max), compile_state_formula(formula.right, rho_max))
+        return UntilNode(compile_state_formula(formula.left, rho_max), compile_state_formula(formula.right, rho_max))
     if isinstance(formula, nodes.Then):
         chain = then_chain(formula)
         if chain is None:
             return None
-        return _ThenChain([compile_state_formula(f, rho_max) for f in chain])
+        return ThenChainNode([compile_state_formula(f, rho_max) for f in chain])
     return None
 
 
-def _at_last_state(formula: Formula, rho_max: float, names: tuple[str, ...]) -> _Scalar:
+def _at_last_state(formula: Formula, rho_max: float, names: tuple[str, ...]) -> StateFn:
     """``formula`` judged on the one-state trace ``[s]``, as a closure of ``s``."""
     if lookahead(formula) is not None:
         fn = compile_window_formula(formula, rho_max)
@@ -485,7 +485,7 @@ def _at_last_state(formula: Formula, rho_max: float, names: tuple[str, ...]) -> 
 
 def is_incremental(formula: Formula) -> bool:
     """Whether `PrefixMonitor` updates ``formula`` in O(1) per state (the fragment: `tl_gym.tltl.online`)."""
-    return _compile_incremental(formula, math.inf, formula.signals) is not None
+    return compile_incremental(formula, math.inf, formula.signals) is not None
 
 
 def outside_fragment(formula: Formula) -> Formula | None:
@@ -500,7 +500,7 @@ def outside_fragment(formula: Formula) -> Formula | None:
         G (x > 2 -> F x < 0)
     """
     verdicts: dict[int, bool] = {}
-    if _compile_incremental(formula, math.inf, formula.signals, verdicts) is not None:
+    if compile_incremental(formula, math.inf, formula.signals, verdicts) is not None:
         return None
     stack = [formula]  # reading order: the first culprit found depth-first, left to right
     while stack:

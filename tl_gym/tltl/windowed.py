@@ -40,8 +40,8 @@ from tl_gym.tltl.codegen import CodeWriter, state_formula_source, window_formula
 from tl_gym.tltl.expressions import can_be_non_finite, evaluate_expression, postorder
 
 State = Mapping[str, float]
-_Scalar = Callable[[State], float]
-_WindowFn = Callable[[list, int], float]  # (states s_k … s_{k+d} (fewer at the trace's end), index) -> value
+StateFn = Callable[[State], float]
+WindowFn = Callable[[list, int], float]  # (states s_k … s_{k+d} (fewer at the trace's end), index) -> value
 
 
 # --------------------------------------------------------------------------- temporal-free parts, on one state
@@ -52,14 +52,14 @@ _WindowFn = Callable[[list, int], float]  # (states s_k … s_{k+d} (fewer at th
 _CLOSURE_DEPTH = 64
 
 
-def _compile_expr(expr: Expr) -> _Scalar:
+def _compile_expr(expr: Expr) -> StateFn:
     """A function computing ``expr`` on one state with Python floats."""
     if height(expr) > _CLOSURE_DEPTH:
         return _expression_loop(expr)
     return _expression_closure(expr)
 
 
-def _expression_loop(expr: Expr) -> _Scalar:
+def _expression_loop(expr: Expr) -> StateFn:
     """``expr`` on one state by the array evaluator's loop over its nodes in post-order (any depth)."""
     names = tuple(dict.fromkeys(e.name for e in postorder(expr) if isinstance(e, nodes.Var)))
 
@@ -70,7 +70,7 @@ def _expression_loop(expr: Expr) -> _Scalar:
     return value
 
 
-def _expression_closure(expr: Expr) -> _Scalar:
+def _expression_closure(expr: Expr) -> StateFn:
     """A closure computing ``expr`` on one state (recursion bounded by `_CLOSURE_DEPTH`)."""
     if isinstance(expr, nodes.Var):
         name = expr.name
@@ -83,7 +83,7 @@ def _expression_closure(expr: Expr) -> _Scalar:
         return lambda s: -inner(s)
     if isinstance(expr, nodes.BinOp):
         a, b = _expression_closure(expr.left), _expression_closure(expr.right)
-        ops: dict[str, _Scalar] = {
+        ops: dict[str, StateFn] = {
             "+": lambda s: a(s) + b(s),
             "-": lambda s: a(s) - b(s),
             "*": lambda s: a(s) * b(s),
@@ -102,7 +102,7 @@ def _expression_closure(expr: Expr) -> _Scalar:
     raise TypeError(f"no evaluation rule for expression node {type(expr).__name__}")
 
 
-def _compile_predicate(node: nodes.Predicate) -> _Scalar:
+def _compile_predicate(node: nodes.Predicate) -> StateFn:
     lhs, rhs = _compile_expr(node.lhs), _compile_expr(node.rhs)
     op = node.op
     checked = can_be_non_finite(node.lhs) or can_be_non_finite(node.rhs)
@@ -120,7 +120,7 @@ def _compile_predicate(node: nodes.Predicate) -> _Scalar:
     return value
 
 
-def compile_state_formula(formula: Formula, rho_max: float) -> _Scalar:
+def compile_state_formula(formula: Formula, rho_max: float) -> StateFn:
     """Robustness of a temporal-free formula on one state, as a function of that state."""
     if formula.is_temporal:
         temporal_nodes = (nodes.Next, nodes.Eventually, nodes.Always, nodes.Until, nodes.Then)
@@ -137,7 +137,7 @@ def compile_state_formula(formula: Formula, rho_max: float) -> _Scalar:
     return _state_closure(formula, rho_max)
 
 
-def _engine_window_formula(formula: Formula, rho_max: float) -> _WindowFn:
+def _engine_window_formula(formula: Formula, rho_max: float) -> WindowFn:
     """Robustness at ``window[i]`` by the exact evaluator on the window's states (any depth).
 
     The window is a trace of its own, so ``X`` past its end is −ρ_max, as in `compile_window_formula`.
@@ -154,7 +154,7 @@ def _engine_window_formula(formula: Formula, rho_max: float) -> _WindowFn:
     return value
 
 
-def _state_closure(formula: Formula, rho_max: float) -> _Scalar:
+def _state_closure(formula: Formula, rho_max: float) -> StateFn:
     """Nested closures for a temporal-free formula (recursion bounded by `_CLOSURE_DEPTH`)."""
     if isinstance(formula, nodes.Constant):
         value = float(rho_max) if formula.value else -float(rho_max)
@@ -178,10 +178,10 @@ def lookahead(formula: Formula) -> int | None:
     combination of ``X``'s over temporal-free formulas; None when ``F G U T`` occur.
     Computed bottom-up on an explicit stack (any depth).
     """
-    return _lookaheads(formula)[id(formula)]
+    return lookaheads_by_node(formula)[id(formula)]
 
 
-def compile_window_formula(formula: Formula, rho_max: float) -> _WindowFn:
+def compile_window_formula(formula: Formula, rho_max: float) -> WindowFn:
     """Robustness at ``window[i]`` of a formula with bounded lookahead (see `lookahead`).
 
     ``X φ`` beyond the end of the window is −ρ_max, the value of ``X`` at the last state.
@@ -198,7 +198,7 @@ def compile_window_formula(formula: Formula, rho_max: float) -> _WindowFn:
     return _window_closure(formula, rho_max)
 
 
-def _window_closure(formula: Formula, rho_max: float) -> _WindowFn:
+def _window_closure(formula: Formula, rho_max: float) -> WindowFn:
     """Nested closures for a formula with bounded lookahead (recursion bounded by `_CLOSURE_DEPTH`)."""
     if not formula.is_temporal:
         fn = _state_closure(formula, rho_max)
@@ -214,7 +214,7 @@ def _window_closure(formula: Formula, rho_max: float) -> _WindowFn:
     raise TypeError(f"{type(formula).__name__} has no bounded lookahead")
 
 
-def _lookaheads(formula: Formula) -> dict[int, int | None]:
+def lookaheads_by_node(formula: Formula) -> dict[int, int | None]:
     """`lookahead` of every node, by identity, in one bottom-up pass."""
     done: dict[int, int | None] = {}
     for node in reversed(formula.walk()):  # children before parents
