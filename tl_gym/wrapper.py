@@ -3,27 +3,22 @@
 from __future__ import annotations
 
 import dataclasses
-import inspect
 import math
 import numbers
-from collections.abc import Callable, Mapping
-from typing import Any, SupportsFloat, Union
+from collections.abc import Mapping
+from typing import Any, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
 
 from tl_gym.checks import check_positive
-from tl_gym.errors import TraceError, UnknownSignalError
 from tl_gym.monitor_view import MonitorView, augment, augment_space, split
 from tl_gym.shaping import HierarchicalPotential, discounted_increment
+from tl_gym.signals import SignalMap, SignalReader
 from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.invariants import InvariantMonitor
 from tl_gym.tltl.online import PrefixMonitor
 from tl_gym.tltl.parser import parse
-
-SignalSource = Union[int, str, tuple, Callable[..., Any]]
-SignalMap = Union[Mapping[str, SignalSource], Callable[..., Mapping[str, Any]]]
 
 REWARDS = ("exact", "smooth")
 REWARD_MODES = ("terminal", "dense", "potential")
@@ -208,7 +203,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if not isinstance(end_on_violation, bool):
             raise TypeError(f"end_on_violation must be True or False, got {end_on_violation!r}")
         invariants = InvariantMonitor(formula, settings.rho_max) if end_on_violation else None
-        reader = _SignalReader(formula.signals, signals, env.observation_space)
+        reader = SignalReader(formula.signals, signals, env.observation_space)
         view = None
         if observe_monitor:
             horizon = _env_horizon(env) if horizon is None else horizon
@@ -435,181 +430,6 @@ def check_discount(gamma: Any) -> None:
     """Raise a ValueError unless ``gamma`` is a real number in (0, 1] (the potential shaping's discount)."""
     if isinstance(gamma, bool) or not (isinstance(gamma, numbers.Real) and 0 < gamma <= 1):
         raise ValueError(f"gamma must lie in (0, 1], got {gamma!r}")
-
-
-def _is_index(value: Any) -> bool:
-    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
-
-
-def _accepts_info(fn: Callable[..., Any]) -> bool:
-    """Whether ``fn`` takes ``(obs, info)`` rather than ``(obs)``."""
-    try:
-        params = inspect.signature(fn).parameters.values()
-    except (TypeError, ValueError):  # builtins without a signature: assume (obs)
-        return False
-    positional = [p for p in params if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
-    return len(positional) >= 2 or any(p.kind == p.VAR_POSITIONAL for p in params)
-
-
-def _box_index(name: str, space: spaces.Space, index: tuple, where: str) -> tuple:
-    """Check that ``index`` picks one element of the Box ``space``; return it normalised."""
-    if not isinstance(space, spaces.Box):
-        raise TypeError(f"signal {name!r}: {where} is a {type(space).__name__} space, which an index cannot address")
-    if len(index) != len(space.shape) or not all(_is_index(i) for i in index):
-        raise ValueError(
-            f"signal {name!r}: index {index if len(index) != 1 else index[0]!r} does not pick one element of "
-            f"{where}, a Box of shape {space.shape}"
-        )
-    for i, size in zip(index, space.shape):
-        if not -size <= i < size:
-            raise ValueError(
-                f"signal {name!r}: index {index if len(index) != 1 else index[0]!r} lies outside {where}, "
-                f"a Box of shape {space.shape}"
-            )
-    return tuple(int(i) % size for i, size in zip(index, space.shape))
-
-
-class _SignalReader:
-    """Reads the formula's signals from an observation (and info), checking each value."""
-
-    def __init__(self, names: tuple[str, ...], signals: SignalMap, space: spaces.Space):
-        self.names = names
-        self._all_at_once: Callable[..., Any] | None = None
-        self._getters: list[Callable[[Any, dict], Any]] = []
-        self._fast_index: np.ndarray | None = None
-        self._pending_check = False
-        if callable(signals) and not isinstance(signals, Mapping):
-            self._all_at_once = signals
-            self._pending_check = True
-            return
-        if not isinstance(signals, Mapping):
-            raise TypeError(f"signals must be a mapping name -> source or one callable, got {type(signals).__name__}")
-        missing = [n for n in names if n not in signals]
-        if missing:
-            raise UnknownSignalError(
-                f"the formula reads signal {missing[0]!r}, which `signals` does not map "
-                f"(mapped: {', '.join(map(str, signals)) or 'none'})"
-            )
-        getters = {str(key): self._getter(str(key), source, space) for key, source in signals.items()}
-        self._getters = [getters[n] for n in names]
-        self._pending_check = any(callable(signals[n]) for n in names)
-        flat = [signals[n] for n in names]
-        if isinstance(space, spaces.Box) and len(space.shape) == 1 and all(_is_index(s) for s in flat):
-            self._fast_index = np.array([int(s) % space.shape[0] for s in flat], dtype=np.intp)
-
-    @staticmethod
-    def _getter(name: str, source: Any, space: spaces.Space) -> Callable[[Any, dict], Any]:
-        if callable(source):
-            return _CallableGetter(source, _accepts_info(source))
-        if _is_index(source) or (isinstance(source, tuple) and source and all(_is_index(i) for i in source)):
-            index = _box_index(name, space, source if isinstance(source, tuple) else (source,), "the observation")
-            return _KeyGetter(None, index)
-        if isinstance(source, str) or (isinstance(source, tuple) and source and isinstance(source[0], str)):
-            key, rest = (source, ()) if isinstance(source, str) else (source[0], tuple(source[1:]))
-            if not isinstance(space, spaces.Dict):
-                raise TypeError(
-                    f"signal {name!r}: key {key!r} needs a Dict observation space, got {type(space).__name__}"
-                )
-            if key not in space.spaces:
-                raise KeyError(f"signal {name!r}: the observation has no key {key!r} (keys: {', '.join(space.spaces)})")
-            sub = space.spaces[key]
-            if not rest:
-                if not (isinstance(sub, spaces.Box) and int(np.prod(sub.shape)) == 1):
-                    shape = getattr(sub, "shape", None)
-                    raise ValueError(
-                        f"signal {name!r}: key {key!r} holds {type(sub).__name__} of shape {shape}, not one number; "
-                        f"pick an element with a tuple such as ({key!r}, 0)"
-                    )
-                return _KeyGetter(key, (0,) * len(sub.shape))
-            return _KeyGetter(key, _box_index(name, sub, rest, f"observation[{key!r}]"))
-        raise TypeError(
-            f"signal {name!r}: expected an index, a key, a (key, index) tuple or a callable, got {source!r}"
-        )
-
-    def bounds(self, space: spaces.Space) -> dict[str, tuple[float, float]]:
-        """``(low, high)`` of the signals read by index from a Box (others are unbounded)."""
-        out: dict[str, tuple[float, float]] = {}
-        for name, getter in zip(self.names, self._getters):
-            if isinstance(getter, _KeyGetter):
-                box = space if getter.key is None else space.spaces[getter.key]  # type: ignore[attr-defined]
-                out[name] = (float(box.low[getter.index]), float(box.high[getter.index]))
-        return out
-
-    def first(self, obs: Any, info: dict) -> list[float]:
-        """Read s_0; on the first call, check what callables return."""
-        if self._pending_check:
-            self._check_callables(obs, info)
-            self._pending_check = False
-        return self.read(obs, info, 0)
-
-    def _check_callables(self, obs: Any, info: dict) -> None:
-        if self._all_at_once is not None:
-            values = self._all_at_once(obs, info)
-            if not isinstance(values, Mapping):
-                raise TypeError(
-                    f"the signals callable must return a mapping name -> number, got {type(values).__name__}"
-                )
-            missing = [n for n in self.names if n not in values]
-            if missing:
-                raise UnknownSignalError(
-                    f"the signals callable returned no {missing[0]!r}, which the formula reads "
-                    f"(returned: {', '.join(map(str, values)) or 'none'})"
-                )
-            for name in self.names:
-                _check_scalar(name, values[name])
-            return
-        for name, getter in zip(self.names, self._getters):
-            _check_scalar(name, getter(obs, info))
-
-    def read(self, obs: Any, info: dict, step: int) -> list[float]:
-        """The signal values of one observation, as floats; NaN or inf raises `TraceError`."""
-        if self._fast_index is not None:
-            row = obs[self._fast_index].tolist()
-        elif self._all_at_once is not None:
-            values = self._all_at_once(obs, info)
-            row = [float(values[n]) for n in self.names]
-        else:
-            row = [float(g(obs, info)) for g in self._getters]
-        total = sum(row)
-        if total - total != 0.0:  # NaN or inf somewhere (or an overflowing sum): find it
-            for name, value in zip(self.names, row):
-                if not math.isfinite(value):
-                    raise TraceError(
-                        f"signal {name!r} is {value} at step {step} of the recorded trace (s_0 is step 0)"
-                    )
-        return row
-
-
-class _KeyGetter:
-    """Reads ``obs[index]`` or ``obs[key][index]`` (a class rather than a lambda, so the wrapper pickles)."""
-
-    def __init__(self, key: str | None, index: tuple[int, ...]):
-        self.key = key
-        self.index = index
-
-    def __call__(self, obs: Any, info: dict) -> Any:
-        return (obs if self.key is None else obs[self.key])[self.index]
-
-
-class _CallableGetter:
-    """Calls a user's signal function with ``(obs)`` or ``(obs, info)``."""
-
-    def __init__(self, fn: Callable[..., Any], with_info: bool):
-        self.fn = fn
-        self.with_info = with_info
-
-    def __call__(self, obs: Any, info: dict) -> Any:
-        return self.fn(obs, info) if self.with_info else self.fn(obs)
-
-
-def _check_scalar(name: str, value: Any) -> None:
-    if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.ndarray, np.generic)):
-        raise TypeError(f"signal {name!r} must be a real number, got {type(value).__name__}: {value!r}")
-    if np.ndim(value) != 0 or np.asarray(value).dtype.kind not in "iuf":
-        raise ValueError(
-            f"signal {name!r} must be one real number, got an array of shape {np.shape(value)} "
-            f"and dtype {np.asarray(value).dtype}"
-        )
 
 
 def _env_horizon(env: gym.Env) -> int | None:
