@@ -146,6 +146,21 @@ def test_shipped_configs_expand():
             assert load_config(path, variant=variant).runs, (path, variant)
 
 
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_paper_config_reruns_sb3_as_the_paper_grid_ran_it(algo):
+    """The paper grid's PPO/SAC ran SB3's defaults on the plain terminal reward (2026-11-23), before the
+    library's SB3 defaults (Markov view, VecNormalize, per-task hyperparameters, end as termination)."""
+    from tl_gym.agents.registry import make_agent
+
+    spec = next(r for r in load_config(ROOT / "benchmarks" / "configs" / "paper.toml", "quick").runs if r.agent == algo)
+    agent = make_agent(spec.agent, spec.env, seed=0, env_kwargs=dict(spec.env_kwargs), **spec.hyperparameters)
+    config = agent.config
+    assert (config.tl_reward, config.normalize, config.hyperparams, config.end_is_terminal) == (
+        "terminal", False, False, False)
+    assert agent.sb3_env.observation_space.shape == (6,)  # the car's own observation, no monitor view
+    assert not hasattr(agent.model.get_env(), "obs_rms")  # no VecNormalize
+
+
 def test_tiny_sweep_runs_in_parallel_resumes_and_aggregates(tmp_path, capsys):
     sweep = expand_config(config())
     assert iterations_done(sweep.runs, tmp_path) == 0  # nothing written yet
