@@ -55,7 +55,7 @@ from tl_gym.errors import TLGymError
 from .arguments import build_parser, parse_hyperparameters
 
 RUN_FILE = "run.json"
-RUNNER_SPEC_FILE = "spec.json"  # a run folder of benchmarks/runner.py (docs/benchmarks.md)
+RUNNER_SPEC_FILE = "spec.json"  # a run folder of the experiment runner (benchmarks/run_one.py, docs/benchmarks.md)
 AGENT_FILE = "agent.zip"
 BEST_FILE = "best_agent.zip"
 EVALUATIONS_FILE = "evaluations.csv"
@@ -192,7 +192,7 @@ def write_plots(agent: Any, run: dict[str, Any], snapshots: list[tuple[int, dict
 def read_run(folder: Path) -> dict[str, Any]:
     """What a run folder trained: `tl-gym train`'s ``run.json``, or the experiment runner's ``spec.json``.
 
-    A runner folder (``benchmarks/runner.py``, docs/benchmarks.md) names a registered id, so it has no
+    A runner folder (written by ``benchmarks/run_one.py``, docs/benchmarks.md) names a registered id, so it has no
     ``--spec``; both kinds keep the final agent as ``agent.zip``.
     """
     run_file, runner_file = folder / RUN_FILE, folder / RUNNER_SPEC_FILE

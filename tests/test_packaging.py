@@ -42,7 +42,8 @@ def _imports(path: Path) -> set[str]:
 # (tl_gym/ reaches the envs only through Gymnasium's string entry points, which are not imports.)
 ABOVE_THE_LIBRARY = ("tl_gym.envs", "tl_gym.agents", "tl_gym.cli", "benchmarks")
 LAYERS = {
-    "tl_gym/tltl": ("gymnasium", "stable_baselines3", "tl_gym.wrapper", *ABOVE_THE_LIBRARY),
+    "tl_gym/tltl": ("gymnasium", "stable_baselines3", "tl_gym.wrapper", "tl_gym.signals", "tl_gym.monitor_view",
+                    "tl_gym.shaping", *ABOVE_THE_LIBRARY),
     "tl_gym": ABOVE_THE_LIBRARY,
     "envs": ("tl_gym.agents", "tl_gym.cli", "benchmarks"),
     "agents": ("tl_gym.cli", "benchmarks"),

@@ -146,17 +146,29 @@ def test_shipped_configs_expand():
             assert load_config(path, variant=variant).runs, (path, variant)
 
 
-@pytest.mark.parametrize("algo", ["ppo", "sac"])
-def test_paper_config_reruns_sb3_as_the_paper_grid_ran_it(algo):
+PAPER_GRID_SB3 = {"tl_reward": "terminal", "normalize": False, "hyperparams": False, "end_is_terminal": False}
+
+
+def test_paper_config_pins_the_sb3_setup_of_the_paper_grid_in_every_variant():
     """The paper grid's PPO/SAC ran SB3's defaults on the plain terminal reward (2026-11-23), before the
     library's SB3 defaults (Markov view, VecNormalize, per-task hyperparameters, end as termination)."""
+    path = ROOT / "benchmarks" / "configs" / "paper.toml"
+    for variant in (None, *tomllib.loads(path.read_text()).get("variants", {})):
+        sb3_runs = [r for r in load_config(path, variant=variant).runs if r.agent in ("ppo", "sac")]
+        assert {r.agent for r in sb3_runs} == {"ppo", "sac"}, variant
+        assert {r.env_kwargs["task"] for r in sb3_runs} == {1, 2}, variant
+        for run in sb3_runs:
+            assert {k: run.hyperparameters.get(k) for k in PAPER_GRID_SB3} == PAPER_GRID_SB3, (variant, run.label)
+
+
+@pytest.mark.parametrize("algo", ["ppo", "sac"])
+def test_paper_config_builds_sb3_agents_without_the_librarys_defaults(algo):
     from tl_gym.agents.registry import make_agent
 
     spec = next(r for r in load_config(ROOT / "benchmarks" / "configs" / "paper.toml", "quick").runs if r.agent == algo)
     agent = make_agent(spec.agent, spec.env, seed=0, env_kwargs=dict(spec.env_kwargs), **spec.hyperparameters)
     config = agent.config
-    assert (config.tl_reward, config.normalize, config.hyperparams, config.end_is_terminal) == (
-        "terminal", False, False, False)
+    assert {k: getattr(config, k) for k in PAPER_GRID_SB3} == PAPER_GRID_SB3
     assert agent.sb3_env.observation_space.shape == (6,)  # the car's own observation, no monitor view
     assert not hasattr(agent.model.get_env(), "obs_rms")  # no VecNormalize
 

@@ -1,6 +1,6 @@
 """Reading a formula's signals out of an env's observations (and infos), checked once, read fast.
 
-`TLTLRewardWrapper`'s ``signals`` argument maps each signal the formula reads to a source: an index
+`tl_gym.wrapper.TLTLRewardWrapper`'s ``signals`` argument maps each signal the formula reads to a source: an index
 into a Box observation, a key (or ``(key, index)``) of a Dict one, or a callable of ``(obs)`` or
 ``(obs, info)``; or one callable returns them all. `SignalReader` checks every source against the
 observation space when the wrapper is built (a bad index, a missing key or an unmapped signal raises

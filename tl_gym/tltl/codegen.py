@@ -5,10 +5,10 @@ on one state, or on a window of a few states, several times per env step. As nes
 (one call per operator and per predicate, a list per connective) that costs several times the
 arithmetic; the same formula written out as one Python expression, e.g.
 ``min(s['x'] - 210.0, 240.0 - s['x'])`` for ``x > 210 & x < 240``, and compiled once, does only
-the arithmetic. `CodeWriter` collects
-such expressions and the objects they read, and compiles them into functions. The Markov view
-uses it too: the monitor's nodes write their state's floats as expressions over their own
-attributes (`tl_gym.tltl.online.PrefixMonitor.state_source`), compiled into the view's encoder.
+the arithmetic. `CodeWriter` collects such expressions and the objects they read, and compiles
+them into functions. The Markov view uses it too: the monitor's nodes write their state's floats
+as expressions over their own attributes (`tl_gym.tltl.online.PrefixMonitor.state_source`),
+compiled into the view's encoder.
 
 What is written out computes the same floats as the closures it replaces, in the same order
 (the connectives' forms are `tl_gym.tltl.operators.connective_source`, tested against their

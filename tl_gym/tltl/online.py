@@ -17,7 +17,7 @@ independent of the trace length: Boolean combinations (``! & | ->``) of
 * chains ``φ1 T (φ2 T (… T φm))`` of temporal-free operands (best value of every
   leading sub-chain),
 * ``G(A | X G B)`` and ``G(L -> X G B)`` ("never again"), with A, L of bounded
-  lookahead and B temporal-free (two running values, see `online_nodes.NeverAgainNode`),
+  lookahead and B temporal-free (two running values, see `tl_gym.tltl.online_nodes.NeverAgainNode`),
 * ``F G φ`` and ``G F φ`` for any φ: on a finite trace both equal φ judged at the last
   state alone (a one-state suffix).
 

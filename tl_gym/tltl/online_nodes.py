@@ -19,8 +19,9 @@ mirrors these nodes on arrays of n traces.
 Every node keeps a small state from which its value is a pure function (`value`); `update`
 is the transition. `source` writes that state's floats as Python expressions over the node's
 attributes, compiled into one function (`CodeWriter`), and `load` reads them back, so that the
-state can be shown to an agent (`PrefixMonitor.state`, the wrapper's ``observe_monitor``) and the
-value recomputed from it (`PrefixMonitor.value_of_state`). Slots are typed by `Slot`.
+state can be shown to an agent (`tl_gym.tltl.online.PrefixMonitor.state`, the wrapper's
+``observe_monitor``) and the value recomputed from it
+(`tl_gym.tltl.online.PrefixMonitor.value_of_state`). Slots are typed by `Slot`.
 
 Pure numpy and the standard library: no Gymnasium here.
 """
@@ -484,7 +485,7 @@ def _at_last_state(formula: Formula, rho_max: float, names: tuple[str, ...]) -> 
 
 
 def is_incremental(formula: Formula) -> bool:
-    """Whether `PrefixMonitor` updates ``formula`` in O(1) per state (the fragment: `tl_gym.tltl.online`)."""
+    """Whether `tl_gym.tltl.online.PrefixMonitor` updates ``formula`` in O(1) per state (the fragment: its module)."""
     return compile_incremental(formula, math.inf, formula.signals) is not None
 
 
