@@ -26,7 +26,7 @@ from scipy.interpolate import interp1d
 from benchmarks import handwritten, peers
 from benchmarks.formulas import ARENA, TASKS, Task, benchmark_task
 from benchmarks.peers import Evaluator, Unsupported
-from benchmarks.run_one import git
+from benchmarks.provenance import git
 from tl_gym.tltl import fused
 
 RTOL = 1e-6  # relative tolerance of the value check (absolute below |ρ| = 1)

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks import figures, results
-from benchmarks.run_one import git
+from benchmarks.provenance import git
 from benchmarks.runner import add_sweep_options, default_out_dir, run_with_options, variant_of
 from benchmarks.sweep_config import Sweep, load_config
 

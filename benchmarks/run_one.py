@@ -17,7 +17,6 @@ import io
 import json
 import os
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
@@ -28,6 +27,7 @@ from typing import Any
 import numpy as np
 from tl_gym.agents.serialization import write_atomic
 
+from benchmarks.provenance import code_version
 from benchmarks.sweep_config import RunSpec
 from tl_gym.errors import IncompatibleSaveError
 
@@ -198,26 +198,6 @@ def _summarise(spec: RunSpec, agent: Any, elapsed: float, code: str) -> dict[str
             "mean_robustness": float(result["mean_robustness"]), "success_rate": float(result["success_rate"]),
             "episodes": spec.evaluate_episodes}
     return summary
-
-
-def code_version() -> str:
-    """The tl_gym version and, in a git checkout, the commit (``+dirty`` if library code is modified)."""
-    import tl_gym
-
-    root = Path(tl_gym.__file__).resolve().parents[1]
-    commit = git("rev-parse", "--short", "HEAD", cwd=root)
-    if commit is None:
-        return tl_gym.__version__
-    dirty = git("status", "--porcelain", "--", "tl_gym", "agents", "envs", cwd=root)
-    return f"{tl_gym.__version__} ({commit}{'+dirty' if dirty else ''})"
-
-
-def git(*args: str, cwd: str | Path | None = None) -> str | None:
-    """The output of ``git ARGS`` (stripped), or None outside a checkout or without git."""
-    try:
-        return subprocess.run(["git", *args], cwd=cwd, capture_output=True, text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return None
 
 
 def run_files(spec: RunSpec) -> dict[str, bytes]:
