@@ -114,8 +114,8 @@ def build_parser(with_hyperparameters: bool = False) -> argparse.ArgumentParser:
                        help="with --spec: signal sources, e.g. cos_th=0,th_dot=2 (observation indices or Dict keys)")
     train.add_argument("--agent", default="tlps", help="tlps, reps or a stable-baselines3 algorithm (ppo, sac, ...)")
     train.add_argument("--iterations", type=int, default=None,
-                       help="policy updates (default: 50; SB3 agents: the task's n_timesteps budget rounded up to whole "
-                            "iterations of steps_per_iteration, else 50)")
+                       help="policy updates (default: 50; SB3 agents: the task's n_timesteps budget rounded up to "
+                            "whole iterations of steps_per_iteration, else 50)")
     train.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
     train.add_argument("--out", type=Path, required=True, help="run folder to write")
     train.add_argument("--snapshots", default=None,
