@@ -104,6 +104,20 @@ def default_iterations(agent: Any) -> int:
     return max(1, -(-int(budget) // int(agent.config.steps_per_iteration)))
 
 
+def rounding_notice(agent: Any, iterations: int) -> str | None:
+    """The line to print when the ``n_timesteps`` budget is not whole iterations, else None.
+
+    A user who asked for 4,000 steps at 8,000 per iteration gets 8,000: say so instead of doing it silently.
+    """
+    budget = getattr(agent, "n_timesteps", None)
+    per_iteration = int(agent.config.steps_per_iteration) if budget is not None else 0
+    if budget is None or iterations * per_iteration == int(budget):
+        return None
+    return (f"note: n_timesteps={int(budget)} is not whole iterations of steps_per_iteration={per_iteration}: "
+            f"training {iterations} iteration(s), {iterations * per_iteration} env steps "
+            "(set --steps-per-iteration or --iterations to choose)")
+
+
 def default_snapshots(iterations: int) -> list[int]:
     """Iterations to plot: the first, then spread to the last.
 
@@ -134,6 +148,9 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
         raise ValueError(f"--eval-every and --eval-episodes must be >= 1, got {args.eval_every}, {args.eval_episodes}")
     agent = agent_for_run(run)
     run["iterations"] = iterations = default_iterations(agent) if args.iterations is None else args.iterations
+    notice = rounding_notice(agent, iterations) if args.iterations is None else None
+    if notice is not None:
+        print(notice, file=sys.stderr)
     snapshots_at = (sorted({int(s) for s in args.snapshots.split(",")}) if args.snapshots
                     else default_snapshots(iterations))
     out: Path = args.out

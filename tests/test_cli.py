@@ -124,6 +124,7 @@ def test_an_sb3_run_keeps_its_markov_view_and_vecnormalize(tmp_path, capsys):
     assert main(["train", "--env", "TLCarNav-v0", "--agent", "ppo", "--n-timesteps", "128", "--out", str(out),
                  "--quiet", *SB3_TINY]) == 0
     assert json.loads((out / "run.json").read_text())["iterations"] == 2
+    assert "note: n_timesteps" not in capsys.readouterr().err  # 128 is whole iterations: nothing to say
     with zipfile.ZipFile(out / "agent.zip") as archive:
         assert "vecnormalize.pkl" in archive.namelist()
     agent = Agent.load(out / "agent.zip")
@@ -132,6 +133,15 @@ def test_an_sb3_run_keeps_its_markov_view_and_vecnormalize(tmp_path, capsys):
     capsys.readouterr()
     assert main(["eval", str(out), "--episodes", "3", "--seed", "7"]) == 0
     assert f"mean robustness {expected:.4g}" in capsys.readouterr().out
+
+
+def test_a_budget_that_is_not_whole_iterations_is_rounded_up_and_said(tmp_path, capsys):
+    out = tmp_path / "rounded"
+    assert main(["train", "--env", "TLCarNav-v0", "--agent", "ppo", "--n-timesteps", "100", "--out", str(out),
+                 "--quiet", *SB3_TINY]) == 0
+    assert json.loads((out / "run.json").read_text())["iterations"] == 2
+    err = capsys.readouterr().err
+    assert "n_timesteps=100 is not whole iterations of steps_per_iteration=64" in err and "128 env steps" in err
 
 
 def test_tl_reward_terminal_is_the_ablation(tmp_path):
