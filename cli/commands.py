@@ -230,7 +230,8 @@ def evaluate(args: argparse.Namespace) -> int:
         raise FileNotFoundError(f"{saved} not found: the run was trained without --eval-every")
     agent = Agent.load(saved, env=None if isinstance(env, str) else env)
     result = agent.evaluate(n_episodes=args.episodes, seed=args.seed, deterministic=not args.stochastic)
-    print(f"{run['agent']} on {run['env']} {run['env_kwargs'] or ''}: {args.episodes} episodes, "
+    kwargs = f" {run['env_kwargs']}" if run["env_kwargs"] else ""
+    print(f"{run['agent']} on {run['env']}{kwargs}: {args.episodes} episodes, "
           f"mean robustness {result['mean_robustness']:.4g}, success rate {result['success_rate']:.1%}")
     if args.why:
         rho_max = env_attribute(agent.env, "rho_max")

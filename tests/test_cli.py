@@ -132,7 +132,9 @@ def test_an_sb3_run_keeps_its_markov_view_and_vecnormalize(tmp_path, capsys):
     expected = agent.evaluate(3, seed=7)["mean_robustness"]
     capsys.readouterr()
     assert main(["eval", str(out), "--episodes", "3", "--seed", "7"]) == 0
-    assert f"mean robustness {expected:.4g}" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert f"mean robustness {expected:.4g}" in printed
+    assert printed.startswith("ppo on TLCarNav-v0: 3 episodes")  # no env_kwargs: nothing between id and colon
 
 
 def test_a_budget_that_is_not_whole_iterations_is_rounded_up_and_said(tmp_path, capsys):
