@@ -110,11 +110,14 @@ def rounding_notice(agent: Any, iterations: int) -> str | None:
     A user who asked for 4,000 steps at 8,000 per iteration gets 8,000: say so instead of doing it silently.
     """
     budget = getattr(agent, "n_timesteps", None)
-    per_iteration = int(agent.config.steps_per_iteration) if budget is not None else 0
-    if budget is None or iterations * per_iteration == int(budget):
+    if budget is None:
         return None
+    per_iteration = int(agent.config.steps_per_iteration)
+    if iterations * per_iteration == int(budget):
+        return None
+    # "about": an SB3 iteration is whole rollouts, within 5 % of steps_per_iteration (SB3Agent checks that)
     return (f"note: n_timesteps={int(budget)} is not whole iterations of steps_per_iteration={per_iteration}: "
-            f"training {iterations} iteration(s), {iterations * per_iteration} env steps "
+            f"training {iterations} iteration(s), about {iterations * per_iteration} env steps "
             "(set --steps-per-iteration or --iterations to choose)")
 
 
@@ -147,10 +150,14 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
     if args.eval_every is not None and (args.eval_every < 1 or args.eval_episodes < 1):
         raise ValueError(f"--eval-every and --eval-episodes must be >= 1, got {args.eval_every}, {args.eval_episodes}")
     agent = agent_for_run(run)
-    run["iterations"] = iterations = default_iterations(agent) if args.iterations is None else args.iterations
-    notice = rounding_notice(agent, iterations) if args.iterations is None else None
-    if notice is not None:
-        print(notice, file=sys.stderr)
+    if args.iterations is None:
+        iterations = default_iterations(agent)
+        notice = rounding_notice(agent, iterations)
+        if notice is not None:
+            print(notice, file=sys.stderr)
+    else:
+        iterations = args.iterations
+    run["iterations"] = iterations
     snapshots_at = (sorted({int(s) for s in args.snapshots.split(",")}) if args.snapshots
                     else default_snapshots(iterations))
     out: Path = args.out
