@@ -231,3 +231,21 @@ def test_a_deep_copy_of_the_view_runs_on_its_own(mode):
         action = np.array([0.5], dtype=np.float32)
         (obs_a, r_a, *_), (obs_b, r_b, *_) = env.step(action), twin.step(action)
         assert np.array_equal(obs_a, obs_b) and r_a == r_b
+
+
+@pytest.mark.parametrize("spec", ["X(a > 1.5)", "F(a > 1.5 & X(a > 1.6))", "G(a > 1.1 | X G(a < 1.9))"])
+def test_remembered_states_not_seen_yet_lie_in_the_space_of_a_signal_bounded_away_from_zero(spec):
+    """A window's states not seen yet are shown as 0.0: the bounds hold them even when the signal's Box excludes 0."""
+
+    class Positive(Scripted):
+        def __init__(self):
+            super().__init__(np.full((4, 3), 1.5))
+            self.observation_space = spaces.Box(1.0, 2.0, shape=(3,), dtype=np.float64)
+
+    env = TLTLRewardWrapper(Positive(), spec, signals={"a": 0}, observe_monitor=True, horizon=3)
+    obs, _ = env.reset(seed=0)
+    assert env.observation_space.contains(obs)
+    truncated = False
+    while not truncated:
+        obs, _, _, truncated, _ = env.step(np.zeros(1, dtype=np.float32))
+        assert env.observation_space.contains(obs)

@@ -10,7 +10,8 @@ vector an MLP (or VecNormalize) can use, and back:
   ``[-clip, clip]`` and divided by ``scale`` (0 when infinite), and a flag that is ``+1``/``-1``
   when the value is ``+inf``/``-inf`` (a chain not started yet, ``true`` with ``rho_max=inf``),
   else 0;
-* a ``signal`` slot (a remembered state's signal) becomes the signal divided by ``scale``;
+* a ``signal`` slot (a remembered state's signal) becomes the signal divided by ``scale``, and 0
+  for a state not seen yet (its bounds are the signal's, widened to hold 0);
 * a ``count`` slot becomes the count divided by its bound;
 * then ``first`` (1 on the reset observation, else 0: the dense reward's baseline) and, when
   the horizon ``T`` is known, ``t / T``.
@@ -99,10 +100,10 @@ class MonitorView:
                 low += [-self.clip / self.scale, -1.0]
                 high += [self.clip / self.scale, 1.0]
                 divisors.append(self.scale)
-            elif slot.kind == SIGNAL:
+            elif slot.kind == SIGNAL:  # 0.0 stands for a state not seen yet: the bounds hold it too
                 signal_low, signal_high = bounds[window_position % len(names)]
-                low.append(signal_low / self.scale)
-                high.append(signal_high / self.scale)
+                low.append(min(signal_low, 0.0) / self.scale)
+                high.append(max(signal_high, 0.0) / self.scale)
                 divisors.append(self.scale)
                 window_position += 1
             else:
