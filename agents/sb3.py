@@ -272,10 +272,16 @@ class SB3Agent(Agent):
     def predict(
         self, obs: Any, state: Any = None, episode_start: Any = None, deterministic: bool = True
     ) -> tuple[np.ndarray, Any]:
-        """Actions for raw env observations: normalised with the VecNormalize statistics (not updated)."""
+        """Actions for raw env observations: normalised with the VecNormalize statistics (not updated).
+
+        Stochastic actions draw from the agent's own generator (``evaluate(seed=s)`` seeds it), not from
+        the global ones SB3's training draws from: sampling episodes between iterations (an evaluation,
+        ``tl-gym train``'s trajectory plots) leaves training as it would have been without them.
+        """
         if self.vec_normalize is not None:
             obs = self.vec_normalize.normalize_obs(obs)
-        with one_torch_thread():
+        own = contextlib.nullcontext() if deterministic else drawn_from(self._predict_rng, self.model.action_space)
+        with one_torch_thread(), own:
             return self.model.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
 
     def _config(self) -> dict[str, Any]:
@@ -381,6 +387,30 @@ def one_torch_thread() -> Iterator[None]:
         yield
     finally:
         torch.set_num_threads(threads)
+
+
+@contextlib.contextmanager
+def drawn_from(rng: np.random.Generator, action_space: gym.Space) -> Iterator[None]:
+    """Seed the generators SB3 samples actions with from ``rng`` for the block, then restore them.
+
+    SB3 samples a stochastic action with torch's global generator (DQN explores with numpy's and
+    its action space's): the very generators its training draws from. Sampling with them between
+    iterations would change what training does next, and could not be repeated with a seed.
+    """
+    import torch
+
+    seeds = [int(s) for s in rng.integers(2**32, size=3)]
+    torch_state, numpy_state = torch.get_rng_state(), np.random.get_state()
+    space_state = action_space.np_random.bit_generator.state
+    torch.default_generator.manual_seed(seeds[0])
+    np.random.seed(seeds[1])
+    action_space.np_random.bit_generator.state = np.random.default_rng(seeds[2]).bit_generator.state
+    try:
+        yield
+    finally:
+        torch.set_rng_state(torch_state)
+        np.random.set_state(numpy_state)
+        action_space.np_random.bit_generator.state = space_state
 
 
 def _make_collector() -> Any:

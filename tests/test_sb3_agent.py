@@ -357,3 +357,19 @@ def test_agents_saved_before_the_settings_split_still_find_their_schedule_class(
     from tl_gym.agents.sb3_settings import LinearSchedule
 
     assert pickle.loads(b"ctl_gym.agents.sb3\nLinearSchedule\n.") is LinearSchedule
+
+
+def test_stochastic_actions_are_seeded_by_evaluate_and_leave_training_alone():
+    """SB3 samples actions with torch's global generator, the one its training draws from too."""
+    def policy_after_two_iterations(sample_between: bool) -> list[np.ndarray]:
+        agent = SB3Agent("TLCarNav-v0", "ppo", seed=0, env_kwargs={"horizon": 16}, **TINY)
+        agent.learn(1)
+        if sample_between:  # as `tl-gym train` samples trajectories to plot, or an evaluation of the stochastic policy
+            first = agent.evaluate(2, seed=5, deterministic=False)["robustness"]
+            assert agent.evaluate(2, seed=5, deterministic=False)["robustness"].tolist() == first.tolist()
+            assert first.tolist() != agent.evaluate(2, seed=5)["robustness"].tolist()  # and still stochastic
+        agent.learn(1)
+        return [p.detach().numpy().copy() for p in agent.model.policy.parameters()]
+
+    for a, b in zip(policy_after_two_iterations(False), policy_after_two_iterations(True)):
+        np.testing.assert_array_equal(a, b)
