@@ -146,7 +146,10 @@ class SB3Agent(Agent):
             n_timesteps=n_timesteps, noise_type=noise_type, noise_std=noise_std).items() if v is not None}
         explicit = canonical_settings({**explicit, **algo_kwargs})
         entry = {}
-        if hyperparams is not False:
+        saved = isinstance(hyperparams, _SavedSettings)  # Agent.load: the saved config holds the file's settings
+        if saved:
+            hyperparams = hyperparams.hyperparams
+        if hyperparams is not False and not saved:
             table = load_hyperparams(None if hyperparams is True else hyperparams)
             entry = find_hyperparams(table, *_env_key(env, env_kwargs), self.algo_class.__name__)
         settings = merge_hyperparameters(entry, explicit, on_policy)
@@ -168,6 +171,16 @@ class SB3Agent(Agent):
             self._env_source = describe_env_source(env, self.env_kwargs)
         else:
             super().__init__(env, seed=seed, env_kwargs=env_kwargs, **hyperparameters)
+
+    @classmethod
+    def _saved_config(cls, config: dict[str, Any]) -> dict[str, Any]:
+        """The saved settings as they are: the hyperparameter file is not read again.
+
+        The saved config holds every setting the file gave (its values are all JSON), so reading it
+        again could only break the load (a relative path from another working directory, a file that
+        moved) or change the agent (a file edited since, a key added to the packaged one).
+        """
+        return {**config, "hyperparams": _SavedSettings(config.get("hyperparams", True))}
 
     def _num_envs(self) -> int:
         return self.config.n_envs
@@ -355,6 +368,13 @@ class SB3Agent(Agent):
     def _check_off_policy(self, verb: str) -> None:
         if not self.off_policy:
             raise ValueError(f"cannot {verb} a replay buffer: {self.algo_class.__name__} is on-policy and keeps none")
+
+
+@dataclasses.dataclass(frozen=True)
+class _SavedSettings:
+    """A loaded agent's ``hyperparams`` value: what it was, with the settings already in the saved config."""
+
+    hyperparams: bool | str
 
 
 class TraceEndIsTerminal(gym.Wrapper):

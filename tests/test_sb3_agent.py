@@ -6,6 +6,7 @@ import pickle
 import sys
 import tempfile
 import zipfile
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -373,3 +374,18 @@ def test_stochastic_actions_are_seeded_by_evaluate_and_leave_training_alone():
 
     for a, b in zip(policy_after_two_iterations(False), policy_after_two_iterations(True)):
         np.testing.assert_array_equal(a, b)
+
+
+def test_load_takes_the_saved_settings_without_reading_the_hyperparameter_file_again(tmp_path, monkeypatch):
+    """The saved config holds the file's settings: a relative path from elsewhere, or an edited file, is moot."""
+    (tmp_path / "train").mkdir()
+    monkeypatch.chdir(tmp_path / "train")
+    Path("mine.yml").write_text("TLCarNav-v0:\n  ppo:\n    gamma: 0.5\n")
+    agent = SB3Agent("TLCarNav-v0", "ppo", seed=0, hyperparams="mine.yml", **TINY)
+    path = agent.save(tmp_path / "mine.zip")
+    Path("mine.yml").write_text("TLCarNav-v0:\n  ppo:\n    gamma: 0.7\n    ent_coef: 0.5\n")  # edited since
+    loaded = Agent.load(path)
+    assert loaded.config == agent.config and loaded.config.hyperparams == "mine.yml"
+    assert loaded.model.gamma == 0.5 and loaded.model.ent_coef == agent.model.ent_coef == 0.0
+    monkeypatch.chdir(tmp_path)  # where mine.yml is not
+    assert Agent.load(path).config == agent.config
