@@ -16,6 +16,7 @@ import functools
 import importlib
 import inspect
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -310,7 +311,7 @@ def load_hyperparams(path: str | Path | None = None) -> dict[str, dict[str, dict
     import yaml
 
     path = HYPERPARAMS_FILE if path is None else Path(path)
-    table = yaml.safe_load(path.read_text()) or {}
+    table = yaml.load(path.read_text(), Loader=_yaml_loader()) or {}
     if not isinstance(table, Mapping):
         raise ValueError(f"{path}: expected a mapping of env keys to algorithms")
     checked: dict[str, dict[str, dict[str, Any]]] = {}
@@ -329,6 +330,24 @@ def load_hyperparams(path: str | Path | None = None) -> dict[str, dict[str, dict
                 raise ValueError(f"{where}: expected a mapping of settings")
             checked[str(env_key)][str(algo_name).lower()] = _check_entry(dict(settings), algo_class, where)
     return checked
+
+
+@functools.lru_cache(maxsize=1)
+def _yaml_loader() -> type:
+    """PyYAML's safe loader, reading ``3e-4`` as a number as YAML 1.2 does.
+
+    PyYAML follows YAML 1.1, where a float needs a dot and a signed exponent (``3.0e-4``): ``3e-4``
+    would reach the algorithm as the text ``'3e-4'`` and fail late and obscurely (the zoo's files
+    write ``!!float 3e-4``, which still works).
+    """
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        pass
+
+    exponent = re.compile(r"^[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)[eE][-+]?[0-9]+$")  # 3e-4, 1.5e6, .5E3
+    Loader.add_implicit_resolver("tag:yaml.org,2002:float", exponent, list("-+.0123456789"))
+    return Loader
 
 
 def _check_entry(settings: dict[str, Any], algo_class: type, where: str) -> dict[str, Any]:

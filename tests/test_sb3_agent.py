@@ -389,3 +389,14 @@ def test_load_takes_the_saved_settings_without_reading_the_hyperparameter_file_a
     assert loaded.model.gamma == 0.5 and loaded.model.ent_coef == agent.model.ent_coef == 0.0
     monkeypatch.chdir(tmp_path)  # where mine.yml is not
     assert Agent.load(path).config == agent.config
+
+
+def test_a_float_written_without_a_dot_is_a_number(tmp_path):
+    """PyYAML (YAML 1.1) reads 3e-4 as text, which SB3 refused only when it built or trained the model."""
+    path = tmp_path / "floats.yml"
+    path.write_text("TLCarNav-v0:\n  ppo:\n    learning_rate: 3e-4\n    ent_coef: 1E-2\n    n_timesteps: 1e5\n"
+                    "    clip_range: !!float 2e-1\n")
+    entry = load_hyperparams(path)["TLCarNav-v0"]["ppo"]
+    assert entry == {"learning_rate": 3e-4, "ent_coef": 0.01, "n_timesteps": 100_000, "clip_range": 0.2}
+    agent = SB3Agent("TLCarNav-v0", "ppo", seed=0, hyperparams=str(path), **TINY)
+    assert agent.model.learning_rate == 3e-4 and agent.model.ent_coef == 0.01
