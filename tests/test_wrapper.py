@@ -193,7 +193,7 @@ def test_bad_arguments_fail_at_construction(kwargs, error, match):
 @pytest.mark.parametrize(
     ("signals", "error", "match"),
     [
-        ({"a": ("pos",)}, ValueError, "'a'.*'pos'.*not one number"),
+        ({"a": ("pos",)}, ValueError, r"'a'.*'pos'.*not one number.*\('pos', 0\)$"),
         ({"a": ("nope", 0)}, KeyError, "'a'.*no key 'nope'"),
         ({"a": ("pos", 2)}, ValueError, "'a'.*outside"),
         ({"a": 0}, TypeError, "'a'.*Dict.*index"),
@@ -399,3 +399,30 @@ def test_end_on_violation_needs_an_invariant_and_passes_check_env():
         warnings.filterwarnings("ignore", message=".*different from the unwrapped version")
         warnings.filterwarnings("ignore", message=".*infinity")  # Scripted's unbounded Box, not the wrapper's doing
         check_env(env, skip_render_check=True)
+
+
+def test_a_dict_entry_that_is_not_one_number_is_refused_with_advice_that_works():
+    """A key reads a one-number Box: for a larger Box the message proposes a tuple with one index per axis, for a
+    Discrete entry a callable (no tuple can index it)."""
+
+    class Rooms(Scripted):
+        def __init__(self):
+            super().__init__(dict_obs=True)
+            self.observation_space = spaces.Dict({**self.observation_space.spaces, "room": spaces.Discrete(4)})
+
+        def _obs(self):
+            return {**super()._obs(), "room": np.int64(self.t % 4)}
+
+    with pytest.raises(ValueError, match=r"'room' holds a Discrete space.*lambda obs: float\(obs\['room'\]\)"):
+        TLTLRewardWrapper(Rooms(), "F(room > 2)", signals={"room": "room"})
+    env = TLTLRewardWrapper(Rooms(), "F(room > 2)", signals={"room": lambda obs: float(obs["room"])})
+    assert run(env)[1]["trace"]["room"].tolist() == [0.0, 1.0, 2.0, 3.0, 0.0, 1.0]
+
+    class Grid(Scripted):
+        def __init__(self):
+            super().__init__(dict_obs=True)
+            self.observation_space = spaces.Dict({"grid": spaces.Box(0.0, 1.0, shape=(2, 3))})
+
+    with pytest.raises(ValueError, match=r"'grid' holds Box of shape \(2, 3\).*such as \('grid', 0, 0\)$"):
+        TLTLRewardWrapper(Grid(), "F(a > 0)", signals={"a": "grid"})
+    TLTLRewardWrapper(Grid(), "F(a > 0)", signals={"a": ("grid", 0, 0)})

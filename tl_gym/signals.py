@@ -106,11 +106,16 @@ class SignalReader:
                 raise KeyError(f"signal {name!r}: the observation has no key {key!r} (keys: {', '.join(space.spaces)})")
             sub = space.spaces[key]
             if not rest:
-                if not (isinstance(sub, spaces.Box) and int(np.prod(sub.shape)) == 1):
-                    shape = getattr(sub, "shape", None)
+                if not isinstance(sub, spaces.Box):  # no index reaches into it: only a callable can read it
                     raise ValueError(
-                        f"signal {name!r}: key {key!r} holds {type(sub).__name__} of shape {shape}, not one number; "
-                        f"pick an element with a tuple such as ({key!r}, 0)"
+                        f"signal {name!r}: key {key!r} holds a {type(sub).__name__} space, and a key reads a Box "
+                        f"entry holding one number; read it with a callable such as lambda obs: float(obs[{key!r}])"
+                    )
+                if int(np.prod(sub.shape)) != 1:
+                    example = (key, *(0,) * len(sub.shape))  # one index per axis
+                    raise ValueError(
+                        f"signal {name!r}: key {key!r} holds {type(sub).__name__} of shape {sub.shape}, not one "
+                        f"number; pick an element with a tuple such as {example!r}"
                     )
                 return _KeyGetter(key, (0,) * len(sub.shape))
             return _KeyGetter(key, _box_index(name, sub, rest, f"observation[{key!r}]"))
