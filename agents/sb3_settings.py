@@ -161,7 +161,7 @@ def parse_policy_kwargs(value: Any) -> dict[str, Any] | None:
 
     Takes a dict (activation as a `torch.nn` class or its name) or the zoo's text,
     ``"dict(net_arch=[64, 64], activation_fn=nn.Tanh)"``, read safely: only ``dict(...)``
-    calls, ``{...}`` literals, plain literals and ``nn.<Activation>`` names are accepted.
+    calls, ``{...}`` literals, plain literals and ``nn.<Activation>`` names (as ``activation_fn``) are accepted.
 
     Example:
         >>> parse_policy_kwargs("dict(log_std_init=-2, net_arch=dict(pi=[64], vf=[64]), activation_fn=nn.ReLU)")
@@ -186,20 +186,22 @@ def parse_policy_kwargs(value: Any) -> dict[str, Any] | None:
     return out
 
 
-def _policy_kwargs_node(node: ast.AST, text: str) -> Any:
+def _policy_kwargs_node(node: ast.AST, text: str, key: Any = None) -> Any:
+    """The value of ``node``, the value of ``key`` in the policy_kwargs ``text``."""
     if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "dict" and not node.args:
-        return {kw.arg: _policy_kwargs_node(kw.value, text) for kw in node.keywords}
+        return {kw.arg: _policy_kwargs_node(kw.value, text, kw.arg) for kw in node.keywords}
     if isinstance(node, ast.Dict):
-        return {ast.literal_eval(k): _policy_kwargs_node(v, text) for k, v in zip(node.keys, node.values)}
+        keys = [ast.literal_eval(k) for k in node.keys]
+        return {k: _policy_kwargs_node(v, text, k) for k, v in zip(keys, node.values)}
     if isinstance(node, (ast.List, ast.Tuple)):
         return [_policy_kwargs_node(e, text) for e in node.elts]
-    if isinstance(node, ast.Attribute):  # nn.Tanh, th.nn.Tanh, torch.nn.Tanh
+    if isinstance(node, ast.Attribute) and key == "activation_fn":  # nn.Tanh, th.nn.Tanh, torch.nn.Tanh
         return node.attr
     try:
         return ast.literal_eval(node)
     except ValueError:
         raise ValueError(f"policy_kwargs {text!r}: cannot read {ast.unparse(node)!r} (only literals, dict(...) "
-                         "and nn.<Activation> are allowed)") from None
+                         "and activation_fn=nn.<Activation> are allowed; pass other classes from Python)") from None
 
 
 def activation_class(value: Any) -> type:

@@ -288,6 +288,9 @@ def test_the_packaged_hyperparameters_validate():
         ("TLCarNav-v0:\n  ppo:\n    clip_range: lin_-0.2\n", "must be a finite number > 0"),
         ("TLCarNav-v0:\n  ppo:\n    policy_kwargs: \"dict(net_arch=__import__('os'))\"\n", "cannot read"),
         ("TLCarNav-v0:\n  ppo:\n    policy_kwargs: {activation_fn: nn.Sigmoidal}\n", "unknown activation_fn"),
+        # a class name other than activation_fn's would reach SB3 as the text 'RMSprop'
+        ("TLCarNav-v0:\n  ppo:\n    policy_kwargs: \"dict(optimizer_class=th.optim.RMSprop)\"\n",
+         "cannot read 'th.optim.RMSprop'"),
         ("TLCarNav-v0:\n  ppo:\n    normalize: \"{'norm_obs': True, 'gamma2': 1}\"\n", "gamma2"),
         ("TLCarNav-v0:task:\n  ppo: {}\n", "bad env key"),
     ],
