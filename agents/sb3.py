@@ -247,6 +247,11 @@ class SB3Agent(Agent):
         for key, schedule in self._schedules.items():
             setattr(self.model, "lr_schedule" if key == "learning_rate" else key, schedule)
 
+    def close(self) -> None:
+        """Close the evaluation env and SB3's training envs (a rendering or simulator env holds resources)."""
+        super().close()
+        self._training_env().close()
+
     def _training_env(self) -> Any:
         """The VecEnv SB3 steps: the VecNormalize wrapper when there is one."""
         return self.vec_normalize if self.vec_normalize is not None else self.sb3_env

@@ -403,3 +403,12 @@ def test_a_float_written_without_a_dot_is_a_number(tmp_path):
     assert entry == {"learning_rate": 3e-4, "ent_coef": 0.01, "n_timesteps": 100_000, "clip_range": 0.2}
     agent = SB3Agent("TLCarNav-v0", "ppo", seed=0, hyperparams=str(path), **TINY)
     assert agent.model.learning_rate == 3e-4 and agent.model.ent_coef == 0.01
+
+
+def test_close_closes_the_training_envs_too():
+    agent = SB3Agent("TLCarNav-v0", "ppo", seed=0, **TINY)
+    closed = []
+    for env in [*agent.sb3_env.envs, agent.env]:
+        env.close = lambda env=env, close=env.close: (closed.append(env), close())
+    agent.close()
+    assert len(closed) == 3  # the two envs SB3 trains on, and the evaluation env
