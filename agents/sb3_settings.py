@@ -242,7 +242,8 @@ class SB3Config:
     noise_type: str | None = None
     """Off-policy exploration noise: ``None``, ``"normal"`` or ``"ornstein-uhlenbeck"`` (std ``noise_std``)."""
     noise_std: float = 0.1
-    """Standard deviation of ``noise_type`` noise, in action units."""
+    """Standard deviation of ``noise_type`` noise on SB3's scaled actions, ``[-1, 1]`` across the Box (where SB3 adds
+    it, as in the zoo): in the env's units it is ``noise_std * (high - low) / 2``."""
     end_is_terminal: bool = True
     """Report the end of every episode to SB3 as a termination. The robustness is of the finite trace
     s_0 … s_T: nothing after its end counts, so SB3 must not add a bootstrapped value past a time-limit
