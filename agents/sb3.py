@@ -298,7 +298,9 @@ class SB3Agent(Agent):
         """
         if self.vec_normalize is not None:
             obs = self.vec_normalize.normalize_obs(obs)
-        own = contextlib.nullcontext() if deterministic else drawn_from(self._predict_rng, self.model.action_space)
+        # epsilon-greedy predict (DQN, QR-DQN) explores with numpy's global generator and the action space's
+        space = self.model.action_space if hasattr(self.model, "exploration_rate") else None
+        own = contextlib.nullcontext() if deterministic else drawn_from(self._predict_rng, space)
         with one_torch_thread(), own:
             return self.model.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
 
@@ -415,27 +417,31 @@ def one_torch_thread() -> Iterator[None]:
 
 
 @contextlib.contextmanager
-def drawn_from(rng: np.random.Generator, action_space: gym.Space) -> Iterator[None]:
+def drawn_from(rng: np.random.Generator, action_space: gym.Space | None = None) -> Iterator[None]:
     """Seed the generators SB3 samples actions with from ``rng`` for the block, then restore them.
 
-    SB3 samples a stochastic action with torch's global generator (DQN explores with numpy's and
-    its action space's): the very generators its training draws from. Sampling with them between
-    iterations would change what training does next, and could not be repeated with a seed.
+    SB3 samples a stochastic action with torch's global generator: the very generator its training
+    draws from. Sampling with it between iterations would change what training does next, and
+    could not be repeated with a seed. With ``action_space`` (epsilon-greedy algorithms, which explore
+    with it and with numpy's global generator) those two are seeded and restored as well; they are
+    left alone otherwise, numpy's state being slow to save (about 0.1 ms, a forward pass's time).
     """
     import torch
 
     seeds = [int(s) for s in rng.integers(2**32, size=3)]
-    torch_state, numpy_state = torch.get_rng_state(), np.random.get_state()
-    space_state = action_space.np_random.bit_generator.state
+    torch_state = torch.get_rng_state()
     torch.default_generator.manual_seed(seeds[0])
-    np.random.seed(seeds[1])
-    action_space.np_random.bit_generator.state = np.random.default_rng(seeds[2]).bit_generator.state
+    if action_space is not None:
+        numpy_state, space_state = np.random.get_state(), action_space.np_random.bit_generator.state
+        np.random.seed(seeds[1])
+        action_space.np_random.bit_generator.state = np.random.default_rng(seeds[2]).bit_generator.state
     try:
         yield
     finally:
         torch.set_rng_state(torch_state)
-        np.random.set_state(numpy_state)
-        action_space.np_random.bit_generator.state = space_state
+        if action_space is not None:
+            np.random.set_state(numpy_state)
+            action_space.np_random.bit_generator.state = space_state
 
 
 def _make_collector() -> Any:

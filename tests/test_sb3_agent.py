@@ -412,3 +412,21 @@ def test_close_closes_the_training_envs_too():
         env.close = lambda env=env, close=env.close: (closed.append(env), close())
     agent.close()
     assert len(closed) == 3  # the two envs SB3 trains on, and the evaluation env
+
+
+def test_epsilon_greedy_sampling_leaves_numpy_and_torch_global_generators_alone():
+    """DQN explores with numpy's global generator and its action space's; its training draws from them too."""
+    import tl_gym
+
+    env = tl_gym.TLTLRewardWrapper(gym.make("CartPole-v1", max_episode_steps=20), "G(x < 2)", {"x": 0})
+    agent = SB3Agent(env, "dqn", seed=0, steps_per_iteration=32, n_envs=1, learning_starts=16, batch_size=8,
+                     buffer_size=100)
+    agent.model.exploration_rate = 1.0  # every stochastic action a random one
+    numpy_state, torch_state = np.random.get_state()[1].copy(), torch.get_rng_state().clone()
+    space_state = agent.model.action_space.np_random.bit_generator.state
+    actions = [agent.predict(np.zeros((1, 4)), deterministic=False)[0].item() for _ in range(20)]
+    assert len(set(actions)) == 2  # random
+    agent.evaluate(2, seed=0, deterministic=False)
+    np.testing.assert_array_equal(np.random.get_state()[1], numpy_state)
+    assert torch.equal(torch.get_rng_state(), torch_state)
+    assert agent.model.action_space.np_random.bit_generator.state == space_state
