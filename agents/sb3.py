@@ -191,6 +191,7 @@ class SB3Agent(Agent):
         return self.config.n_timesteps
 
     def _setup(self) -> None:
+        from stable_baselines3.common.monitor import Monitor
         from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
         from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
@@ -216,6 +217,9 @@ class SB3Agent(Agent):
         if self.config.noise_type is not None and "action_noise" not in kwargs:
             kwargs["action_noise"] = _action_noise(self.config.noise_type, self.config.noise_std, self.action_space)
         factories = _single_env_factories(self._env_argument, self._train_env_kwargs, self.config.n_envs)
+        # SB3's Monitor, as make_vec_env and the zoo wrap every env: without it SB3 records no episode, and
+        # logs no rollout/ep_rew_mean or ep_len_mean (tensorboard_log)
+        factories = [lambda make=make: Monitor(make()) for make in factories]
         if self.config.her_goals:
             if on_policy:
                 raise ValueError(f"her_goals={self.config.her_goals} relabels episodes into a replay buffer: use an "

@@ -430,3 +430,12 @@ def test_epsilon_greedy_sampling_leaves_numpy_and_torch_global_generators_alone(
     np.testing.assert_array_equal(np.random.get_state()[1], numpy_state)
     assert torch.equal(torch.get_rng_state(), torch_state)
     assert agent.model.action_space.np_random.bit_generator.state == space_state
+
+
+def test_sb3_records_each_episode_as_with_the_zoos_monitor():
+    """SB3 logs rollout/ep_rew_mean and ep_len_mean from Monitor's info["episode"]; without it, nothing."""
+    agent = SB3Agent("TLCarNav-v0", "ppo", seed=0, env_kwargs={"horizon": 16}, **TINY)
+    agent.learn(1)
+    episodes = list(agent.model.ep_info_buffer)
+    assert len(episodes) == agent.history[-1]["episodes"] == 4  # 64 steps of 16-step episodes
+    assert all(episode["l"] == 16 and np.isfinite(episode["r"]) for episode in episodes)
