@@ -16,6 +16,7 @@ Example:
 
 from __future__ import annotations
 
+import difflib
 import importlib
 from collections.abc import Mapping
 from typing import Any
@@ -51,6 +52,37 @@ def check_agent_name(name: Any) -> str:
     if name.lower() == "sb3" or name.lower().startswith("sb3:"):
         raise ValueError(f"agent {name!r}: name the stable-baselines3 algorithm itself, e.g. 'ppo' or 'sac'")
     return name
+
+
+def check_sb3_name(name: str) -> None:
+    """Check that a name that is not an episodic agent's names a stable-baselines3 / sb3-contrib algorithm.
+
+    The error lists every kind of name an agent takes, not only SB3's (``tl-gym train --agent``
+    reads it), with the nearest known name when there is one.
+
+    Raises:
+        ValueError: no algorithm has that name.
+
+    Example:
+        >>> check_sb3_name("sca")
+        Traceback (most recent call last):
+        ...
+        ValueError: unknown agent 'sca' (did you mean 'sac'?): tlps, reps, a stable-baselines3 algorithm ...
+    """
+    from tl_gym.agents.sb3_settings import resolve_algorithm
+
+    try:
+        resolve_algorithm(name)
+    except ValueError as exc:
+        if name.lower() in SB3_CONTRIB_ALGORITHMS:  # known, but sb3-contrib does not import: its message says why
+            raise
+        known = (*EPISODIC_AGENTS, *SB3_ALGORITHMS, *SB3_CONTRIB_ALGORITHMS)
+        nearest = difflib.get_close_matches(name.lower(), known, n=1)
+        hint = f" (did you mean {nearest[0]!r}?)" if nearest else ""
+        raise ValueError(
+            f"unknown agent {name!r}{hint}: {', '.join(EPISODIC_AGENTS)}, a stable-baselines3 algorithm "
+            f"({', '.join(SB3_ALGORITHMS)}), an sb3-contrib one ({', '.join(SB3_CONTRIB_ALGORITHMS)}) "
+            f"or 'package.module:Name'") from exc
 
 
 def is_episodic(name: str) -> bool:
@@ -89,6 +121,7 @@ def make_agent(name: str, env: Any, *, seed: int | None = None, env_kwargs: Mapp
     """
     klass = agent_class(name)
     if ":" not in name and not is_episodic(name):
+        check_sb3_name(name)
         return klass(env, name, seed=seed, env_kwargs=env_kwargs, **hyperparameters)
     return klass(env, seed=seed, env_kwargs=env_kwargs, **hyperparameters)
 

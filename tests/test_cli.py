@@ -88,7 +88,7 @@ def test_spec_and_signals_train_on_any_env(tmp_path, capsys):
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["--agent", "nope"], "unknown algorithm 'nope'"),
+        (["--agent", "nope"], "unknown agent 'nope': tlps, reps, a stable-baselines3 algorithm"),
         (["--agent", "reps", "--signals", "a=0"], "--signals only makes sense with --spec"),
         (["--agent", "reps", "--bogus", "3"], "bogus"),
         (["--agent", "reps", "--epsilon", "-1"], "epsilon"),

@@ -29,8 +29,10 @@ def test_make_agent_puts_the_env_first_for_every_agent():
     assert isinstance(episodic, REPS) and episodic.seed == 3 and episodic.config.n_episodes == 4
     ppo = make_agent("ppo", "TLCarNav-v0", seed=1, steps_per_iteration=64, n_envs=2, batch_size=32)
     assert isinstance(ppo, SB3Agent) and ppo.algo_class.__name__ == "PPO"
-    with pytest.raises(ValueError, match="unknown algorithm 'nope'"):
+    with pytest.raises(ValueError, match="unknown agent 'nope': tlps, reps, a stable-baselines3 algorithm"):
         make_agent("nope", "TLCarNav-v0")
+    with pytest.raises(ValueError, match=r"unknown agent 'td4' \(did you mean 'td3'\?\)"):
+        make_agent("td4", "TLCarNav-v0")
     episodic.close()
     ppo.close()
 
