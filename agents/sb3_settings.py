@@ -12,12 +12,14 @@ only where an algorithm or VecNormalize must be looked up.
 from __future__ import annotations
 
 import ast
+import dataclasses
+import difflib
 import functools
 import importlib
 import inspect
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -281,6 +283,8 @@ class SB3Config:
         if self.noise_type is not None and self.noise_type not in NOISE_TYPES:
             raise ValueError(f"noise_type must be None or one of {NOISE_TYPES}, got {self.noise_type!r}")
         check_positive("noise_std", self.noise_std, allow_zero=True)
+        settings = [f.name for f in dataclasses.fields(self) if f.name not in ("algo", "algo_kwargs")]
+        check_algorithm_arguments(resolve_algorithm(self.algo), self.algo_kwargs, settings)
         for key, value in self.algo_kwargs.items():
             if is_linear_schedule(value):
                 linear_start(key, value)
@@ -353,13 +357,41 @@ def _yaml_loader() -> type:
     return Loader
 
 
+def check_algorithm_arguments(algo_class: type, names: Iterable[str], settings: Iterable[str] = ()) -> None:
+    """Check that every name is one of ``settings`` or an argument of the algorithm's constructor SB3Agent may pass.
+
+    A misspelt hyperparameter fails here, when the agent (or a hyperparameter file) is read, naming
+    the nearest accepted name, not later inside SB3's constructor.
+
+    Raises:
+        ValueError: naming the first culprit: an argument SB3Agent sets itself (``seed``, ``verbose``,
+            ``device``, ...), or a name that is neither.
+
+    Example:
+        >>> from stable_baselines3 import SAC
+        >>> check_algorithm_arguments(SAC, ["learning_rate", "tau"])
+        >>> check_algorithm_arguments(SAC, ["learning_rat"])
+        Traceback (most recent call last):
+        ...
+        ValueError: unknown hyperparameter 'learning_rat' (did you mean 'learning_rate'?): not an argument of SAC
+    """
+    accepted = set(inspect.signature(algo_class.__init__).parameters) - set(_RESERVED_ALGO_ARGS)
+    settings = tuple(settings)
+    for name in names:
+        if name in accepted or name in settings:
+            continue
+        if name in _RESERVED_ALGO_ARGS:
+            raise ValueError(f"hyperparameter {name!r}: SB3Agent sets {algo_class.__name__}'s {name!r} itself "
+                             f"(seed from seed=, verbose=0, device='cpu', the env from env=)")
+        nearest = difflib.get_close_matches(name, sorted(accepted | set(settings)), n=1)
+        hint = f" (did you mean {nearest[0]!r}?)" if nearest else ""
+        kinds = f"neither one of {list(settings)} nor an argument" if settings else "not an argument"
+        raise ValueError(f"unknown hyperparameter {name!r}{hint}: {kinds} of {algo_class.__name__}")
+
+
 def _check_entry(settings: dict[str, Any], algo_class: type, where: str) -> dict[str, Any]:
-    allowed = set(ENTRY_KEYS) | (set(inspect.signature(algo_class.__init__).parameters) - set(_RESERVED_ALGO_ARGS))
-    for key in settings:
-        if key not in allowed:
-            raise ValueError(f"{where}: unknown key {key!r}: neither one of {list(ENTRY_KEYS)} nor an argument of "
-                             f"{algo_class.__name__}")
     try:
+        check_algorithm_arguments(algo_class, settings, ENTRY_KEYS)
         return canonical_settings(settings)
     except ValueError as error:
         raise ValueError(f"{where}: {error}") from None

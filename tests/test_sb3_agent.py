@@ -136,6 +136,24 @@ def test_unknown_tl_reward_is_refused_at_construction():
         SB3Agent("TLCarNav-v0", "ppo", tl_reward="dense")
 
 
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"learning_rat": 3e-4}, r"unknown hyperparameter 'learning_rat' \(did you mean 'learning_rate'\?\): "
+                                 r"neither one of \['steps_per_iteration', .*\] nor an argument of SAC"),
+        ({"steps_per_iteraton": 64}, r"'steps_per_iteraton' \(did you mean 'steps_per_iteration'\?\)"),
+        ({"n_epochs": 3}, r"unknown hyperparameter 'n_epochs'.*nor an argument of SAC"),
+        ({"verbose": 1}, r"hyperparameter 'verbose': SB3Agent sets SAC's 'verbose' itself"),
+    ],
+)
+def test_a_misspelt_or_reserved_hyperparameter_is_refused_before_any_env_is_built(kwargs, message, monkeypatch):
+    import tl_gym.agents.sb3 as sb3_module
+
+    monkeypatch.setattr(sb3_module, "_make_sync_vec", lambda *a, **k: pytest.fail("an env was built"))
+    with pytest.raises(ValueError, match=message):
+        SB3Agent("TLCarNav-v0", "sac", seed=0, **kwargs)
+
+
 def test_an_env_object_is_taken_as_it_is():
     plain = gym.make("TLCarNav-v0")
     with pytest.raises(ValueError, match=r"tl_reward='markov' needs the env keywords observe_monitor=True"):
@@ -280,8 +298,9 @@ def test_the_packaged_hyperparameters_validate():
 @pytest.mark.parametrize(
     ("text", "message"),
     [
-        ("TLCarNav-v0:\n  ppo:\n    gama: 0.9\n", "TLCarNav-v0 / ppo: unknown key 'gama'"),
-        ("TLCarNav-v0:\n  sac:\n    n_epochs: 3\n", "unknown key 'n_epochs'.*SAC"),
+        ("TLCarNav-v0:\n  ppo:\n    gama: 0.9\n",
+         r"TLCarNav-v0 / ppo: unknown hyperparameter 'gama' \(did you mean 'gamma'\?\)"),
+        ("TLCarNav-v0:\n  sac:\n    n_epochs: 3\n", "unknown hyperparameter 'n_epochs'.*SAC"),
         ("TLCarNav-v0:\n  nope:\n    gamma: 0.9\n", "unknown algorithm 'nope'"),
         ("TLCarNav-v0:\n  ppo:\n    learning_rate: lin_fast\n", "expected 'lin_<number>'"),
         ("TLCarNav-v0:\n  ppo:\n    gamma: lin_0.9\n", "gamma='lin_0.9': a 'lin_' schedule is only for"),
