@@ -283,8 +283,12 @@ class SB3Config:
         if self.noise_type is not None and self.noise_type not in NOISE_TYPES:
             raise ValueError(f"noise_type must be None or one of {NOISE_TYPES}, got {self.noise_type!r}")
         check_positive("noise_std", self.noise_std, allow_zero=True)
+        algo_class = resolve_algorithm(self.algo)
         settings = [f.name for f in dataclasses.fields(self) if f.name not in ("algo", "algo_kwargs")]
-        check_algorithm_arguments(resolve_algorithm(self.algo), self.algo_kwargs, settings)
+        check_algorithm_arguments(algo_class, self.algo_kwargs, settings)
+        if self.noise_type is not None and "action_noise" not in inspect.signature(algo_class.__init__).parameters:
+            raise ValueError(f"noise_type={self.noise_type!r}: {algo_class.__name__} takes no action noise (it "
+                             f"explores through its own policy); noise_type is for off-policy algorithms such as TD3")
         for key, value in self.algo_kwargs.items():
             if is_linear_schedule(value):
                 linear_start(key, value)

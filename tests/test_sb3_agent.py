@@ -154,6 +154,11 @@ def test_a_misspelt_or_reserved_hyperparameter_is_refused_before_any_env_is_buil
         SB3Agent("TLCarNav-v0", "sac", seed=0, **kwargs)
 
 
+def test_action_noise_on_an_on_policy_algorithm_is_refused_naming_it():
+    with pytest.raises(ValueError, match=r"noise_type='normal': PPO takes no action noise"):
+        SB3Agent("TLCarNav-v0", "ppo", seed=0, noise_type="normal", **TINY)
+
+
 def test_an_env_object_is_taken_as_it_is():
     plain = gym.make("TLCarNav-v0")
     with pytest.raises(ValueError, match=r"tl_reward='markov' needs the env keywords observe_monitor=True"):
