@@ -317,7 +317,13 @@ def _agent_class(name: str) -> type[Agent]:
 
 
 def describe_env_source(env: Any, env_kwargs: dict[str, Any]) -> dict[str, Any]:
-    """What `load` needs to rebuild the env: its id, kwargs and, when it can, its full spec."""
+    """What `load` needs to rebuild the env: its id, kwargs and, when it can, its full spec.
+
+    An env whose spec differs from its id's registration (wrappers added around it, another
+    ``max_episode_steps``) is recorded by its full spec; when that spec cannot be written (a
+    wrapper with a callable argument) nothing is recorded to rebuild it from, so that `load`
+    asks for ``env=`` instead of rebuilding the bare registered env, which would act differently.
+    """
     if isinstance(env, str):
         return {"id": env, "kwargs": to_json(env_kwargs) if is_jsonable(env_kwargs) else None, "spec_json": None}
     spec = getattr(env, "spec", None)
@@ -325,12 +331,20 @@ def describe_env_source(env: Any, env_kwargs: dict[str, Any]) -> dict[str, Any]:
         return {"id": None, "kwargs": None, "spec_json": None}
     kwargs = {k: v for k, v in spec.kwargs.items() if k not in _VECTOR_KEYS}
     spec_json = None
-    if getattr(spec, "additional_wrappers", ()):
+    if getattr(spec, "additional_wrappers", ()) or spec.max_episode_steps != _registered_steps(spec.id):
         try:
             spec_json = spec.to_json()
         except Exception:  # noqa: BLE001 - callables in kwargs: then the user passes env= on load
-            spec_json = None
+            return {"id": spec.id, "kwargs": None, "spec_json": None}
     return {"id": spec.id, "kwargs": to_json(kwargs) if is_jsonable(kwargs) else None, "spec_json": spec_json}
+
+
+def _registered_steps(env_id: str) -> int | None:
+    """The ``max_episode_steps`` the registry gives ``env_id`` (None when it is not registered)."""
+    try:
+        return gym.spec(env_id).max_episode_steps
+    except gym.error.Error:
+        return None
 
 
 def _env_from_source(source: Mapping[str, Any], path: Any) -> tuple[Any, dict[str, Any] | None]:

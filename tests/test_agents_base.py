@@ -295,6 +295,46 @@ def test_saved_agent_acts_evaluates_and_continues_like_the_original(tmp_path):
     np.testing.assert_array_equal(loaded.policy.cov, uninterrupted.policy.cov)
 
 
+def test_load_rebuilds_a_wrapped_or_time_limited_env_or_asks_for_it(tmp_path):
+    # a wrapper with a callable cannot be written down: load must ask for env=, not rebuild the bare env
+    shifted = gym.wrappers.TransformObservation(gym.make(POINT_ID), lambda obs: obs + 0.5,
+                                                gym.make(POINT_ID).observation_space)
+    agent = REPS(shifted, seed=0, n_episodes=4).learn(1)
+    path = agent.save(tmp_path / "shifted.zip")
+    with pytest.raises(IncompatibleSaveError, match="pass env="):
+        Agent.load(path)
+    loaded = Agent.load(path, env=shifted)
+    assert loaded.evaluate(3, seed=1)["robustness"].tolist() == agent.evaluate(3, seed=1)["robustness"].tolist()
+    # another max_episode_steps than the registered one is part of the env: kept through the spec
+    short = REPS(gym.make(COUNTER_ID, max_episode_steps=6), seed=0, n_episodes=4).learn(1)
+    assert short.horizon == 6
+    again = Agent.load(short.save(tmp_path / "short.zip")).learn(1)
+    assert again.horizon == 6 and again.history[-1]["env_steps"] == 2 * 4 * 6
+
+
+class Counter(gym.Env):
+    """Counts its steps; reports the prefix robustness of ``F(c > 4)`` at every step, so that any time limit ends it."""
+
+    observation_space = gym.spaces.Box(-100, 100, (1,), np.float64)
+    action_space = gym.spaces.Box(-1, 1, (1,), np.float32)
+    formula = tl_gym.parse("F(c > 4)")
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.t = 0
+        return np.array([0.0]), {}
+
+    def step(self, action):
+        self.t += 1
+        trace = {"c": np.arange(self.t + 1, dtype=float)}
+        return np.array([float(self.t)]), 0.0, False, False, {"robustness": self.t - 4.0, "trace": trace}
+
+
+COUNTER_ID = "tests/CounterStandIn-v0"
+if COUNTER_ID not in gym.registry:
+    gym.register(COUNTER_ID, entry_point=f"{__name__}:Counter")  # by name, so that its spec can be written
+
+
 def test_save_writes_json_and_npz_only(tmp_path):
     path = make_agent(feedback="open").learn(1).save(tmp_path / "agent.zip")
     with zipfile.ZipFile(path) as archive:
