@@ -44,14 +44,17 @@ class FunctionCallback(AbstractCallback):
 
 
 class CallbackList(AbstractCallback):
-    """Runs several callbacks in order; training stops if any of them says so."""
+    """Runs several callbacks in order; training stops if any of them returns ``False``.
+
+    As for a callback on its own, only ``False`` stops: a callback that returns ``None`` continues.
+    """
 
     def __init__(self, callbacks: Sequence[CallbackLike]):
         self.callbacks = [as_callback(c) for c in callbacks]
 
     def on_iteration(self, agent: Any, row: Row) -> bool:
         results = [c.on_iteration(agent, row) for c in self.callbacks if c is not None]
-        return all(results)
+        return all(result is not False for result in results)
 
 
 class StopOnSuccessRate(AbstractCallback):

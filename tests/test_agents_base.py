@@ -186,6 +186,17 @@ def test_callbacks_see_rows_and_stop_training(tmp_path):
     assert CallbackList([lambda a, r: None]).on_iteration(agent, agent.history[0]) is True
 
 
+def test_a_callback_returning_none_continues_alone_and_in_a_list():
+    from tl_gym.agents import AbstractCallback
+
+    class Counts(AbstractCallback):  # forgets to return: None, which is not False
+        def on_iteration(self, agent, row):
+            pass
+
+    assert len(make_agent().learn(3, callback=Counts()).history) == 3
+    assert len(make_agent().learn(3, callback=[Counts(), Counts()]).history) == 3
+
+
 def test_progress_bar_shows_robustness_and_success(capsys):
     make_agent().learn(2, progress_bar=True)
     err = capsys.readouterr().err
