@@ -13,6 +13,7 @@ arena), time is in seconds, angles in radians.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,12 +49,18 @@ class CarParams:
     def __post_init__(self) -> None:
         for name in ("dt", "wheelbase", "max_speed"):
             check_positive(name, getattr(self, name))
-        if not (isinstance(self.max_steer, (int, float)) and 0 < self.max_steer < math.pi / 2):
-            raise ValueError(f"max_steer must lie in (0, π/2) rad (tan diverges at π/2), got {self.max_steer!r}")
+        steer = self.max_steer  # any real number (a numpy float from a config too), not a bool
+        if not (isinstance(steer, numbers.Real) and not isinstance(steer, bool) and 0 < steer < math.pi / 2):
+            raise ValueError(f"max_steer must lie in (0, π/2) rad (tan diverges at π/2), got {steer!r}")
+        object.__setattr__(self, "max_steer", float(steer))
         for name in ("noise_std", "start_std"):
-            value = tuple(float(v) for v in getattr(self, name))
+            given = getattr(self, name)
+            try:  # a scalar, None or text is no (x, y, θ) triple: refuse it with the message below
+                value = () if isinstance(given, (str, bytes)) else tuple(float(v) for v in given)
+            except (TypeError, ValueError):
+                value = ()
             if len(value) != NOISE_SIZE or not all(math.isfinite(v) and v >= 0 for v in value):
-                raise ValueError(f"{name} must be three finite numbers >= 0 (x, y, θ), got {getattr(self, name)!r}")
+                raise ValueError(f"{name} must be three finite numbers >= 0 (x, y, θ), got {given!r}")
             object.__setattr__(self, name, value)
         if isinstance(self.horizon, bool) or not isinstance(self.horizon, (int, np.integer)) or self.horizon < 1:
             raise ValueError(f"horizon must be an integer >= 1, got {self.horizon!r}")

@@ -250,7 +250,7 @@ def make_pendulum(
     Raises:
         ValueError: a bad horizon, ``up_by`` not below it, or a bound that is not > 0.
     """
-    _check_steps("horizon", horizon)
+    horizon = _check_steps("horizon", horizon)  # a plain int: Gymnasium's TimeLimit refuses numpy integers
     formula = pendulum_formula(up_by, max_angle, max_speed)
     if up_by >= horizon:
         raise ValueError(f"up_by must be below horizon ({horizon}), got {up_by!r}")
@@ -281,9 +281,8 @@ def make_mountain_car(
         ValueError: a bad horizon or a speed limit that is not > 0.
     """
     formula = mountain_car_formula(0.45, speed_limit)
-    base = gym.make(
-        "MountainCarContinuous-v0", max_episode_steps=_check_steps("horizon", horizon), render_mode=render_mode
-    )
+    horizon = _check_steps("horizon", horizon)
+    base = gym.make("MountainCarContinuous-v0", max_episode_steps=horizon, render_mode=render_mode)
     signals = {"position": 0, "velocity": 1}
     return _wrap(base, horizon, formula, signals, wrapper_kwargs, monitor_scale=0.5)
 
@@ -331,7 +330,9 @@ def make_parking(
         ) from error
     from tl_gym.envs.fast_parking import NumpyParkingEnv
 
-    _check_steps("horizon", horizon)
+    horizon = _check_steps("horizon", horizon)  # a plain int: Gymnasium's TimeLimit refuses numpy integers
+    if not isinstance(terminate_on_success, (bool, np.bool_)):  # bool("no") would be True
+        raise ValueError(f"terminate_on_success must be True or False, got {terminate_on_success!r}")
     # parking-v0's own wrappers and checks, on its subclass that reads the goal observation without pandas
     spec = dataclasses.replace(gym.spec("parking-v0"), entry_point=NumpyParkingEnv)
     if config is not None and "terminate_on_success" in config:

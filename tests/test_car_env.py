@@ -202,11 +202,28 @@ def test_make_returns_the_wrapped_car_with_its_formula():
         ({"obstacle": (0, 0, -1)}, "radius"),
         ({"render_mode": "ascii"}, "render_mode"),
         ({"reward": "shaped"}, "reward"),
+        # not a sequence of numbers at all: the message still names the keyword (was a bare TypeError)
+        ({"start_std": 15}, "start_std"),
+        ({"start_std": "123"}, "start_std"),
+        ({"noise_std": None}, "noise_std"),
+        ({"start": 5}, "start must be three"),
+        ({"goals": [(240, 270, 240)]}, r"goals\[0\] must be four numbers"),
+        ({"goals": 5}, "1 goal"),
+        ({"obstacle": "abc"}, "obstacle must be"),
+        ({"arena": 300}, "arena"),
     ],
 )
 def test_bad_env_arguments(kwargs, match):
     with pytest.raises(ValueError, match=match):
         gym.make("TLCarNav-v0", **kwargs)
+    with pytest.raises(ValueError, match=match):
+        gym.make_vec("TLCarNav-v0", num_envs=2, vectorization_mode="vector_entry_point", **kwargs)
+
+
+def test_numpy_numbers_are_arguments():
+    """Values read from numpy arrays or configs work as Python's do (max_steer refused np.float32 as out of range)."""
+    env = gym.make("TLCarNav-v0", max_steer=np.float32(0.5), start_std=np.array([15.0, 15.0, 0.3]))
+    assert env.unwrapped.params.max_steer == pytest.approx(0.5) and env.unwrapped.params.start_std == (15, 15, 0.3)
 
 
 # --------------------------------------------------------------------------- checkers, determinism, pickling

@@ -171,6 +171,22 @@ def test_bad_task_arguments_name_the_culprit():
         gym.make("TLMountainCar-v0", horizon=0)
 
 
+@pytest.mark.parametrize("env_id", ALL)
+def test_a_numpy_integer_horizon_is_a_horizon(env_id):
+    """horizon=np.int64(12), a sweep's value, passed the check, then Gymnasium's TimeLimit refused it."""
+    needs(env_id)
+    kwargs = {"horizon": np.int64(12), **({"up_by": 5} if env_id == "TLPendulum-v0" else {})}
+    size = 1 if env_id in CLASSIC else 2
+    steps, _, info = run_episode(gym.make(env_id, **kwargs), lambda obs: np.zeros(size, dtype=np.float32), seed=0)
+    assert steps <= 12 and "robustness" in info
+
+
+def test_parking_terminate_on_success_must_be_a_bool():
+    pytest.importorskip("highway_env")
+    with pytest.raises(ValueError, match="terminate_on_success must be True or False"):
+        gym.make("TLParking-v0", terminate_on_success="no")  # bool("no") is True: it ended episodes at the slot
+
+
 def test_step_clock_is_the_trace_index():
     env = TLTLRewardWrapper(
         StepClock(gym.make("Pendulum-v1", max_episode_steps=7), horizon=7),
