@@ -68,6 +68,15 @@ def reps_weights(returns: np.ndarray, epsilon: float) -> tuple[np.ndarray, float
         ``(weights, eta, kl)``: normalised weights ``(N,)``, the temperature in the units of
         ``returns``, and ``KL(w ‖ uniform) ≤ ε`` (a bisection on ``η`` repairs a solver stop on the wrong side).
 
+    Infinite returns (a robustness of ``±inf``: ``X φ`` at an episode's last state, or ``true``, with the
+    wrapper's ``rho_max=inf``) get what ``exp(R/η)`` gives them at every ``η``: the episodes at ``+inf``
+    share all the weight; those at ``-inf`` get none, and the dual is solved on the finite ones with the
+    bound that remains, ``ε − log(N / #finite)`` (uniform over them when nothing remains). ``η`` is then
+    reported as ``nan`` or as the finite ones' temperature.
+
+    Raises:
+        ValueError: a return is NaN.
+
     Example:
         >>> w, eta, kl = reps_weights(np.array([0.0, 1.0, 2.0, 3.0]), epsilon=0.5)
         >>> bool(np.all(np.diff(w) > 0)), bool(kl <= 0.5 + 1e-6)
@@ -75,6 +84,11 @@ def reps_weights(returns: np.ndarray, epsilon: float) -> tuple[np.ndarray, float
     """
     returns = np.asarray(returns, dtype=float)
     n = returns.shape[0]
+    missing = np.flatnonzero(np.isnan(returns))
+    if missing.size:
+        raise ValueError(f"REPS got a NaN return (robustness) for episode(s) {missing.tolist()}")
+    if not np.isfinite(returns).all():
+        return _weights_with_infinite_returns(returns, epsilon)
     spread = float(np.std(returns))
     if spread == 0.0 or n < 2:
         return np.full(n, 1.0 / n), float("inf"), 0.0
@@ -106,6 +120,25 @@ def reps_weights(returns: np.ndarray, epsilon: float) -> tuple[np.ndarray, float
         log_w, kl = _log_weights(r, eta)
     weights = np.exp(log_w)
     return weights, float(eta * spread), kl
+
+
+def _weights_with_infinite_returns(returns: np.ndarray, epsilon: float) -> tuple[np.ndarray, float, float]:
+    """`reps_weights` when some return is ``±inf`` (its docstring): the limit of ``exp(R/η)`` weights."""
+    n = returns.shape[0]
+    top = returns == np.inf
+    finite = np.isfinite(returns)
+    if top.any() or not finite.any():  # all weight on +inf; or every episode at -inf: nothing to rank
+        support = top if top.any() else np.ones(n, dtype=bool)
+        weights = support / support.sum()
+        return weights, float("nan"), float(np.log(n / support.sum()))
+    left = epsilon - np.log(n / finite.sum())  # KL(w ‖ uniform) = KL over the finite ones + log(N / #finite)
+    weights = np.zeros(n)
+    if left > 0:
+        weights[finite], eta, _ = reps_weights(returns[finite], left)
+    else:
+        weights[finite], eta = 1.0 / finite.sum(), float("inf")
+    positive = weights[weights > 0]
+    return weights, eta, float(positive @ np.log(n * positive))
 
 
 def _log_weights(r: np.ndarray, eta: float) -> tuple[np.ndarray, float]:

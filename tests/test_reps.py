@@ -45,6 +45,25 @@ def test_equal_returns_give_uniform_weights():
     assert kl == 0.0
 
 
+def test_infinite_returns_get_the_limit_of_the_exponential_weights():
+    # a robustness of -inf (X at the last state with rho_max=inf) is no reason to stop: it weighs nothing
+    finite = np.random.default_rng(3).normal(size=9)
+    returns = np.append(finite, -np.inf)
+    weights, eta, kl = reps_weights(returns, 1.0)
+    assert weights[-1] == 0.0 and np.isfinite(eta) and kl == pytest.approx(1.0, abs=1e-4)
+    alone, _, _ = reps_weights(finite, 1.0 - np.log(10 / 9))  # the bound left for the finite ones
+    np.testing.assert_allclose(weights[:-1], alone)
+    weights, _, kl = reps_weights(returns, 0.05)  # below log(10/9): uniform over the finite ones
+    np.testing.assert_allclose(weights, np.append(np.full(9, 1 / 9), 0.0))
+    assert kl == pytest.approx(np.log(10 / 9))
+    weights, _, _ = reps_weights(np.array([np.inf, 0.0, np.inf, -np.inf]), 2.0)
+    np.testing.assert_allclose(weights, [0.5, 0.0, 0.5, 0.0])
+    weights, _, kl = reps_weights(np.full(3, -np.inf), 2.0)
+    np.testing.assert_allclose(weights, 1 / 3)
+    with pytest.raises(ValueError, match=r"NaN return .* \[1\]"):
+        reps_weights(np.array([0.0, np.nan, 1.0]), 2.0)
+
+
 def test_dual_solution_is_the_minimum():
     returns = np.random.default_rng(2).normal(size=30)
     epsilon = 0.7
