@@ -38,8 +38,9 @@ class EpisodicSearchConfig:
     """Actions per episode, ``T``; ``None`` reads it from the env (the car's is the paper's 200)."""
     init_std: float = DEFAULT_INIT_STD
     """Initial standard deviation of every action component of ``k_t^i`` (> 0)."""
-    init_mean: float = 0.0
-    """Initial feed-forward action ``k_t`` (every component, every step)."""
+    init_mean: Any = 0.0
+    """Initial feed-forward action ``k_t`` (every component, every step): a finite number, or one per action
+    component (stored as a list)."""
     min_std: float = DEFAULT_MIN_STD
     """Permanent floor on the policy's standard deviation (> 0)."""
     covariance: str = "diag"
@@ -77,6 +78,14 @@ class EpisodicSearchConfig:
         if self.gains is not None:  # plain lists, so that the config stays JSON
             object.__setattr__(self, "gains", np.asarray(self.gains, dtype=float).tolist())
         check_episodic(self.n_episodes, self.horizon)
+        try:  # a NaN would reach the env as every action of every episode
+            mean = np.asarray(self.init_mean, dtype=float)
+        except (TypeError, ValueError):
+            mean = np.array(np.nan)
+        if isinstance(self.init_mean, (bool, str)) or mean.ndim > 1 or not np.all(np.isfinite(mean)):
+            raise ValueError(f"init_mean must be a finite number or one per action component, got {self.init_mean!r}")
+        if mean.ndim:  # plain lists, so that the config stays JSON
+            object.__setattr__(self, "init_mean", mean.tolist())
         check_positive("init_std", self.init_std)
         check_positive("min_std", self.min_std)
         if self.covariance not in ("diag", "full"):

@@ -114,7 +114,7 @@ class TLPSConfig(EpisodicSearchConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        check_trust_region(self.epsilon, self.beta, self.solver, self.solver_steps, self.solver_decay)
+        check_trust_region(self.epsilon, self.beta, self.solver, self.solver_steps, self.solver_decay, prefix="solver_")
         if self.smoothing not in SMOOTHING_FORMS:
             raise ValueError(f"smoothing must be one of {SMOOTHING_FORMS}, got {self.smoothing!r}")
         if self.weights not in WEIGHTINGS:

@@ -39,6 +39,7 @@ Example:
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Literal
@@ -154,16 +155,20 @@ def improve_trajectories(
     return _slsqp(evaluate, trajectories, epsilon, 5 * steps)
 
 
-def check_trust_region(epsilon: float, beta: float, solver: str, steps: int, decay: float) -> None:
-    """Raise ``ValueError`` naming the first bad trust-region setting."""
+def check_trust_region(epsilon: float, beta: float, solver: str, steps: int, decay: float, prefix: str = "") -> None:
+    """Raise ``ValueError`` naming the first bad trust-region setting.
+
+    ``prefix`` goes before the names of ``steps`` and ``decay``: TLPS's fields are ``solver_steps``
+    and ``solver_decay``, so that its message names the field the user set.
+    """
     check_positive("epsilon", epsilon)
     check_positive("beta", beta)
     if solver not in SOLVERS:
         raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
-    if isinstance(steps, bool) or not (isinstance(steps, int) and steps >= 1):
-        raise ValueError(f"steps must be a positive integer, got {steps!r}")
-    if not (isinstance(decay, (int, float)) and 0 < decay < 1):
-        raise ValueError(f"decay must lie in (0, 1), got {decay!r}")
+    if isinstance(steps, bool) or not (isinstance(steps, (int, np.integer)) and steps >= 1):
+        raise ValueError(f"{prefix}steps must be a positive integer, got {steps!r}")
+    if isinstance(decay, bool) or not (isinstance(decay, numbers.Real) and 0 < decay < 1):
+        raise ValueError(f"{prefix}decay must lie in (0, 1), got {decay!r}")
 
 
 Evaluate = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]

@@ -25,7 +25,10 @@ from tl_gym.agents.weights import WEIGHTINGS
         (dict(alpha=-1.0), "alpha"),
         (dict(regularization=0.0), "regularization"),
         (dict(solver="newton"), "solver"),
-        (dict(solver_steps=0), "steps"),
+        (dict(solver_steps=0), "solver_steps"),
+        (dict(solver_decay=1.0), "solver_decay"),
+        (dict(init_mean=float("nan")), "init_mean"),
+        (dict(init_mean="half speed"), "init_mean"),
         (dict(smoothing="cubic"), "smoothing"),
         (dict(exploration_floor=-0.1), "exploration_floor"),
         (dict(exploration_halflife=0.0), "exploration_halflife"),
@@ -39,6 +42,15 @@ def test_bad_hyperparameters_raise_at_construction(hyperparameters, culprit):
         TLPSConfig(**hyperparameters)
     with pytest.raises(ValueError, match=culprit):
         TLPS("TLCarNav-v0", **hyperparameters)
+
+
+def test_numpy_numbers_and_per_component_means_are_accepted_and_saved_as_json(tmp_path):
+    # as a sweep over np.arange hands them over
+    agent = TLPS("TLCarNav-v0", seed=0, n_episodes=4, solver_steps=np.int64(2), solver_decay=np.float32(0.5),
+                 init_mean=np.array([0.2, -0.1])).learn(1)
+    assert np.all(agent.history[0]["policy_std"] > 0)
+    loaded = TLPS.load(agent.save(tmp_path / "agent.zip"))
+    assert loaded.config == agent.config and loaded.config.init_mean == [0.2, -0.1]
 
 
 def test_unknown_hyperparameter_is_a_type_error():
