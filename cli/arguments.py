@@ -52,6 +52,41 @@ def parse_signals(text: str) -> dict[str, Any]:
     return signals
 
 
+def parse_env_kwargs(text: str) -> dict[str, Any]:
+    """Read ``--env-kwargs``: a JSON object of env keywords (a list or a number is no set of keywords).
+
+    Raises ``argparse.ArgumentTypeError``, which argparse reports as ``argument --env-kwargs: ...``.
+
+    Example:
+        >>> parse_env_kwargs('{"no_revisit": "strict", "horizon": 100}')
+        {'no_revisit': 'strict', 'horizon': 100}
+    """
+    try:
+        value = json.loads(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(f"not valid JSON ({error}): {text!r}") from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"must be a JSON object of env keywords, such as '{{\"task\": 2}}', "
+                                         f"got {text!r}")
+    return value
+
+
+def parse_snapshots(text: str) -> list[int]:
+    """Read ``--snapshots``: iterations (>= 1) separated by commas, sorted and without repeats.
+
+    Example:
+        >>> parse_snapshots("30,1,10,10")
+        [1, 10, 30]
+    """
+    try:
+        picks = sorted({int(part) for part in text.split(",") if part.strip()})
+    except ValueError:
+        picks = []
+    if not picks or picks[0] < 1:
+        raise argparse.ArgumentTypeError(f"expects iterations >= 1 separated by commas, such as 1,10,30, got {text!r}")
+    return picks
+
+
 def parse_hyperparameters(extra: Sequence[str]) -> dict[str, Any]:
     """Turn ``--name value`` pairs into a dict (dashes in names become underscores).
 
@@ -108,7 +143,7 @@ def build_parser(with_hyperparameters: bool = False) -> argparse.ArgumentParser:
     )
     train.add_argument("--env", default="TLCarNav-v0", help="registered env id (default: TLCarNav-v0)")
     train.add_argument("--task", type=int, default=None, help="the car's task, 1 or 2 (env keyword `task`)")
-    train.add_argument("--env-kwargs", type=json.loads, default={}, help="env keywords as JSON")
+    train.add_argument("--env-kwargs", type=parse_env_kwargs, default={}, help="env keywords as a JSON object")
     train.add_argument("--spec", default=None, help="a TLTL formula to pay as reward instead of the env's own")
     train.add_argument("--signals", type=parse_signals, default=None,
                        help="with --spec: signal sources, e.g. cos_th=0,th_dot=2 (observation indices or Dict keys)")
@@ -118,7 +153,7 @@ def build_parser(with_hyperparameters: bool = False) -> argparse.ArgumentParser:
                             "whole iterations of steps_per_iteration, else 50)")
     train.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
     train.add_argument("--out", type=Path, required=True, help="run folder to write")
-    train.add_argument("--snapshots", default=None,
+    train.add_argument("--snapshots", type=parse_snapshots, default=None,
                        help="iterations whose sampled trajectories are plotted, e.g. 1,10,30 (default: spread)")
     train.add_argument("--quiet", action="store_true", help="no progress bar")
     train.add_argument("--eval-every", type=int, default=None, metavar="N",

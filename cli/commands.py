@@ -59,6 +59,9 @@ RUNNER_SPEC_FILE = "spec.json"  # a run folder of the experiment runner (benchma
 AGENT_FILE = "agent.zip"
 BEST_FILE = "best_agent.zip"
 EVALUATIONS_FILE = "evaluations.csv"
+#: Every file `train` may write in its run folder: an earlier run's are removed first, so none is left over.
+RUN_OUTPUTS = (RUN_FILE, AGENT_FILE, BEST_FILE, EVALUATIONS_FILE, "history.csv", "learning_curve.png",
+               "trajectories.png")
 
 
 # Building the env and the agent --------------------------------------------------------------------
@@ -149,6 +152,9 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
         raise ValueError(f"--iterations must be >= 1, got {args.iterations}")
     if args.eval_every is not None and (args.eval_every < 1 or args.eval_episodes < 1):
         raise ValueError(f"--eval-every and --eval-episodes must be >= 1, got {args.eval_every}, {args.eval_episodes}")
+    out: Path = args.out
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} is a file: name a folder for the run")
     agent = agent_for_run(run)
     if args.iterations is None:
         iterations = default_iterations(agent)
@@ -158,10 +164,14 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
     else:
         iterations = args.iterations
     run["iterations"] = iterations
-    snapshots_at = (sorted({int(s) for s in args.snapshots.split(",")}) if args.snapshots
-                    else default_snapshots(iterations))
-    out: Path = args.out
+    snapshots_at = args.snapshots or default_snapshots(iterations)
+    late = [str(s) for s in snapshots_at if s > iterations]
+    if late:  # never sampled: say so, rather than leave trajectories.png short (or unwritten) silently
+        print(f"note: --snapshots {','.join(late)} after the last iteration ({iterations}): not plotted",
+              file=sys.stderr)
     out.mkdir(parents=True, exist_ok=True)
+    for name in RUN_OUTPUTS:  # an earlier run's best_agent.zip would pass for this run's in `tl-gym eval --best`
+        (out / name).unlink(missing_ok=True)
     (out / RUN_FILE).write_text(json.dumps(run, indent=1))
 
     n_samples = int(getattr(agent.config, "n_episodes", 40))
@@ -182,17 +192,19 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
                                       log_path=out / EVALUATIONS_FILE))
     agent.learn(iterations, callback=as_callback(callbacks), progress_bar=not args.quiet)
     agent.save(out / AGENT_FILE)
-    write_plots(agent, run, snapshots, out)
+    plotted = write_plots(agent, run, snapshots, out)
     last = agent.history[-1]
     print(f"iteration {last['iteration']}: mean robustness {last['mean_robustness']:.4g}, "
           f"success rate {last['success_rate']:.1%}, {last['env_steps']} env steps, {last['wall_time']:.1f} s")
-    best = f", {BEST_FILE}, {EVALUATIONS_FILE}" if args.eval_every is not None else ""
-    print(f"wrote {out}/{{{RUN_FILE}, {AGENT_FILE}{best}, history.csv, learning_curve.png, trajectories.png}}")
+    # an earlier run's were removed: these exist if this run evaluated (not before --eval-every's first N iterations)
+    best = "".join(f", {name}" for name in (BEST_FILE, EVALUATIONS_FILE) if (out / name).exists())
+    trajectories = ", trajectories.png" if plotted else ""
+    print(f"wrote {out}/{{{RUN_FILE}, {AGENT_FILE}{best}, history.csv, learning_curve.png{trajectories}}}")
     return 0
 
 
-def write_plots(agent: Any, run: dict[str, Any], snapshots: list[tuple[int, dict[str, Any]]], out: Path) -> None:
-    """Write ``learning_curve.png`` and ``trajectories.png`` for a finished run."""
+def write_plots(agent: Any, run: dict[str, Any], snapshots: list[tuple[int, dict[str, Any]]], out: Path) -> bool:
+    """Write ``learning_curve.png`` and, given snapshots, ``trajectories.png``; whether it wrote the second."""
     # matplotlib loads only when a run is plotted, not for `tl-gym --help`
     from tl_gym.agents.plotting import plot_learning_curve, plot_signals, plot_trajectories
 
@@ -201,7 +213,7 @@ def write_plots(agent: Any, run: dict[str, Any], snapshots: list[tuple[int, dict
                                                   else "")
     plot_learning_curve(agent.history, out / "learning_curve.png", title=f"{title} ({steps} env steps / iteration)")
     if not snapshots:
-        return
+        return False
     layout = env_attribute(agent.env, "layout")
     signals = snapshots[0][1]
     if layout is not None and run.get("spec") is None and {"x", "y"} <= set(signals):
@@ -211,6 +223,7 @@ def write_plots(agent: Any, run: dict[str, Any], snapshots: list[tuple[int, dict
                           title=f"{title}: sampled trajectories (mean ± 2σ)")
     else:
         plot_signals(snapshots, out / "trajectories.png", title=f"{title}: sampled signals (mean ± 2σ)")
+    return True
 
 
 def read_run(folder: Path) -> dict[str, Any]:
@@ -221,11 +234,19 @@ def read_run(folder: Path) -> dict[str, Any]:
     """
     run_file, runner_file = folder / RUN_FILE, folder / RUNNER_SPEC_FILE
     if run_file.exists():
-        return json.loads(run_file.read_text())
+        return _read_json(run_file)
     if runner_file.exists():
-        return {**json.loads(runner_file.read_text()), "spec": None, "signals": None}
+        return {**_read_json(runner_file), "spec": None, "signals": None}
     raise FileNotFoundError(f"{run_file} not found: is {folder} a folder written by `tl-gym train` "
                             f"(or a run folder of the experiment runner, with {RUNNER_SPEC_FILE})?")
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    """A run folder's JSON file; a ``ValueError`` naming the file when it does not parse."""
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{path} is not valid JSON ({error})") from None
 
 
 def evaluate(args: argparse.Namespace) -> int:
@@ -235,6 +256,8 @@ def evaluate(args: argparse.Namespace) -> int:
     saved = args.run / (BEST_FILE if args.best else AGENT_FILE)
     if args.best and not saved.exists():
         raise FileNotFoundError(f"{saved} not found: the run was trained without --eval-every")
+    if not saved.exists():
+        raise FileNotFoundError(f"{saved} not found: train writes it when training ends (was the run stopped?)")
     agent = Agent.load(saved, env=None if isinstance(env, str) else env)
     result = agent.evaluate(n_episodes=args.episodes, seed=args.seed, deterministic=not args.stochastic)
     kwargs = f" {run['env_kwargs']}" if run["env_kwargs"] else ""
@@ -290,6 +313,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == "train":
             return train(args, extra)
         return evaluate(args)
-    except (TLGymError, ValueError, TypeError, FileNotFoundError, ImportError) as error:
+    # gym.error.Error: an unknown env id (NameNotFound), a missing extra (DependencyNotInstalled), ...
+    except (TLGymError, ValueError, TypeError, FileNotFoundError, ImportError, gym.error.Error) as error:
         print(f"tl-gym {args.command}: error: {error}", file=sys.stderr)
         return 2

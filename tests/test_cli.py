@@ -7,6 +7,7 @@ import json
 import pathlib
 import re
 import shlex
+import sys
 import zipfile
 
 import pytest
@@ -95,6 +96,7 @@ def test_spec_and_signals_train_on_any_env(tmp_path, capsys):
         (["--agent", "reps", "--iterations", "0"], "--iterations"),
         (["--agent", "reps", "--eval-every", "0"], "--eval-every"),
         (["--env", "Pendulum-v1", "--spec", "F(x > 1", "--signals", "x=0", "--agent", "reps"], "column"),
+        (["--env", "NoSuchEnv-v0", "--agent", "reps"], "NoSuchEnv"),  # Gymnasium's NameNotFound: was a traceback
     ],
 )
 def test_bad_input_exits_with_a_clear_message(tmp_path, capsys, argv, message):
@@ -102,9 +104,63 @@ def test_bad_input_exits_with_a_clear_message(tmp_path, capsys, argv, message):
     assert message in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--env-kwargs", "[1, 2]"], "argument --env-kwargs: must be a JSON object"),  # was "dictionary update ..."
+        (["--env-kwargs", "{bad"], "argument --env-kwargs: not valid JSON"),
+        (["--snapshots", "1,,a"], "argument --snapshots: expects iterations >= 1"),  # was int()'s own message
+        (["--snapshots", "0"], "argument --snapshots"),
+    ],
+)
+def test_an_argument_that_does_not_parse_is_argparses_error(tmp_path, capsys, argv, message):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["train", "--out", str(tmp_path / "bad"), "--quiet", *argv])
+    assert exit_info.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_parking_without_highway_env_names_the_extra(tmp_path, capsys, monkeypatch):
+    """DependencyNotInstalled is no ImportError: the command printed a traceback."""
+    monkeypatch.setitem(sys.modules, "highway_env", None)  # `import highway_env` raises ImportError
+    assert main(["train", "--env", "TLParking-v0", "--agent", "reps", "--out", str(tmp_path / "p"), "--quiet"]) == 2
+    assert 'tl-gym train: error: TLParking-v0 needs highway-env' in capsys.readouterr().err
+
+
+def test_out_that_is_a_file(tmp_path, capsys):
+    (tmp_path / "taken").write_text("")
+    assert main(["train", "--agent", "reps", "--out", str(tmp_path / "taken"), "--quiet"]) == 2  # was FileExistsError
+    assert "--out" in capsys.readouterr().err
+
+
+def test_a_new_run_in_an_old_folder_leaves_none_of_its_files(tmp_path, capsys):
+    """An earlier run's best_agent.zip passed for the new run's in `tl-gym eval --best`."""
+    tiny = ["--env", "TLCarNav-v0", "--env-kwargs", '{"horizon": 5}', "--agent", "reps", "--n-episodes", "4",
+            "--out", str(tmp_path), "--quiet"]
+    assert main(["train", *tiny, "--iterations", "2", "--eval-every", "1", "--eval-episodes", "2"]) == 0
+    assert (tmp_path / "best_agent.zip").exists() and (tmp_path / "evaluations.csv").exists()
+    capsys.readouterr()
+    assert main(["train", *tiny, "--iterations", "1", "--snapshots", "3"]) == 0
+    assert {p.name for p in tmp_path.iterdir()} == {"run.json", "agent.zip", "history.csv", "learning_curve.png"}
+    captured = capsys.readouterr()
+    assert "--snapshots 3 after the last iteration (1): not plotted" in captured.err
+    assert captured.out.endswith("{run.json, agent.zip, history.csv, learning_curve.png}\n")  # what it wrote
+    assert main(["eval", str(tmp_path), "--best"]) == 2
+
+
 def test_eval_of_a_missing_run(tmp_path, capsys):
     assert main(["eval", str(tmp_path / "missing")]) == 2
     assert "tl-gym train" in capsys.readouterr().err
+
+
+def test_eval_of_a_run_without_its_agent_or_with_a_broken_run_file(tmp_path, capsys):
+    run = {"env": "TLCarNav-v0", "env_kwargs": {}, "spec": None, "signals": None, "agent": "reps", "iterations": 1,
+           "seed": 0, "hyperparameters": {}}
+    (tmp_path / "run.json").write_text(json.dumps(run))
+    assert main(["eval", str(tmp_path)]) == 2
+    assert "agent.zip not found: train writes it when training ends" in capsys.readouterr().err
+    (tmp_path / "run.json").write_text("{")
+    assert main(["eval", str(tmp_path)]) == 2
+    assert "run.json is not valid JSON" in capsys.readouterr().err
 
 
 def test_help_lists_the_hyperparameters(capsys):
