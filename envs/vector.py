@@ -137,6 +137,10 @@ class CarNavVectorEnv(CarProperties, VectorEnv):
     def reset(
         self, *, seed: int | Sequence[int | None] | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
+        mask = (options or {}).get("reset_mask")  # SyncVectorEnv's partial reset: the other cars keep their episode
+        if mask is not None and not np.all(mask):
+            raise ValueError("CarNavVectorEnv restarts every car together (one clock for all): options['reset_mask'] "
+                             "must be all True; gym.make_vec(..., vectorization_mode='sync') resets some cars only")
         super().reset(seed=int(seed) if isinstance(seed, (int, np.integer)) else None)
         if seed is None:
             seeds: Sequence[int | None] = [None] * self.num_envs

@@ -342,6 +342,14 @@ def test_vector_env_autoreset_and_errors():
         CarNavVectorEnv(num_envs=0)
 
 
+def test_vector_env_refuses_a_partial_reset():
+    """options={"reset_mask": ...} resets only those cars in SyncVectorEnv; this env restarted them all, silently."""
+    envs = CarNavVectorEnv(num_envs=2, horizon=3)
+    envs.reset(seed=0, options={"reset_mask": np.array([True, True])})  # all of them: a reset
+    with pytest.raises(ValueError, match="reset_mask"):
+        envs.reset(options={"reset_mask": np.array([True, False])})
+
+
 def test_vector_env_seeds_car_i_with_seed_plus_i():
     envs = CarNavVectorEnv(num_envs=4, task=2)
     obs, _ = envs.reset(seed=100)
