@@ -47,14 +47,19 @@ def plot_band(ax: Any, x: np.ndarray, values: np.ndarray, color: Any, label: str
 
 
 def plot_seeds(ax: Any, x: np.ndarray, values: np.ndarray, color: Any, label: str, markersize: float = 3) -> None:
-    """Each seed of ``values`` ``(seeds, len(x))`` as a thin line, their median as the thick one.
+    """Each seed of ``values`` ``(seeds, points)`` as a thin line, their median as the thick one.
+
+    ``x`` is shared ``(points,)`` or each seed's own ``(seeds, points)``; then each seed's line runs at its own
+    ``x`` and the median of each point sits at the seeds' mean ``x`` there.
 
     For the few seeds of a suite task (5 or fewer) whose outcomes split, solved or not, a band
     around the mean covers the whole axis and hides which seed does what; the lines show it, and
     the median is what the tables report.
     """
+    x = np.asarray(x, dtype=float)
     if len(values) > 1:
-        ax.plot(x, values.T, color=color, lw=0.8, alpha=0.45)
+        ax.plot(x.T if x.ndim == 2 else x, values.T, color=color, lw=0.8, alpha=0.45)
+    x = x.mean(axis=0) if x.ndim == 2 else x
     ax.plot(x, np.median(values, axis=0), color=color, lw=1.8, marker="o" if len(x) <= 5 else None,
             markersize=markersize, label=label)
 

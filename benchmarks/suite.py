@@ -63,12 +63,23 @@ def suite_run(task: str, label: str) -> RunSpec:
 SYMLOG_FROM = 10.0
 
 
-def eval_curve(runs: Sequence[RunResult], key: str = "eval_success_rate") -> tuple[np.ndarray, np.ndarray]:
-    """``(env steps, values (seeds, points))`` of the rows where the runs evaluated, cut to the shortest run."""
-    masks = [~np.isnan(run.history[key]) for run in runs]
-    length = min(int(mask.sum()) for mask in masks)
-    steps = np.mean([run.history["env_steps"][mask][:length] for run, mask in zip(runs, masks)], axis=0)
-    return steps, np.stack([run.history[key][mask][:length] for run, mask in zip(runs, masks)])
+def eval_points(run: RunResult, key: str = "eval_success_rate") -> tuple[np.ndarray, np.ndarray]:
+    """``(env steps, values)`` of the rows where ``run`` evaluated, at its own env steps."""
+    mask = ~np.isnan(run.history[key])
+    return run.history["env_steps"][mask], run.history[key][mask]
+
+
+def eval_curve(runs: Sequence[RunResult], key: str = "eval_success_rate",
+               per_seed_steps: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """``(env steps, values (seeds, points))`` of the rows where the runs evaluated, cut to the shortest run.
+
+    The env steps are the seeds' mean at each evaluation, or with ``per_seed_steps`` each seed's own
+    ``(seeds, points)``: they differ where episodes end early (TLMountainCar-v0, TLParking-v0).
+    """
+    points = [eval_points(run, key) for run in runs]
+    length = min(len(values) for _, values in points)
+    steps = np.stack([steps[:length] for steps, _ in points])
+    return (steps if per_seed_steps else steps.mean(axis=0)), np.stack([values[:length] for _, values in points])
 
 
 def steps_to_solve(steps: np.ndarray, values: np.ndarray) -> float | None:
@@ -88,11 +99,11 @@ def plot_task(name: str, runs: Sequence[RunResult], path: Path | None) -> Figure
     largest_rho = 0.0
     for i, ((_, label), members) in enumerate(group_runs(runs).items()):
         color, legend = colormaps["tab10"](i % 10), f"{label} ({_seeds(len(members))})"
-        steps, values = eval_curve(members)
+        steps, values = eval_curve(members, per_seed_steps=True)  # each seed's line at its own env steps
         if not steps.size:
             continue
         plot_seeds(success_ax, steps, values, color, legend)
-        rho_steps, rho_values = eval_curve(members, "eval_mean_robustness")
+        rho_steps, rho_values = eval_curve(members, "eval_mean_robustness", per_seed_steps=True)
         plot_seeds(rho_ax, rho_steps, rho_values, color, legend)
         largest_rho = max(largest_rho, float(np.nanmax(np.abs(rho_values), initial=0.0)))
     success_ax.axhline(SOLVED, color="0.4", lw=0.8, ls="--")
@@ -117,15 +128,16 @@ def task_table(runs: Sequence[RunResult]) -> tuple[str, list[tuple[str, float, f
               "env steps to ≥ 90 %: median (seeds)", "final mean ρ", "note"]
     lines, rows = [], []
     for (_, label), members in group_runs(runs).items():
-        steps, success = eval_curve(members)
-        _, rho = eval_curve(members, "eval_mean_robustness")
-        if not steps.size:
+        # each seed's own evaluations: its last one is its final policy's, and it reached 90 % at its own env steps
+        points = [eval_points(run) for run in members]
+        rho = [eval_points(run, "eval_mean_robustness")[1] for run in members]
+        if any(not len(values) for _, values in points) or any(not len(r) for r in rho):
             continue
-        final = success[:, -1]
-        solves = [steps_to_solve(steps, row) for row in success]
-        lines.append([label, len(members), f"{steps[-1]:,.0f}",
+        final = np.array([values[-1] for _, values in points])
+        solves = [steps_to_solve(steps, values) for steps, values in points]
+        lines.append([label, len(members), f"{np.mean([steps[-1] for steps, _ in points]):,.0f}",
                       f"{np.median(final):.0%} ({final.min():.0%}–{final.max():.0%})", first_text(solves, ",.0f"),
-                      f"{np.median(rho[:, -1]):.3g}", notes(members)])
+                      f"{np.median([r[-1] for r in rho]):.3g}", notes(members)])
         rows.append((label, float(np.median(final)), median_first(solves), sum(s is not None for s in solves),
                      len(solves)))
     return table(header, lines), rows

@@ -10,7 +10,7 @@ import tomllib
 
 from benchmarks import results, suite
 from benchmarks.runner import run_sweep
-from benchmarks.sweep_config import expand_config, load_config
+from benchmarks.sweep_config import RunSpec, expand_config, load_config
 
 from .test_runner import STAND_IN
 
@@ -120,3 +120,29 @@ def test_report_covers_every_task_whatever_tasks_run(tmp_path):
     text = (tmp_path / "suite.md").read_text()
     titles = [load_config(path).description for path in suite.config_paths()]
     assert all(f"## {title}\n" in text for title in titles) and len(titles) == 7
+
+
+def _evaluated_run(seed: int, steps: list[float], success: list[float], label: str = "agent") -> results.RunResult:
+    """A finished run whose every row evaluated, at its own env steps (episodes that end early: uneven steps)."""
+    spec = RunSpec(env="TLMountainCar-v0", env_kwargs={}, agent="reps", label=label, hyperparameters={},
+                   seed=seed, iterations=len(steps), evaluate_episodes=100, evaluate_every=1)
+    history = {"iteration": np.arange(1.0, len(steps) + 1), "env_steps": np.array(steps, dtype=float),
+               "eval_success_rate": np.array(success, dtype=float),
+               "eval_mean_robustness": np.array(success, dtype=float) - 0.5}
+    return results.RunResult(spec, history, {}, Path("."))
+
+
+def test_steps_to_solve_and_final_success_are_each_seeds_own_on_uneven_env_steps():
+    """A seed's env steps to ≥ 90 % are its own, not the seeds' mean at that evaluation; its final success is its
+    own last evaluation, not the one where the shortest seed stopped; each seed's line is drawn at its own steps."""
+    runs = [_evaluated_run(0, [100, 200, 300], [0.0, 1.0, 1.0]),   # solves at 200
+            _evaluated_run(1, [50, 60, 70], [0.0, 0.0, 0.95])]     # solves at 70 (its episodes ended early)
+    table, rows = suite.task_table(runs)
+    # seed 0 at 200, seed 1 at 70: median 135 (the mean grid put them at 130 and 185: median 157.5)
+    assert rows[0][2] == 135.0 and "| 135 (2/2) |" in table, table
+    longer = [_evaluated_run(0, [100, 200, 300, 400], [0.0, 0.0, 0.0, 1.0]),
+              _evaluated_run(1, [100, 200, 300], [0.0, 0.0, 0.0])]
+    table, rows = suite.task_table(longer)
+    assert "| 50% (0%–100%) | 400 (1/2) |" in table, table  # seed 0's last evaluation, at 400
+    success_ax = suite.plot_task("uneven", runs, None).axes[0]
+    assert [line.get_xdata().tolist() for line in success_ax.lines[:2]] == [[100, 200, 300], [50, 60, 70]]
