@@ -131,7 +131,7 @@ def test_bad_form():
 
 
 def test_signal_free_formula_needs_a_length():
-    with pytest.raises(TraceError):
+    with pytest.raises(TraceError, match="reads no signal, so the trace must hold an array that gives its length"):
         parse("F true").robustness({})
     assert parse("F true").robustness({"anything": [0.0, 0.0]}) == math.inf
 

@@ -156,6 +156,9 @@ def test_auto_loads_the_kernel_once_numpy_smoothing_has_cost_the_process_enough(
 
 def test_the_default_backend_runs_the_kernel_and_torch_gets_its_gradient(monkeypatch):
     monkeypatch.setattr(fused_smooth, "AUTO_SECONDS", 0.0)
+    answers = []  # what each call of the kernel returned (None: it declined, and numpy answered)
+    kernel = fused_smooth.at_position_zero
+    monkeypatch.setattr(fused_smooth, "at_position_zero", lambda *a: answers.append(kernel(*a)) or answers[-1])
     formula = task_formula(2, "leave")
     rng = np.random.default_rng(2)
     x, y = rng.uniform(0, 300, (2, 4, 30))
@@ -166,6 +169,8 @@ def test_the_default_backend_runs_the_kernel_and_torch_gets_its_gradient(monkeyp
     expected = formula.smooth_robustness(plain, 9.0, form="linear", backend="numpy")
     expected.sum().backward()
     assert fused_smooth.program_for(formula, "linear") is not None
+    # the default call ran the kernel, which answered it with a Jacobian; the numpy call did not run it
+    assert len(answers) == 1 and answers[0] is not None and set(answers[0][1]) == {"x", "y"}
     np.testing.assert_allclose(value.detach().numpy(), expected.detach().numpy(), rtol=1e-10)
     for name in ("x", "y"):
         np.testing.assert_allclose(tensors[name].grad.numpy(), plain[name].grad.numpy(), rtol=1e-8, atol=1e-12)

@@ -129,11 +129,13 @@ def test_smooth_matches_reference(formula, trace, beta, rho_max):
     assert_matches(np.asarray(formula.smooth_robustness(_row(tensors, 0), beta, rho_max)), expected[0, 0], what="torch")
 
 
-@pytest.mark.parametrize("text", ["true | false", "!!false", "X true", "true U false"])
-def test_signal_free_formula_keeps_torch(text):
+@pytest.mark.parametrize(("text", "expected"), [("true | false", INF), ("!!false", -INF), ("X true", INF),
+                                              ("true U false", -INF)])
+def test_signal_free_formula_keeps_torch(text, expected):
     """Torch in, torch out, even when the formula reads no signal of the trace (engine bug 1)."""
     value = parse(text).smooth_robustness({"x": torch.tensor([1.0, 2.0])}, 1.0)
-    assert isinstance(value, torch.Tensor)
+    assert isinstance(value, torch.Tensor) and value.dtype == torch.float64 and value.shape == ()
+    assert value.item() == expected  # (X true at position 0 reads `true` at position 1)
 
 
 @settings(max_examples=min(settings().max_examples, 30))

@@ -140,7 +140,9 @@ def test_bad_configs_name_the_culprit(change, culprit):
 
 
 def test_shipped_configs_expand():
-    for path in sorted((ROOT / "benchmarks" / "configs").glob("*.toml")):
+    paths = sorted((ROOT / "benchmarks" / "configs").glob("*.toml"))  # (suite/*.toml: test_suite_benchmark.py)
+    assert {"paper.toml", "quick.toml", "ablations.toml"} <= {p.name for p in paths}  # the loop below checks some
+    for path in paths:
         data = tomllib.loads(path.read_text())
         for variant in (None, *data.get("variants", {})):
             assert load_config(path, variant=variant).runs, (path, variant)

@@ -258,10 +258,17 @@ def test_off_policy_entry_with_action_noise_saves_and_loads(tmp_path):
                      batch_size=16, buffer_size=1000)
     assert isinstance(agent.model.action_noise, NormalActionNoise)  # the entry's noise_type: normal
     assert agent.config.noise_type == "normal" and agent.model.policy.net_arch == [400, 300]
+    np.testing.assert_array_equal(agent.model.action_noise._sigma, [0.1, 0.1])  # noise_std's default, per action
     agent.learn(1)
     loaded = Agent.load(agent.save(tmp_path / "td3.zip"))
     obs = np.stack([agent.observation_space.sample() for _ in range(3)])
     np.testing.assert_array_equal(loaded.predict(obs)[0], agent.predict(obs)[0])
+    # the loaded model explores as the saved one did: the same noise, not none (predict never draws it); SB3
+    # draws it per env once training starts, from copies of the one it was given
+    noise = getattr(loaded.model.action_noise, "base_noise", None)
+    assert loaded.config.noise_type == "normal" and isinstance(noise, NormalActionNoise)
+    np.testing.assert_array_equal(noise._sigma, [0.1, 0.1])
+    np.testing.assert_array_equal(noise._mu, [0.0, 0.0])
 
 
 def test_the_task_entry_is_read_and_explicit_kwargs_win(tmp_path):
