@@ -1,6 +1,7 @@
 """Formulas written out as Python source (tl_gym.tltl.codegen): the same floats as the closures they replace."""
 
 import math
+from unittest import mock
 
 import pytest
 from hypothesis import given, settings
@@ -10,6 +11,7 @@ from tl_gym import TraceError, parse
 from tl_gym.logic import X, signal
 from tl_gym.tltl import ast as nodes
 from tl_gym.tltl import operators
+from tl_gym.tltl import windowed as windowed_module
 from tl_gym.tltl.codegen import CodeWriter, state_formula_source, writable
 from tl_gym.tltl.windowed import _state_closure, _window_closure, compile_state_formula, compile_window_formula
 
@@ -36,12 +38,27 @@ def test_connective_source_computes_the_connective(kind, values):
     assert same(written, operators.CONNECTIVES[kind](values))
 
 
+def _fallback_used(*args):
+    raise AssertionError("the written expression fell back to the closures")
+
+
+def _written(compile_formula, formula, rho_max):
+    """``compile_formula(formula, rho_max)``, its closures (the fallback) replaced by a failure: the code alone."""
+    def no_closures(*args):
+        return _fallback_used
+
+    with mock.patch.object(windowed_module, "_state_closure", no_closures), \
+            mock.patch.object(windowed_module, "_window_closure", no_closures):
+        written = compile_formula(formula, rho_max)
+    assert written.__code__.co_filename.startswith("<tl_gym ")  # source written by CodeWriter, not a closure
+    return written
+
+
 @settings(max_examples=300, deadline=None)
 @given(state_formulas, st.lists(states, min_size=1, max_size=5), rho_maxes)
 def test_written_state_formulas_equal_their_closures(formula, trace, rho_max):
     assert writable(formula)
-    written, closure = compile_state_formula(formula, rho_max), _state_closure(formula, rho_max)
-    assert written is not closure
+    written, closure = _written(compile_state_formula, formula, rho_max), _state_closure(formula, rho_max)
     for state in trace:
         assert same(written(state), closure(state)), str(formula)
 
@@ -49,7 +66,8 @@ def test_written_state_formulas_equal_their_closures(formula, trace, rho_max):
 @settings(max_examples=300, deadline=None)
 @given(windowed, st.lists(states, min_size=1, max_size=5), rho_maxes)
 def test_written_window_formulas_equal_their_closures(formula, window, rho_max):
-    written, closure = compile_window_formula(formula, rho_max), _window_closure(formula, rho_max)
+    assert writable(formula)
+    written, closure = _written(compile_window_formula, formula, rho_max), _window_closure(formula, rho_max)
     for i in range(len(window)):
         assert same(written(window, i), closure(window, i)), (str(formula), i)
 
