@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from tl_gym import TraceError, UnknownSignalError, parse
-from tl_gym.logic import F, signal
+from tl_gym.logic import F, G, U, X, implies, not_, signal
 
 PHI = parse("F(x > 1) & G(y < 2)")
 
@@ -180,6 +180,60 @@ def test_builders_reject_non_formulas_and_non_numbers():
         signal("x") < "3"  # type: ignore[operator]  # noqa: B015
     with pytest.raises(ValueError, match="finite"):
         signal("x") < math.inf  # noqa: B015
+
+
+@pytest.mark.parametrize(
+    "build",
+    [lambda: F(signal("x")), lambda: G("x > 1"), lambda: U(signal("x") > 1, signal("y")),
+     lambda: implies(signal("x"), signal("y") > 1), lambda: not_(signal("x")), lambda: X(3.0)],
+)
+def test_temporal_and_binary_builders_reject_non_formulas(build):
+    """`F(x)` of a bare signal built a tree that printed `F x` and failed only when evaluated (AttributeError)."""
+    with pytest.raises(TypeError, match="expected a Formula"):
+        build()
+
+
+def test_builders_take_python_bools_and_numpy_numbers():
+    """A bool operand becomes a constant, as with `&`; numpy scalars are numbers (`x > goal[0]` of a float32 array)."""
+    x = signal("x")
+    assert U(x > 1, True) == parse("x > 1 U true")
+    goal = np.array([3.0, 4.0], dtype=np.float32)
+    assert (x > goal[0]) == parse("x > 3")
+    assert (x + np.int64(2) < goal[1]) == parse("x + 2 < 4")
+
+
+def test_numpy_scalars_are_accepted_for_beta_rho_max_and_horizon():
+    """`beta=np.float32(9)`, `rho_max=np.int64(100)` were refused as "not positive" (a sweep's values)."""
+    trace = {"x": [1.0, 3.0], "y": [1.0, 1.0]}
+    expected = PHI.smooth_robustness(trace, 9.0, 100.0)
+    assert PHI.smooth_robustness(trace, np.float32(9.0), np.int64(100)) == expected
+    assert PHI.robustness(trace, np.float32(100.0)) == PHI.robustness(trace, 100.0)
+    below, above = PHI.smoothing_bracket(np.int64(200), np.float32(9.0))
+    assert (below, above) == PHI.smoothing_bracket(200, 9.0)
+    assert type(below) is float
+
+
+def test_exact_evaluators_take_tensors_that_require_grad():
+    """numpy refuses such a tensor: `robustness` raised torch's RuntimeError instead of answering."""
+    s = torch.tensor([11.0, 6.0, 7.0], requires_grad=True)
+    phi = parse("F(s > 5 & s < 10)")
+    assert phi.robustness({"s": s}) == 2.0
+    assert phi.satisfied({"s": s})
+    np.testing.assert_array_equal(phi.robustness_over_time({"s": s}), [2.0, 2.0, 2.0])
+    value, grad = phi.smooth_robustness_and_gradient({"s": s}, 9.0)
+    assert value == pytest.approx(2.0)
+
+
+def test_smoothing_integer_tensors_gives_floats():
+    """An integer tensor gave an integer result: 2.000000002 truncated to 2, and -inf to a garbage integer."""
+    phi = parse("F(s > 5 & s < 10)")
+    value = phi.smooth_robustness({"s": torch.tensor([11, 6, 7])}, 9.0)
+    assert value.dtype == torch.float64
+    assert value.item() == phi.smooth_robustness({"s": [11.0, 6.0, 7.0]}, 9.0)
+    assert parse("X(s > 0)").smooth_robustness({"s": torch.tensor([1])}, 9.0).item() == -math.inf
+    over_time = phi.smooth_robustness_over_time({"s": torch.tensor([[11, 6, 7]])}, 9.0)
+    assert over_time.dtype == torch.float64 and over_time[0, 2].item() == pytest.approx(1.99998629)
+    assert phi.smooth_robustness({"s": torch.tensor([11.0, 6.0, 7.0])}, 9.0).dtype == torch.float32  # floats kept
 
 
 @pytest.mark.parametrize("method", EVALUATORS)

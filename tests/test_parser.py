@@ -267,6 +267,59 @@ def test_malformed_messages_name_the_problem():
     assert "foo" in message("foo(x) < 1")
 
 
+RESERVED_AS_NAMES = [
+    # text, the word reported, its column: a word of the syntax used as a signal name
+    ("F > 10", "'F' is a temporal operator", 1),
+    ("x > 0 & G <= 1", "'G' is a temporal operator", 9),
+    ("X ^ 2 > 0", "'X' is a temporal operator", 1),
+    ("U > 0", "'U' is a temporal operator", 1),
+    ("x > 0 & T < 5", "'T' is a temporal operator", 9),
+    ("next + 1 > 0", "'next' is a temporal operator", 1),
+    ("then >= 3", "'then' is a temporal operator", 1),
+    ("not > 0", "'not' is reserved", 1),
+    ("x > 0 | and < 1", "'and' is reserved", 9),
+    ("true > 1", "'true' is a constant", 1),
+    ("x > 0 & false * 2 > 1", "'false' is a constant", 9),
+]
+
+
+@pytest.mark.parametrize(("text", "message", "column"), RESERVED_AS_NAMES, ids=[t for t, _, _ in RESERVED_AS_NAMES])
+def test_a_reserved_word_used_as_a_signal_name_is_named(text, message, column):
+    """`F > 10` (a force F) said "expected a predicate ... found '>'", pointing past the culprit."""
+    with pytest.raises(SpecError, match=message + " and cannot name a signal") as info:
+        parse(text)
+    assert info.value.column == column
+
+
+def test_caret_of_a_multi_line_formula_is_under_the_token():
+    """A triple-quoted formula: the caret stood under the first line at the offset in the whole text."""
+    text = "F(x > 1\n  & y < 2\n  & )"
+    with pytest.raises(SpecError) as info:
+        parse(text)
+    error = info.value
+    assert (error.line, error.column) == (3, 5)
+    lines = str(error).split("\n")
+    assert "(line 3, column 5)" in lines[0]
+    assert lines[1:] == ["      & )", "        ^"]
+
+
+def test_caret_after_a_tab_keeps_the_tab():
+    """A tab before the culprit is shown as wide as the tab in the quoted text, so the caret lines up."""
+    with pytest.raises(SpecError) as info:
+        parse("x >\t1 & )")
+    assert str(info.value).split("\n")[1:] == ["    x >\t1 & )", "       \t    ^"]
+
+
+def test_numbers_may_group_digits_with_underscores():
+    """As in Python: `1_000` was read as 1 followed by a stray `_000`."""
+    assert parse("x > 1_000") == parse("x > 1000")
+    assert parse("x < 1_000.000_5e1_0") == parse("x < 1000.0005e10")
+    assert parse("x > _1").signals == ("x", "_1")  # a leading underscore is still a name
+    for bad in ("x > 1__0", "x > 1_"):
+        with pytest.raises(SpecError):
+            parse(bad)
+
+
 def test_parse_takes_text_only():
     with pytest.raises(TypeError, match="string"):
         parse(3)  # type: ignore[arg-type]

@@ -20,6 +20,7 @@ from __future__ import annotations
 import copyreg
 import dataclasses
 import math
+import numbers
 import operator
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -249,7 +250,8 @@ def as_expr(value: ExprLike) -> Expr:
     """Turn a Python number into a `Num` (negative numbers fold into the literal)."""
     if isinstance(value, Expr):
         return value
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    # numbers.Real admits numpy's scalars (``x > goal[0]`` of a float32 array), not only int and float
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise TypeError(f"expected an expression or a number, got {type(value).__name__}: {value!r}")
     return Num(float(value))
 
@@ -423,7 +425,7 @@ class Formula:
     def smooth_robustness_over_time(
         self, trace: Trace, beta: float, rho_max: float = math.inf, form: str = "nested"
     ) -> Any:
-        """Smoothed robustness of every suffix, as a torch tensor ``(T,)`` or ``(N, T)``."""
+        """Smoothed robustness of every suffix, ``(T,)`` or ``(N, T)``: a torch tensor for torch input, else numpy."""
         from tl_gym.tltl import smooth
 
         return smooth.smooth_over_time(self, trace, beta, rho_max, form)
@@ -444,7 +446,20 @@ def _as_formula(value: Any) -> Formula:
         return value
     if isinstance(value, bool):
         return Constant(value)
-    raise TypeError(f"expected a Formula, got {type(value).__name__}: {value!r}")
+    hint = " (compare it to make a predicate, e.g. `x > 0`)" if isinstance(value, Expr) else ""
+    raise TypeError(f"expected a Formula, got {type(value).__name__}: {value!r}{hint}")
+
+
+def _check_children(node: Formula) -> None:
+    """Refuse a child that is not a formula at construction (``F(x)`` of a bare signal, ``G("x > 1")``).
+
+    Such a tree printed as text that does not parse and failed only when evaluated, with an
+    AttributeError; a Python bool becomes `Constant`, as ``&`` and ``|`` already make it.
+    """
+    for field in ("child", "left", "right"):
+        value = node.__dict__.get(field, _MISSING)
+        if value is not _MISSING and not isinstance(value, Formula):
+            object.__setattr__(node, field, _as_formula(value))
 
 
 def _derived(node: Formula, attribute: str, rule: Callable[[Formula, list[Any]], Any]) -> Any:
@@ -494,6 +509,9 @@ class Predicate(Formula):
     def __post_init__(self) -> None:
         if self.op not in COMPARISONS:
             raise ValueError(f"unknown comparison {self.op!r}; use one of {COMPARISONS}")
+        if not (isinstance(self.lhs, Expr) and isinstance(self.rhs, Expr)):  # a number becomes a Num
+            object.__setattr__(self, "lhs", as_expr(self.lhs))
+            object.__setattr__(self, "rhs", as_expr(self.rhs))
 
     def _pieces(self) -> list[Any]:
         return [self.lhs, f" {self.op} ", self.rhs]
@@ -505,6 +523,9 @@ class Not(Formula):
 
     child: Formula
     precedence: ClassVar[int] = _F_UNARY
+
+    def __post_init__(self) -> None:
+        _check_children(self)
 
     @property
     def children(self) -> tuple[Formula, ...]:
@@ -572,6 +593,9 @@ class _Binary(Formula):
     right: Formula
     symbol: ClassVar[str]
 
+    def __post_init__(self) -> None:
+        _check_children(self)
+
     @property
     def children(self) -> tuple[Formula, ...]:
         return (self.left, self.right)
@@ -615,6 +639,9 @@ class _Unary(Formula):
     child: Formula
     symbol: ClassVar[str]
     precedence: ClassVar[int] = _F_UNARY
+
+    def __post_init__(self) -> None:
+        _check_children(self)
 
     @property
     def children(self) -> tuple[Formula, ...]:

@@ -23,9 +23,10 @@ _KEYWORDS = {
     "eventually": "F", "always": "G", "next": "X", "until": "U", "then": "T",
 }
 _ALIASES = {"&&": "&", "||": "|", "=>": "->", "**": "^"}
+_DIGITS = r"\d(?:_?\d)*"  # digits, grouped by single underscores as in Python (1_000)
 _TOKEN = re.compile(
     r"\s*(?:"
-    r"(?P<num>(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)"
+    rf"(?P<num>(?:{_DIGITS}\.?(?:{_DIGITS})?|\.{_DIGITS})(?:[eE][+-]?{_DIGITS})?)"
     r"|(?P<ident>[A-Za-z_][A-Za-z0-9_]*)"
     r"|(?P<op>->|=>|<=|>=|&&|\|\||\*\*|[<>&|!()+\-*/^,])"
     r")"
@@ -68,6 +69,9 @@ def _tokenize(text: str) -> list[_Token]:
 
 
 _Production = Generator[Any, Any, Any]  # a grammar rule: yields the rules it descends into
+
+# Tokens that follow a signal name but never an operator: "F > 10" uses F as a name.
+_AFTER_A_NAME = frozenset((*COMPARISONS, "+", "*", "/", "^"))
 
 # Tokens that no arithmetic expression contains: a '(' group holding one is a formula group.
 _FORMULA_SYMBOLS = frozenset((*COMPARISONS, "&", "|", "!", "->", "F", "G", "X", "U", "T"))
@@ -128,6 +132,19 @@ class _Parser:
         token = token or self.tok
         return SpecError(message, self.text, token.column)
 
+    def reserved_as_name(self, token: _Token, after: _Token) -> SpecError | None:
+        """The error for an operator word used as a signal name (``F > 10``, ``until < 3``, ``true > 1``).
+
+        Only on the error path: such text fails anyway, and without this the message pointed at
+        the comparison after the word ("expected a predicate ... found '>'").
+        """
+        if not token.raw.isidentifier() or not (after.kind == "op" and after.text in _AFTER_A_NAME):
+            return None
+        if token.kind == "ident":  # true, false
+            return self.error(f"{token.raw!r} is a constant and cannot name a signal", token)
+        what = "a temporal operator" if token.text in ("F", "G", "X", "U", "T") else "reserved"
+        return self.error(f"{token.raw!r} is {what} and cannot name a signal", token)
+
     def describe(self, token: _Token) -> str:
         return "the end of the formula" if token.kind == "end" else repr(token.raw)
 
@@ -152,6 +169,8 @@ class _Parser:
         if self.tok.kind != "end":
             if self.tok.text in COMPARISONS and isinstance(self.last_primary, nodes.Predicate):
                 raise self.error("comparisons do not chain; join them with '&'")
+            if self.pos and (misused := self.reserved_as_name(self.tokens[self.pos - 1], self.tok)):
+                raise misused
             raise self.error(f"unexpected {self.describe(self.tok)} after a complete formula")
         return formula
 
@@ -213,6 +232,12 @@ class _Parser:
             return (yield self.predicate())
         if token.kind == "end":
             raise self.error("the formula ends where an operand was expected")
+        before = self.tokens[self.pos - 1] if self.pos else None
+        if before is not None and before.text in ("!", "F", "G", "X"):  # "F > 10": was F a name?
+            if misused := self.reserved_as_name(before, token):
+                raise misused
+        if misused := self.reserved_as_name(token, self.peek(1)):  # "U > 0", "x > 1 & then < 2"
+            raise misused
         raise self.error(f"expected a predicate, 'true', 'false' or '(', found {self.describe(token)}")
 
     def predicate(self) -> _Production:

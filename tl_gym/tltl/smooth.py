@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import functools
 import math
+import numbers
 from collections.abc import Callable
 from typing import Any
 
@@ -487,14 +488,16 @@ def _to_rho(z: np.ndarray, beta: float) -> np.ndarray:
         return np.where(np.abs(z) >= _INF / 2, np.sign(z) * np.inf, z / beta)
 
 
-def _check(beta: float, rho_max: float, form: str, backend: str = "numpy") -> None:
-    if isinstance(beta, bool) or not (isinstance(beta, (int, float)) and math.isfinite(beta) and beta > 0):
+def _check(beta: float, rho_max: float, form: str, backend: str = "numpy") -> tuple[float, float]:
+    """The arguments checked; ``beta`` and ``rho_max`` as Python floats (a numpy scalar is accepted and converted)."""
+    if isinstance(beta, bool) or not (isinstance(beta, numbers.Real) and math.isfinite(beta) and beta > 0):
         raise ValueError(f"beta must be a positive finite number, got {beta!r}")
-    check_rho_max(rho_max)
+    rho_max = check_rho_max(rho_max)
     if form not in FORMS:
         raise ValueError(f"form must be one of {FORMS}, got {form!r}")
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    return float(beta), rho_max
 
 
 def _evaluate(formula: Formula, signals: dict[str, np.ndarray], n: int, length: int, beta: float, rho_max: float,
@@ -556,7 +559,7 @@ def _at_position_zero(formula: Formula, signals: dict[str, np.ndarray], n: int, 
 def _smooth(formula: Formula, trace: Trace, beta: float, rho_max: float, form: str, first_only: bool,
             backend: str = "numpy") -> Any:
     """Shared entry: numpy in → numpy out; torch in → a differentiable torch tensor out."""
-    _check(beta, rho_max, form, backend)
+    beta, rho_max = _check(beta, rho_max, form, backend)
     prepared = prepare(formula.signals, trace, torch_ok=True)
     names = tuple(prepared.signals)
     tensors = [prepared.signals[k] for k in names]
@@ -621,7 +624,10 @@ def _autograd_function() -> Any:
                 ctx.smoother, z = _evaluate(formula, signals, n, length, beta, rho_max, form, False, magnitudes)
             ctx.root, ctx.z, ctx.beta, ctx.names, ctx.first_only = (formula, first_only), z, beta, names, first_only
             ctx.meta = [(t.dtype, t.device) for t in tensors]
-            return torch.from_numpy(_to_rho(z, beta)).to(dtype=tensors[0].dtype, device=tensors[0].device)
+            # the first signal's float dtype; integer or bool signals give float64 (a cast to theirs truncated
+            # the values and turned ±inf into garbage)
+            dtype = tensors[0].dtype if tensors[0].is_floating_point() else torch.float64
+            return torch.from_numpy(_to_rho(z, beta)).to(dtype=dtype, device=tensors[0].device)
 
         @staticmethod
         def backward(ctx: Any, grad_out: Any) -> Any:
@@ -696,7 +702,7 @@ def smooth_robustness_and_gradient(
     A float and ``{signal: (T,)}``, or ``(N,)`` and ``{signal: (N, T)}`` for a batch; zero gradient
     for a signal the value does not depend on (`Formula.smooth_robustness_and_gradient`).
     """
-    _check(beta, rho_max, form, backend)
+    beta, rho_max = _check(beta, rho_max, form, backend)
     prepared = prepare(formula.signals, trace)
     z, jac = _at_position_zero(formula, prepared.signals, prepared.n, prepared.length, beta, rho_max, form,
                                prepared.magnitudes, jacobian=True, backend=backend)

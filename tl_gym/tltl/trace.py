@@ -9,6 +9,7 @@ first NaN or inf.
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Union
@@ -34,8 +35,11 @@ def chunks(n: int, length: int) -> list[slice]:
 
 
 def check_rho_max(rho_max: Any) -> float:
-    """The value of ``true``, checked: a real number > 0 (+inf allowed); NaN and booleans are refused."""
-    if isinstance(rho_max, bool) or not (isinstance(rho_max, (int, float)) and rho_max > 0):
+    """The value of ``true``, checked: a real number > 0 (+inf allowed); NaN and booleans are refused.
+
+    numpy's scalars count as real numbers (``np.float32(100)`` from a config array is accepted).
+    """
+    if isinstance(rho_max, bool) or not (isinstance(rho_max, numbers.Real) and rho_max > 0):
         raise ValueError(f"rho_max must be positive (+inf allowed), got {rho_max!r}")
     return float(rho_max)
 
@@ -96,6 +100,8 @@ def prepare(names: tuple[str, ...], trace: Trace, *, torch_ok: bool = False) -> 
             low, high = value.detach().aminmax() if value.numel() else (0.0, 0.0)
             magnitude = _magnitude(float(low), float(high))
         else:
+            if is_torch(value):  # numpy refuses a tensor that requires grad or lives on a GPU
+                value = value.detach().cpu()
             try:
                 array = np.asarray(value, dtype=np.float64)
             except (TypeError, ValueError) as exc:
