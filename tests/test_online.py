@@ -166,6 +166,16 @@ def test_nan_signal_and_undefined_arithmetic_raise():
         PrefixMonitor(parse("G(1 / a > 0)")).update({"a": 0.0})
 
 
+@pytest.mark.parametrize(
+    ("value", "shown"), [("3", "str"), (None, "NoneType"), (np.array([3.0]), r"ndarray of shape \(1,\)")]
+)
+def test_a_state_that_is_not_one_number_is_named(value, shown):
+    """`obs[0:1]` or a string: math.isfinite's TypeError ("only 0-dimensional arrays...") named no signal."""
+    monitor = PrefixMonitor(parse("F(a > 2) & G(b < 5)"))
+    with pytest.raises(TraceError, match=f"signal 'b' must be one number, got {shown}"):
+        monitor.update({"a": 1.0, "b": value})
+
+
 def test_missing_signal_and_bad_arguments():
     with pytest.raises(UnknownSignalError, match="'b'"):
         PrefixMonitor(parse("F(a > b)")).update({"a": 1.0})

@@ -172,13 +172,21 @@ class PrefixMonitor:
         return self._pure.value()  # type: ignore[union-attr]
 
     def update(self, state: Mapping[str, Any]) -> float:
-        """Append one state (signal name -> number) and return the prefix's robustness."""
+        """Append one state (signal name -> number) and return the prefix's robustness.
+
+        Inside the fragment the numbers are used as given, with no conversion on this hot path:
+        pass Python floats (as the wrapper does). A numpy float32 computes, and returns, in float32,
+        so it can differ from ``formula.robustness`` (float64) in the last bits.
+        """
         missing = [n for n in self._names if n not in state]
         if missing:
             raise UnknownSignalError(f"the state has no signal {missing[0]!r}, which the formula reads")
-        for name in self._names:
-            if not math.isfinite(state[name]):
-                raise TraceError(f"signal {name!r} is NaN or infinite at position {self._length}")
+        try:  # one try around the loop: no cost unless raised
+            for name in self._names:
+                if not math.isfinite(state[name]):
+                    raise TraceError(f"signal {name!r} is NaN or infinite at position {self._length}")
+        except TypeError:
+            raise _not_a_number(self._names, state) from None
         if self._root is not None:
             self._length += 1
             return self._root.update(state)
@@ -196,6 +204,18 @@ class PrefixMonitor:
         if not self._names:  # a formula of constants still needs a length
             trace = {"_": np.zeros(self._length)}
         return float(self.formula.robustness(trace, self.rho_max))
+
+
+def _not_a_number(names: tuple[str, ...], state: Mapping[str, Any]) -> TraceError:
+    """The error for a state holding something `math.isfinite` refuses (a string, None, a length-1 array)."""
+    for name in names:
+        value = state[name]
+        try:
+            math.isfinite(value)
+        except TypeError:
+            shape = f" of shape {np.shape(value)}" if np.ndim(value) else ""
+            return TraceError(f"signal {name!r} must be one number, got {type(value).__name__}{shape}: {value!r}")
+    return TraceError("the state holds a value that is not a number")  # unreachable: some name raised
 
 
 def _outside_message(formula: Formula) -> str:
