@@ -320,6 +320,21 @@ def test_numbers_may_group_digits_with_underscores():
             parse(bad)
 
 
+def test_any_name_a_signal_may_have_parses_back():
+    """`signal("θ")` is a valid name, but the parser read only ASCII names: `parse(str(F(θ > 1)))` failed,
+    and so did pickling or deep-copying a formula deeper than 40 levels (rebuilt from its text)."""
+    import pickle
+
+    theta = signal("θ")
+    _round_trips(F(theta > 1) & G(signal("vélocité") < 2))
+    deep = theta > 0
+    for _ in range(50):
+        deep = F(deep)
+    assert pickle.loads(pickle.dumps(deep)) == deep
+    with pytest.raises(SpecError, match="'x²' cannot name a signal"):
+        parse("x² > 1")
+
+
 def test_parse_takes_text_only():
     with pytest.raises(TypeError, match="string"):
         parse(3)  # type: ignore[arg-type]

@@ -27,7 +27,7 @@ _DIGITS = r"\d(?:_?\d)*"  # digits, grouped by single underscores as in Python (
 _TOKEN = re.compile(
     r"\s*(?:"
     rf"(?P<num>(?:{_DIGITS}\.?(?:{_DIGITS})?|\.{_DIGITS})(?:[eE][+-]?{_DIGITS})?)"
-    r"|(?P<ident>[A-Za-z_][A-Za-z0-9_]*)"
+    r"|(?P<ident>[^\W\d]\w*)"  # a Python identifier, as `Var` accepts (θ, x_1); checked in _tokenize
     r"|(?P<op>->|=>|<=|>=|&&|\|\||\*\*|[<>&|!()+\-*/^,])"
     r")"
 )
@@ -56,6 +56,8 @@ def _tokenize(text: str) -> list[_Token]:
         raw = match.group(kind)
         column = match.start(kind) + 1
         norm = raw
+        if kind == "ident" and not raw.isidentifier():  # \w also matches characters such as '²'
+            raise SpecError(f"{raw!r} cannot name a signal (not an identifier)", text, column)
         if kind == "ident" and raw in _KEYWORDS:
             kind, norm = "op", _KEYWORDS[raw]
         elif kind == "ident" and raw in ("F", "G", "X", "U", "T"):
