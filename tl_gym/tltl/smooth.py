@@ -530,7 +530,7 @@ def _at_position_zero(formula: Formula, signals: dict[str, np.ndarray], n: int, 
     if backend != "numpy":  # the compiled kernel where it applies and pays, else this function with "numpy"
         return fused_smooth.or_numpy(backend, formula, signals, beta, rho_max, form, jacobian,
                                      lambda: _at_position_zero(formula, signals, n, length, beta, rho_max, form,
-                                                               magnitudes, jacobian))
+                                                               magnitudes, jacobian=jacobian))
     z = np.empty((1, n))
     jac: dict[str, np.ndarray] = {}
     signals = {k: np.ascontiguousarray(v) for k, v in signals.items()}  # a no-op for the usual (N, T) arrays
