@@ -101,7 +101,8 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     and, with ``reward="smooth"``, ``"smooth_robustness"``; with ``end_on_violation=True``, an episode
     ended by a broken invariant also gets ``"violated"`` (the invariant, as text). Rewards are Python
     floats clipped to ``[-clip, clip]``, so an infinite robustness (``true`` with
-    ``rho_max=inf``, ``X φ`` at the last state) never reaches an agent. Each
+    ``rho_max=inf``, ``X φ`` at the last state) never reaches an agent (a NaN can, on the steps before
+    a predicate whose arithmetic overflows raises `TraceError` at the episode's end: docs/wrapper.md). Each
     ``reset`` starts a new trace, so the wrapper works across the autoreset of
     Gymnasium's vector envs and of stable-baselines3's VecEnvs.
 
@@ -166,8 +167,8 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             env_reward_weight: weight of the wrapped env's own reward, added every step.
             clip: the temporal-logic part of every reward lies in ``[-clip, clip]``. The
                 default 1e4 leaves every finite robustness of TLCarNav-v0 untouched (its
-                positions stay within a few thousand units) and keeps rewards finite in
-                float32 buffers; lower it for agents sensitive to reward scale.
+                positions stay within a few thousand units) and keeps infinite robustness
+                values out of float32 buffers; lower it for agents sensitive to reward scale.
             observe_monitor: append the online monitor's state to the observation (the Markov
                 view, `tl_gym.monitor_view`): a 1-D Box becomes a longer float64 Box, a Dict gets
                 the key ``"monitor"``. The formula must be in the incremental fragment.
