@@ -57,6 +57,7 @@ from .sb3_settings import (
     LinearSchedule,  # here too for agents saved before sb3_settings: they pickle tl_gym.agents.sb3.LinearSchedule
     SB3Config,
     activation_class,
+    algorithm_parameters,
     canonical_settings,
     check_tl_reward,
     find_hyperparams,
@@ -470,7 +471,7 @@ def _make_collector() -> Any:
 
 
 def _default_argument(algo_class: type, name: str, fallback: Any) -> Any:
-    parameter = inspect.signature(algo_class.__init__).parameters.get(name)
+    parameter = algorithm_parameters(algo_class).get(name)
     return fallback if parameter is None or parameter.default is inspect.Parameter.empty else parameter.default
 
 

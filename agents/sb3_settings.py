@@ -286,7 +286,7 @@ class SB3Config:
         algo_class = resolve_algorithm(self.algo)
         settings = [f.name for f in dataclasses.fields(self) if f.name not in ("algo", "algo_kwargs")]
         check_algorithm_arguments(algo_class, self.algo_kwargs, settings)
-        if self.noise_type is not None and "action_noise" not in inspect.signature(algo_class.__init__).parameters:
+        if self.noise_type is not None and "action_noise" not in algorithm_parameters(algo_class):
             raise ValueError(f"noise_type={self.noise_type!r}: {algo_class.__name__} takes no action noise (it "
                              f"explores through its own policy); noise_type is for off-policy algorithms such as TD3")
         for key, value in self.algo_kwargs.items():
@@ -361,6 +361,11 @@ def _yaml_loader() -> type:
     return Loader
 
 
+def algorithm_parameters(algo_class: type) -> Mapping[str, inspect.Parameter]:
+    """The parameters of an SB3 algorithm's constructor, by name (``self``, ``policy``, ``env`` included)."""
+    return inspect.signature(algo_class.__init__).parameters
+
+
 def check_algorithm_arguments(algo_class: type, names: Iterable[str], settings: Iterable[str] = ()) -> None:
     """Check that every name is one of ``settings`` or an argument of the algorithm's constructor SB3Agent may pass.
 
@@ -379,7 +384,7 @@ def check_algorithm_arguments(algo_class: type, names: Iterable[str], settings: 
         ...
         ValueError: unknown hyperparameter 'learning_rat' (did you mean 'learning_rate'?): not an argument of SAC
     """
-    accepted = set(inspect.signature(algo_class.__init__).parameters) - set(_RESERVED_ALGO_ARGS)
+    accepted = set(algorithm_parameters(algo_class)) - set(_RESERVED_ALGO_ARGS)
     settings = tuple(settings)
     for name in names:
         if name in accepted or name in settings:
