@@ -192,19 +192,19 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
                                       log_path=out / EVALUATIONS_FILE))
     agent.learn(iterations, callback=as_callback(callbacks), progress_bar=not args.quiet)
     agent.save(out / AGENT_FILE)
-    plotted = write_plots(agent, run, snapshots, out)
+    write_plots(agent, run, snapshots, out)
     last = agent.history[-1]
     print(f"iteration {last['iteration']}: mean robustness {last['mean_robustness']:.4g}, "
           f"success rate {last['success_rate']:.1%}, {last['env_steps']} env steps, {last['wall_time']:.1f} s")
     # an earlier run's were removed: these exist if this run evaluated (not before --eval-every's first N iterations)
     best = "".join(f", {name}" for name in (BEST_FILE, EVALUATIONS_FILE) if (out / name).exists())
-    trajectories = ", trajectories.png" if plotted else ""
+    trajectories = ", trajectories.png" if snapshots else ""  # write_plots draws them only from snapshots
     print(f"wrote {out}/{{{RUN_FILE}, {AGENT_FILE}{best}, history.csv, learning_curve.png{trajectories}}}")
     return 0
 
 
-def write_plots(agent: Any, run: dict[str, Any], snapshots: list[tuple[int, dict[str, Any]]], out: Path) -> bool:
-    """Write ``learning_curve.png`` and, given snapshots, ``trajectories.png``; whether it wrote the second."""
+def write_plots(agent: Any, run: dict[str, Any], snapshots: list[tuple[int, dict[str, Any]]], out: Path) -> None:
+    """Write ``learning_curve.png`` and, given snapshots, ``trajectories.png`` for a finished run."""
     # matplotlib loads only when a run is plotted, not for `tl-gym --help`
     from tl_gym.agents.plotting import plot_learning_curve, plot_signals, plot_trajectories
 
@@ -213,7 +213,7 @@ def write_plots(agent: Any, run: dict[str, Any], snapshots: list[tuple[int, dict
                                                   else "")
     plot_learning_curve(agent.history, out / "learning_curve.png", title=f"{title} ({steps} env steps / iteration)")
     if not snapshots:
-        return False
+        return
     layout = env_attribute(agent.env, "layout")
     signals = snapshots[0][1]
     if layout is not None and run.get("spec") is None and {"x", "y"} <= set(signals):
@@ -223,7 +223,6 @@ def write_plots(agent: Any, run: dict[str, Any], snapshots: list[tuple[int, dict
                           title=f"{title}: sampled trajectories (mean ± 2σ)")
     else:
         plot_signals(snapshots, out / "trajectories.png", title=f"{title}: sampled signals (mean ± 2σ)")
-    return True
 
 
 def read_run(folder: Path) -> dict[str, Any]:
@@ -254,10 +253,10 @@ def evaluate(args: argparse.Namespace) -> int:
     run = read_run(args.run)
     env = build_env(run)
     saved = args.run / (BEST_FILE if args.best else AGENT_FILE)
-    if args.best and not saved.exists():
-        raise FileNotFoundError(f"{saved} not found: the run was trained without --eval-every")
     if not saved.exists():
-        raise FileNotFoundError(f"{saved} not found: train writes it when training ends (was the run stopped?)")
+        why = ("the run was trained without --eval-every" if args.best
+               else "train writes it when training ends (was the run stopped?)")
+        raise FileNotFoundError(f"{saved} not found: {why}")
     agent = Agent.load(saved, env=None if isinstance(env, str) else env)
     result = agent.evaluate(n_episodes=args.episodes, seed=args.seed, deterministic=not args.stochastic)
     kwargs = f" {run['env_kwargs']}" if run["env_kwargs"] else ""
