@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tl_gym.checks import check_positive
+from tl_gym.checks import check_floats, check_positive
 
 STATE_SIZE = 6  # x, y, θ, ẋ, ẏ, θ̇
 NOISE_SIZE = 3  # additive noise on x, y, θ
@@ -53,14 +53,12 @@ class CarParams:
         if not (isinstance(steer, numbers.Real) and not isinstance(steer, bool) and 0 < steer < math.pi / 2):
             raise ValueError(f"max_steer must lie in (0, π/2) rad (tan diverges at π/2), got {steer!r}")
         object.__setattr__(self, "max_steer", float(steer))
+        what = "three finite numbers >= 0 (x, y, θ)"
         for name in ("noise_std", "start_std"):
             given = getattr(self, name)
-            try:  # a scalar, None or text is no (x, y, θ) triple: refuse it with the message below
-                value = () if isinstance(given, (str, bytes)) else tuple(float(v) for v in given)
-            except (TypeError, ValueError):
-                value = ()
-            if len(value) != NOISE_SIZE or not all(math.isfinite(v) and v >= 0 for v in value):
-                raise ValueError(f"{name} must be three finite numbers >= 0 (x, y, θ), got {given!r}")
+            value = check_floats(name, given, NOISE_SIZE, what)  # a scalar, None or text is no triple
+            if not all(math.isfinite(v) and v >= 0 for v in value):
+                raise ValueError(f"{name} must be {what}, got {given!r}")
             object.__setattr__(self, name, value)
         if isinstance(self.horizon, bool) or not isinstance(self.horizon, (int, np.integer)) or self.horizon < 1:
             raise ValueError(f"horizon must be an integer >= 1, got {self.horizon!r}")

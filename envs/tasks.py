@@ -19,6 +19,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from tl_gym.checks import check_floats
 from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.parser import parse
 
@@ -121,39 +122,26 @@ def make_layout(
         except TypeError:
             given = []
         what = "(x_low, x_high, y_low, y_high)"
-        new_goals = tuple(Goal(*_floats(f"goals[{i}]", g, 4, f"four numbers {what}")) for i, g in enumerate(given))
+        new_goals = tuple(Goal(*check_floats(f"goals[{i}]", g, 4, f"four numbers {what}")) for i, g in enumerate(given))
         expected = 1 if task == 1 else 3
         if len(new_goals) != expected:
             raise ValueError(f"task {task} takes {expected} goal(s) {what}, got {goals!r}")
     new_start = base.start
     if start is not None:
         what = "three finite numbers (x, y, θ)"
-        new_start = _floats("start", start, 3, what)
+        new_start = check_floats("start", start, 3, what)
         if not all(math.isfinite(v) for v in new_start):
             raise ValueError(f"start must be {what}, got {start!r}")
-    new_arena = base.arena if arena is None else _floats("arena", arena, 2, "(width, height) > 0")
+    new_arena = base.arena if arena is None else check_floats("arena", arena, 2, "(width, height) > 0")
     if not all(math.isfinite(v) and v > 0 for v in new_arena):
         raise ValueError(f"arena must be (width, height) > 0, got {arena!r}")
     return Layout(
         start=new_start,  # type: ignore[arg-type]
         goals=new_goals,
-        obstacle=base.obstacle if obstacle is None else Obstacle(*_floats("obstacle", obstacle, 3, "(x, y, radius)")),
+        obstacle=(base.obstacle if obstacle is None
+                  else Obstacle(*check_floats("obstacle", obstacle, 3, "(x, y, radius)"))),
         arena=new_arena,  # type: ignore[arg-type]
     )
-
-
-def _floats(name: str, value: object, size: int, what: str) -> tuple[float, ...]:
-    """``value`` as ``size`` floats; a ``ValueError`` naming ``name`` for anything else (a scalar, None, text).
-
-    Layout overrides arrive as env keywords (``gym.make``, ``--env-kwargs``): the message says which one is wrong.
-    """
-    try:
-        numbers = () if isinstance(value, (str, bytes)) else tuple(float(v) for v in value)  # type: ignore[attr-defined]
-    except (TypeError, ValueError):
-        numbers = ()
-    if len(numbers) != size:
-        raise ValueError(f"{name} must be {what}, got {value!r}")
-    return numbers
 
 
 def check_task(task: object) -> None:

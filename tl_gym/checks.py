@@ -31,3 +31,26 @@ def check_positive(name: str, value: Any, *, allow_inf: bool = False, allow_zero
         kind = "a number" if allow_inf else "a finite number"
         raise ValueError(f"{name} must be {kind} {bound}{' (inf allowed)' if allow_inf else ''}, got {value!r}")
     return float(value)
+
+
+def check_floats(name: str, value: Any, size: int, what: str) -> tuple[float, ...]:
+    """``value`` as ``size`` floats; a ``ValueError`` naming ``name`` for anything else (a scalar, None, text).
+
+    Tuples such as a start or a noise level arrive as env keywords (``gym.make``, ``--env-kwargs``);
+    text is refused rather than read character by character (``"123"`` is not ``(1, 2, 3)``).
+
+    Example:
+        >>> check_floats("start", [1, 2, 0.5], 3, "three numbers (x, y, θ)")
+        (1.0, 2.0, 0.5)
+        >>> check_floats("start", "123", 3, "three numbers (x, y, θ)")
+        Traceback (most recent call last):
+          ...
+        ValueError: start must be three numbers (x, y, θ), got '123'
+    """
+    try:
+        floats = () if isinstance(value, (str, bytes)) else tuple(float(v) for v in value)
+    except (TypeError, ValueError):
+        floats = ()
+    if len(floats) != size:
+        raise ValueError(f"{name} must be {what}, got {value!r}")
+    return floats
