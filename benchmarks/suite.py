@@ -69,17 +69,14 @@ def eval_points(run: RunResult, key: str = "eval_success_rate") -> tuple[np.ndar
     return run.history["env_steps"][mask], run.history[key][mask]
 
 
-def eval_curve(runs: Sequence[RunResult], key: str = "eval_success_rate",
-               per_seed_steps: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """``(env steps, values (seeds, points))`` of the rows where the runs evaluated, cut to the shortest run.
+def eval_curve(runs: Sequence[RunResult], key: str = "eval_success_rate") -> tuple[np.ndarray, np.ndarray]:
+    """``(env steps, values)``, both ``(seeds, points)``, of the rows where the runs evaluated, cut to the shortest run.
 
-    The env steps are the seeds' mean at each evaluation, or with ``per_seed_steps`` each seed's own
-    ``(seeds, points)``: they differ where episodes end early (TLMountainCar-v0, TLParking-v0).
+    The env steps are each seed's own: they differ where episodes end early (TLMountainCar-v0, TLParking-v0).
     """
     points = [eval_points(run, key) for run in runs]
     length = min(len(values) for _, values in points)
-    steps = np.stack([steps[:length] for steps, _ in points])
-    return (steps if per_seed_steps else steps.mean(axis=0)), np.stack([values[:length] for _, values in points])
+    return np.stack([steps[:length] for steps, _ in points]), np.stack([values[:length] for _, values in points])
 
 
 def steps_to_solve(steps: np.ndarray, values: np.ndarray) -> float | None:
@@ -99,11 +96,11 @@ def plot_task(name: str, runs: Sequence[RunResult], path: Path | None) -> Figure
     largest_rho = 0.0
     for i, ((_, label), members) in enumerate(group_runs(runs).items()):
         color, legend = colormaps["tab10"](i % 10), f"{label} ({_seeds(len(members))})"
-        steps, values = eval_curve(members, per_seed_steps=True)  # each seed's line at its own env steps
+        steps, values = eval_curve(members)  # each seed's line at its own env steps
         if not steps.size:
             continue
         plot_seeds(success_ax, steps, values, color, legend)
-        rho_steps, rho_values = eval_curve(members, "eval_mean_robustness", per_seed_steps=True)
+        rho_steps, rho_values = eval_curve(members, "eval_mean_robustness")
         plot_seeds(rho_ax, rho_steps, rho_values, color, legend)
         largest_rho = max(largest_rho, float(np.nanmax(np.abs(rho_values), initial=0.0)))
     success_ax.axhline(SOLVED, color="0.4", lw=0.8, ls="--")

@@ -53,8 +53,8 @@ def test_runs_evaluate_along_training_and_the_report_reads_them(tmp_path):
     # evaluated after iterations 2, 4 and the last (5); NaN elsewhere
     assert np.isnan(history["eval_success_rate"]).tolist() == [True, False, True, False, False]
     steps, success = suite.eval_curve([r for r in runs if r.spec.label == "fast"])
-    assert steps.tolist() == [200, 400, 500] and success.tolist() == [[0.0, 1.0, 1.0], [1.0, 1.0, 1.0]]
-    assert suite.steps_to_solve(steps, success[0]) == 400.0
+    assert steps.tolist() == [[200, 400, 500]] * 2 and success.tolist() == [[0.0, 1.0, 1.0], [1.0, 1.0, 1.0]]
+    assert suite.steps_to_solve(steps[0], success[0]) == 400.0
     table, rows = suite.task_table(runs)
     assert "| fast | 2 | 500 | 100% (100%–100%) | 300 (2/2) |" in table
     assert rows[1][0] == "slow" and rows[1][2] is None  # ρ = 0.1 m − 1 stays below 0: never solved
