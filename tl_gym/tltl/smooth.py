@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import functools
 import math
-import numbers
 from collections.abc import Callable
 from typing import Any
 
@@ -53,7 +52,7 @@ from tl_gym.tltl import operators as ops
 from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.expressions import evaluate_with_gradient, margin_bound
 from tl_gym.tltl.plan import Plan, Step, cached, chosen, compile_plan
-from tl_gym.tltl.trace import Trace, check_rho_max, chunks, is_torch, prepare
+from tl_gym.tltl.trace import Trace, check_beta, check_rho_max, chunks, is_torch, prepare
 
 _INF = ops.INF  # stands for +∞ in β-scaled units
 _MAX_QUADRATIC_ELEMENTS = 1 << 22  # cap on T²·N per chunk of a quadratic U/T
@@ -490,14 +489,12 @@ def _to_rho(z: np.ndarray, beta: float) -> np.ndarray:
 
 def _check(beta: float, rho_max: float, form: str, backend: str = "numpy") -> tuple[float, float]:
     """The arguments checked; ``beta`` and ``rho_max`` as Python floats (a numpy scalar is accepted and converted)."""
-    if isinstance(beta, bool) or not (isinstance(beta, numbers.Real) and math.isfinite(beta) and beta > 0):
-        raise ValueError(f"beta must be a positive finite number, got {beta!r}")
-    rho_max = check_rho_max(rho_max)
+    beta, rho_max = check_beta(beta), check_rho_max(rho_max)
     if form not in FORMS:
         raise ValueError(f"form must be one of {FORMS}, got {form!r}")
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
-    return float(beta), rho_max
+    return beta, rho_max
 
 
 def _evaluate(formula: Formula, signals: dict[str, np.ndarray], n: int, length: int, beta: float, rho_max: float,

@@ -34,6 +34,13 @@ def chunks(n: int, length: int) -> list[slice]:
     return [slice(start, min(start + rows, n)) for start in range(0, n, rows)] or [slice(0, 0)]
 
 
+def check_beta(beta: Any) -> float:
+    """The smoothing's β, checked: a finite real number > 0 (numpy's scalars too); booleans are refused."""
+    if isinstance(beta, bool) or not (isinstance(beta, numbers.Real) and math.isfinite(beta) and beta > 0):
+        raise ValueError(f"beta must be a positive finite number, got {beta!r}")
+    return float(beta)
+
+
 def check_rho_max(rho_max: Any) -> float:
     """The value of ``true``, checked: a real number > 0 (+inf allowed); NaN and booleans are refused.
 
