@@ -28,7 +28,7 @@ from tl_gym.envs.dynamics import car_step, sample_episode_noise
 from tl_gym.envs.tasks import task_formula
 
 from tl_gym.monitor_view import MonitorView, augment_space
-from tl_gym.shaping import HierarchicalPotential, discounted_increment
+from tl_gym.shaping import HierarchicalPotential, discounted_increment, satisfaction_value
 from tl_gym.tltl.online import PrefixMonitor
 from tl_gym.tltl.online_batch import BatchPrefixMonitor
 from tl_gym.wrapper import (
@@ -207,8 +207,8 @@ class CarNavVectorEnv(CarProperties, VectorEnv):
                 rewards = rewards + self._shaping
             return obs, rewards, done, ~done, infos
         if self.reward_mode != "terminal":
-            rewards, self._paid = discounted_increment(np.clip(self._value, -self.clip, self.clip), self._paid,
-                                                       self.gamma)
+            paid = satisfaction_value(np.clip(self._value, -self.clip, self.clip), self.settings.satisfaction_bonus)
+            rewards, self._paid = discounted_increment(paid, self._paid, self.gamma)
         if self._potentials:
             rewards = rewards + self._shaping
         return obs, rewards, done, done.copy(), infos
@@ -220,7 +220,8 @@ class CarNavVectorEnv(CarProperties, VectorEnv):
         ended = terminal_info(self.formula, trace, self.rho_max, self.beta if self.reward == "smooth" else None)
         for key, values in ended.items():  # every car ended: the vector layout's masks are all true
             infos[key], infos[f"_{key}"] = values, np.ones(self.num_envs, dtype=bool)
-        return np.clip(ended.get("smooth_robustness", ended["robustness"]), -self.clip, self.clip)
+        rho = np.clip(ended.get("smooth_robustness", ended["robustness"]), -self.clip, self.clip)
+        return satisfaction_value(rho, self.settings.satisfaction_bonus, ended["satisfied"])
 
     def render(self) -> np.ndarray | None:
         """One frame with every car and its path so far (``render_mode="rgb_array"``)."""

@@ -321,6 +321,37 @@ def test_vector_env_matches_sync_vector_env(task, reward):
     assert ends == 2
 
 
+class ActionRecorder(gym.Wrapper):
+    """Keeps every action it passes on."""
+
+    def __init__(self, env):
+        super().__init__(env)
+        self.actions = []
+
+    def step(self, action):
+        self.actions.append(np.array(action, dtype=np.float32))
+        return self.env.step(action)
+
+
+def test_vector_env_pays_the_satisfaction_bonus_as_the_wrapper_does():
+    """A satisfying drive replayed in the batched car: the same dense rewards, adding up to ρ + bonus."""
+    recorder = ActionRecorder(gym.make("TLCarNav-v0", task=1, reward_mode="dense", satisfaction_bonus=50.0))
+    info = drive(recorder, TASK1, seed=0)
+    actions, rewards = recorder.actions, info["rewards"]
+    assert info["satisfied"] and math.fsum(rewards) == pytest.approx(info["robustness"] + 50.0, abs=1e-9)
+    batched = CarNavVectorEnv(num_envs=2, task=1, reward_mode="dense", satisfaction_bonus=50.0)
+    batched.reset(seed=0)  # car 0 draws as the single env with seed 0
+    for t, action in enumerate(actions):
+        _, reward, _, truncated, infos = batched.step(np.stack([action, np.zeros(2, dtype=np.float32)]))
+        assert reward[0] == pytest.approx(rewards[t], abs=1e-9), t
+    assert truncated.all() and infos["satisfied"][0]
+    terminal = CarNavVectorEnv(num_envs=2, task=1, satisfaction_bonus=50.0)
+    terminal.reset(seed=0)
+    for action in actions:
+        _, reward, *_ = terminal.step(np.stack([action, np.zeros(2, dtype=np.float32)]))
+    assert reward[0] == pytest.approx(info["robustness"] + 50.0, abs=1e-9)
+
+
 def test_vector_env_autoreset_and_errors():
     envs = CarNavVectorEnv(num_envs=3, horizon=2)
     with pytest.raises(RuntimeError, match="reset"):

@@ -25,11 +25,14 @@ episodes = st.integers(1, 10).flatmap(lambda n: st.lists(st.tuples(values, value
 
 @settings(max_examples=200, deadline=None)
 @given(fragment, episodes, st.sampled_from([math.inf, 5.0]), st.sampled_from([1e4, 2.0]), st.booleans(),
-       st.sampled_from([1.0, 0.9]))
-def test_dense_reward_is_a_function_of_the_augmented_observations(formula, rows, rho_max, clip, dict_obs, gamma):
-    """Each step's reward from the observations around it (and the end flag); discounted, they add up to γ^(T-1) ρ."""
+       st.sampled_from([1.0, 0.9]), st.sampled_from([0.0, 2.5]))
+def test_dense_reward_is_a_function_of_the_augmented_observations(formula, rows, rho_max, clip, dict_obs, gamma,
+                                                                 bonus):
+    """Each step's reward from the observations around it (and the end flag); discounted, they add up to
+    γ^(T-1) (ρ + bonus · [ρ > 0])."""
     env = TLTLRewardWrapper(Scripted(rows, dict_obs=dict_obs), formula, signals=SIGNALS[dict_obs], rho_max=rho_max,
-                            clip=clip, reward_mode="dense", observe_monitor=True, monitor_scale=0.5, gamma=gamma)
+                            clip=clip, reward_mode="dense", observe_monitor=True, monitor_scale=0.5, gamma=gamma,
+                            satisfaction_bonus=bonus)
     obs, _ = env.reset(seed=0)
     assert env.observation_space.contains(obs)
     total = 0.0
@@ -47,7 +50,7 @@ def test_dense_reward_is_a_function_of_the_augmented_observations(formula, rows,
         total += gamma ** (t - 1) * reward
         obs = after
     assert truncated
-    rho = min(max(info["robustness"], -clip), clip)
+    rho = min(max(info["robustness"], -clip), clip) + bonus * info["satisfied"]
     assert total == pytest.approx(gamma ** (len(rows) - 2) * rho, rel=1e-9, abs=1e-9)
 
 

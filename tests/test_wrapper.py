@@ -111,6 +111,35 @@ def test_dense_rewards_are_clipped_and_sum_to_the_clipped_robustness():
     assert info["robustness"] == 1.0
 
 
+# x rises past 0.5 at step 3 (F x > 0.5 satisfied from then on) and past 0.9 at step 5 (G x < 0.9 broken)
+RISE = np.array([[0.0], [0.2], [0.4], [0.6], [0.8], [1.0]]).repeat(3, axis=1)
+
+
+@pytest.mark.parametrize(("spec", "satisfied"), [("F(a > 0.5)", True), ("F(a > 0.5) & G(a < 0.9)", False)])
+def test_the_terminal_satisfaction_bonus_adds_to_a_satisfied_episode_only(spec, satisfied):
+    rewards, info = run(TLTLRewardWrapper(Scripted(RISE), spec, signals={"a": 0}, satisfaction_bonus=10.0))
+    assert info["satisfied"] is satisfied and rewards[:-1] == [0.0] * 4
+    assert rewards[-1] == pytest.approx(info["robustness"] + (10.0 if satisfied else 0.0))
+    smooth = TLTLRewardWrapper(Scripted(RISE), spec, signals={"a": 0}, reward="smooth", beta=2.0,
+                               satisfaction_bonus=10.0)
+    rewards, info = run(smooth)  # [ρ > 0] is the exact one's: the smooth value can differ in sign
+    assert rewards[-1] == pytest.approx(info["smooth_robustness"] + (10.0 if satisfied else 0.0))
+
+
+def test_the_dense_satisfaction_bonus_is_paid_when_the_prefix_is_satisfied_and_taken_back_when_broken():
+    spec = "F(a > 0.5) & G(a < 0.9)"
+    plain, info = run(TLTLRewardWrapper(Scripted(RISE), spec, signals={"a": 0}, reward_mode="dense"))
+    bonus, info_bonus = run(TLTLRewardWrapper(Scripted(RISE), spec, signals={"a": 0}, reward_mode="dense",
+                                              satisfaction_bonus=10.0))
+    assert info_bonus["robustness"] == info["robustness"] < 0  # info keeps the exact ρ
+    # prefixes: s_0..s_2 unsatisfied, s_0..s_3 and s_0..s_4 satisfied, s_0..s_5 broken
+    np.testing.assert_allclose(np.subtract(bonus, plain), [0.0, 0.0, 10.0, 0.0, -10.0], atol=1e-12)
+    assert math.fsum(bonus) == pytest.approx(info["robustness"], abs=1e-12)
+    satisfied, info = run(TLTLRewardWrapper(Scripted(RISE), "F(a > 0.5)", signals={"a": 0}, reward_mode="dense",
+                                            satisfaction_bonus=10.0))
+    assert math.fsum(satisfied) == pytest.approx(info["robustness"] + 10.0, abs=1e-12)
+
+
 def test_infinite_robustness_is_clipped_to_a_float():
     rewards, info = run(TLTLRewardWrapper(Scripted(), "true", signals={}))
     assert info["robustness"] == math.inf and rewards[-1] == tl_gym.wrapper.DEFAULT_CLIP
@@ -182,6 +211,10 @@ def test_trace_property_is_read_only_and_grows():
         ({"rho_max": -1.0}, ValueError, "rho_max"),
         ({"clip": math.inf}, ValueError, "clip"),
         ({"env_reward_weight": math.nan}, ValueError, "env_reward_weight"),
+        ({"satisfaction_bonus": -1.0}, ValueError, "satisfaction_bonus must be a finite number >= 0"),
+        ({"satisfaction_bonus": math.inf}, ValueError, "satisfaction_bonus"),
+        ({"satisfaction_bonus": math.nan}, ValueError, "satisfaction_bonus"),
+        ({"satisfaction_bonus": "10"}, ValueError, "satisfaction_bonus"),
     ],
 )
 def test_bad_arguments_fail_at_construction(kwargs, error, match):

@@ -47,7 +47,7 @@ import numpy as np
 from gymnasium import spaces
 
 from tl_gym.checks import check_positive
-from tl_gym.shaping import discounted_increment
+from tl_gym.shaping import discounted_increment, satisfaction_value
 from tl_gym.tltl.codegen import CodeWriter
 from tl_gym.tltl.online import PrefixMonitor
 from tl_gym.tltl.online_nodes import SIGNAL, VALUE
@@ -210,15 +210,18 @@ class MonitorView:
         state, _ = self.decode(features)
         return min(max(self.monitor.value_of_state(state), -self.clip), self.clip)
 
-    def dense_reward(self, before: Any, after: Any, gamma: float = 1.0) -> float:
+    def dense_reward(self, before: Any, after: Any, gamma: float = 1.0, bonus: float = 0.0) -> float:
         """The dense reward of the step from features ``before`` to ``after`` (``reward_mode="dense"``).
 
         ``γ Φ(after) − Φ(before)`` with Φ the clipped prefix robustness, 0 at the first state
         (`tl_gym.shaping.discounted_increment`; give ``gamma=1`` for the step that ends the episode),
-        so that an episode's discounted rewards add up to its discounted clipped terminal robustness.
+        so that an episode's discounted rewards add up to its discounted clipped terminal robustness;
+        with the wrapper's ``satisfaction_bonus`` (``bonus``), Φ is `tl_gym.shaping.satisfaction_value`.
         """
         _, first = self.decode(before)
-        return discounted_increment(self.prefix_value(after), 0.0 if first else self.prefix_value(before), gamma)[0]
+        after_value = satisfaction_value(self.prefix_value(after), bonus)
+        before_value = 0.0 if first else satisfaction_value(self.prefix_value(before), bonus)
+        return discounted_increment(after_value, before_value, gamma)[0]
 
 
 def augment_space(space: spaces.Space, view: MonitorView, key: str) -> spaces.Space:

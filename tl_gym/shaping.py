@@ -46,6 +46,26 @@ from tl_gym.tltl.windowed import compile_state_formula
 State = Mapping[str, float]
 
 
+def satisfaction_value(value: Any, bonus: float, satisfied: Any = None) -> Any:
+    """``value + bonus · [satisfied]``, ``satisfied`` defaulting to ``value > 0``: the robustness as paid.
+
+    The one rule of ``satisfaction_bonus`` (`tl_gym.TLTLRewardWrapper`): the wrapper pays this
+    monotone transform of the (clipped) robustness instead of the robustness itself, at the end in
+    terminal mode and as the potential Φ of the dense increments, so an episode's rewards add up to
+    ``clip(ρ) + bonus · [ρ > 0]``. Episodes keep their order by ρ, but every satisfied one now earns
+    ``bonus`` more than every violated one, near misses included: success, which the suite counts,
+    outweighs a higher mean ρ. Scalars or numpy arrays.
+
+    Example:
+        >>> satisfaction_value(0.25, 10.0), satisfaction_value(-0.25, 10.0), satisfaction_value(0.0, 10.0)
+        (10.25, -0.25, 0.0)
+        >>> import numpy as np
+        >>> satisfaction_value(np.array([-1.0, 2.0]), 5.0).tolist()
+        [-1.0, 7.0]
+    """
+    return value + bonus * ((value > 0) if satisfied is None else satisfied)
+
+
 def discounted_increment(value: Any, previous: Any, gamma: float) -> tuple[Any, Any]:
     """The shaping reward of a step, ``γ Φ(s') − Φ(s)``, and the new potential: ``(γ·value − previous, value)``.
 

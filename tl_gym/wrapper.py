@@ -13,7 +13,7 @@ import numpy as np
 
 from tl_gym.checks import check_positive
 from tl_gym.monitor_view import MonitorView, augment, augment_space, split
-from tl_gym.shaping import HierarchicalPotential, discounted_increment
+from tl_gym.shaping import HierarchicalPotential, discounted_increment, satisfaction_value
 from tl_gym.signals import SignalMap, SignalReader
 from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.invariants import InvariantMonitor
@@ -46,6 +46,7 @@ class RewardSettings:
     observe_monitor: bool = False
     monitor_scale: float = 1.0
     gamma: float = 1.0
+    satisfaction_bonus: float = 0.0
 
     def __post_init__(self) -> None:
         if self.reward not in REWARDS:
@@ -57,6 +58,8 @@ class RewardSettings:
         check_discount(self.gamma)
         for name in ("beta", "clip", "monitor_scale"):
             object.__setattr__(self, name, check_positive(name, getattr(self, name)))
+        bonus = check_positive("satisfaction_bonus", self.satisfaction_bonus, allow_zero=True)
+        object.__setattr__(self, "satisfaction_bonus", bonus)
         object.__setattr__(self, "rho_max", check_positive("rho_max", self.rho_max, allow_inf=True))
         object.__setattr__(self, "gamma", float(self.gamma))
         if not isinstance(self.observe_monitor, bool):
@@ -132,6 +135,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         * v0.1.0 - ``observe_monitor``, ``monitor_scale``, ``horizon``; ``reward_mode="potential"`` and ``gamma``.
         * v0.1.0 - ``gamma`` also discounts the dense mode's potential (``γ ρ_{t+1} − ρ_t``); 1 is unchanged.
         * v0.1.0 - ``end_on_violation``: end the episode at the first state that breaks a safety invariant.
+        * v0.1.0 - ``satisfaction_bonus``: pay ``clip(ρ) + bonus · [ρ > 0]`` (every reward mode).
     """
 
     def __init__(
@@ -150,6 +154,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         horizon: int | None = None,
         gamma: float = 1.0,
         end_on_violation: bool = False,
+        satisfaction_bonus: float = 0.0,
     ):
         """Check every argument, then wrap ``env``.
 
@@ -187,6 +192,12 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 been, while the return stops there: a violation forfeits what the rest of the episode
                 could still earn. ``info["violated"]`` names the invariant. The robustness paid and
                 reported is that of the shorter trace.
+            satisfaction_bonus: ``B`` >= 0. Every mode pays ``clip(ρ) + B · [ρ > 0]`` in place of the
+                robustness (`tl_gym.shaping.satisfaction_value`): at the end in terminal mode (``[ρ > 0]``
+                from the exact ρ also with ``reward="smooth"``), and as the potential of the dense
+                increments, so a step that makes the prefix satisfied pays ``B`` more and one that
+                breaks it ``B`` less. A near miss then earns ``B`` less than a success instead of a
+                sliver less; ``info`` keeps the exact ρ. 0 (the default) pays the robustness itself.
 
         Raises:
             SpecError: ``spec`` does not parse.
@@ -196,7 +207,8 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         """
         formula = _as_formula(spec)
         settings = RewardSettings(reward=reward, beta=beta, rho_max=rho_max, reward_mode=reward_mode, clip=clip,
-                                  observe_monitor=observe_monitor, monitor_scale=monitor_scale, gamma=gamma)
+                                  observe_monitor=observe_monitor, monitor_scale=monitor_scale, gamma=gamma,
+                                  satisfaction_bonus=satisfaction_bonus)
         if not (isinstance(env_reward_weight, numbers.Real) and math.isfinite(env_reward_weight)):
             raise ValueError(f"env_reward_weight must be a finite number, got {env_reward_weight!r}")
         if not isinstance(env, gym.Env):
@@ -216,7 +228,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self, spec=str(formula), signals=signals, reward=reward, beta=beta, rho_max=rho_max,
             reward_mode=reward_mode, env_reward_weight=env_reward_weight, clip=clip,
             observe_monitor=observe_monitor, monitor_scale=monitor_scale, horizon=horizon, gamma=gamma,
-            end_on_violation=end_on_violation,
+            end_on_violation=end_on_violation, satisfaction_bonus=satisfaction_bonus,
         )
         gym.Wrapper.__init__(self, env)
         if view is not None:
@@ -237,6 +249,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         else:
             self._monitor = PrefixMonitor(formula, self.rho_max) if reward_mode != "terminal" else None
         self.gamma = settings.gamma
+        self.satisfaction_bonus = settings.satisfaction_bonus
         self._potential = (
             HierarchicalPotential(formula, self.rho_max, monitor_scale) if reward_mode == "potential" else None
         )
@@ -246,7 +259,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._monitors_read_states = any(m is not None for m in (self._monitor, self._potential, invariants))
         self._phi = 0.0  # Φ of the state the last step reached
         self._rows: list[list[float]] = []
-        self._paid = 0.0  # the clipped prefix robustness of the state the last step reached (0 at the reset)
+        self._paid = 0.0  # Φ: the clipped prefix robustness (+ bonus) of the state the last step reached (0 at reset)
         self._done = True
 
     # Gymnasium API ------------------------------------------------------------------------
@@ -295,7 +308,8 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         elif self.reward_mode != "terminal":
             if value is None:
                 value = self._monitor.update(state)  # type: ignore[union-attr]
-            reward, self._paid = discounted_increment(self._clipped(value), self._paid, self.gamma)
+            paid = satisfaction_value(self._clipped(value), self.satisfaction_bonus)
+            reward, self._paid = discounted_increment(paid, self._paid, self.gamma)
         if self._potential is not None:  # γ Φ(s') − Φ(s), with Φ(s_T) = 0 at the last state
             phi = 0.0 if self._done else self._potential.update(state)
             shaping, self._phi = discounted_increment(phi, self._phi, self.gamma)
@@ -328,7 +342,8 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         info.update(terminal_info(self.formula, trace, self.rho_max, self.beta if self.reward == "smooth" else None))
         if not self._reader.names:
             info["trace"] = Trace({})
-        return self._clipped(float(info.get("smooth_robustness", info["robustness"]))) - self._paid
+        rho = self._clipped(float(info.get("smooth_robustness", info["robustness"])))
+        return satisfaction_value(rho, self.satisfaction_bonus, info["satisfied"]) - self._paid
 
     def _clipped(self, value: float) -> float:
         return min(max(value, -self.clip), self.clip)
@@ -352,7 +367,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if view is None:
             raise ValueError("the wrapper was made without observe_monitor=True: its observations hold no monitor")
         return view.dense_reward(split(obs_before, view, MONITOR_KEY), split(obs_after, view, MONITOR_KEY),
-                                 gamma=1.0 if last else self.gamma)
+                                 gamma=1.0 if last else self.gamma, bonus=self.satisfaction_bonus)
 
 
 def terminal_info(formula: Formula, trace: Mapping[str, np.ndarray], rho_max: float,
