@@ -3,8 +3,10 @@
 Set TL_GYM_HYPOTHESIS_EXAMPLES (default 300) for a longer search of the incremental fragment.
 """
 
+import copy
 import math
 import os
+import pickle
 
 import numpy as np
 import pytest
@@ -114,6 +116,27 @@ def test_incremental_fragment_matches_engine_on_every_prefix(formula, trace, rho
 def test_replay_fallback_matches_engine_on_every_prefix(formula, trace, rho_max):
     monitor = _check_every_prefix(formula, trace, rho_max)
     assert not monitor.incremental
+
+
+@settings(max_examples=100, deadline=None)
+@given(fragment | nested, traces, st.integers(0, 9), st.sampled_from(["pickle", "deepcopy"]))
+def test_a_copy_taken_mid_trace_continues_as_the_original(formula, trace, split, how):
+    """Pickled or copied after ``split`` states (the generated code compiled again, the state loaded), a
+    monitor reports what the original reports on every later state, to the bit."""
+    original = PrefixMonitor(formula, 5.0)
+    states = [{"a": float(x), "b": float(y)} for x, y in zip(*trace)]
+    split = min(split, len(states))
+    for state in states[:split]:
+        original.update(state)
+    copied = pickle.loads(pickle.dumps(original)) if how == "pickle" else copy.deepcopy(original)
+    assert copied.length == original.length == split
+    for state in states[split:]:
+        assert copied.update(state) == original.update(state), str(formula)
+    if original.incremental and states:
+        assert copied.state() == original.state()
+    copied.reset()  # and it starts over as a fresh monitor does
+    fresh = PrefixMonitor(formula, 5.0)
+    assert [copied.update(s) for s in states] == [fresh.update(s) for s in states]
 
 
 @settings(max_examples=50, deadline=None)

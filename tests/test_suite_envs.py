@@ -113,10 +113,13 @@ def test_sync_vector_env(env_id):
     envs.close()
 
 
+@pytest.mark.parametrize("mode", [{}, {"reward_mode": "dense"}, {"reward_mode": "dense", "observe_monitor": True},
+                                  {"reward_mode": "potential", "observe_monitor": True}, {"end_on_violation": True}])
 @pytest.mark.parametrize("env_id", CLASSIC)
-def test_envs_pickle_and_deepcopy(env_id):
-    """A copy taken mid-episode continues it exactly as the original does, to the terminal robustness."""
-    env = gym.make(env_id)
+def test_envs_pickle_and_deepcopy(env_id, mode):
+    """A copy taken mid-episode continues it exactly as the original does, to the terminal robustness, in every
+    reward mode (the monitors' generated code is compiled again by the copy)."""
+    env = gym.make(env_id, **mode)
     env.reset(seed=0)
     actions = np.random.default_rng(0).uniform(env.action_space.low, env.action_space.high,
                                                size=(env.get_wrapper_attr("horizon"),) + env.action_space.shape)

@@ -113,8 +113,7 @@ class MonitorView:
         # the encoding's layout, for `encode` (written out slot by slot) and `encode_rows` (slots grouped by kind)
         self._is_value = [slot.kind == VALUE for slot in self.slots]
         self._layout = (self._is_value, divisors, self.clip, self.horizon)
-        self._encode = _written_out_encoder([f"state[{i}]" for i in range(len(self.slots))], CodeWriter(),
-                                            "state, t", *self._layout)
+        self._encode = self._written_out_encode()
         self._features = self._written_out_features()
         starts = np.cumsum([0] + [2 if is_value else 1 for is_value in self._is_value])  # each slot's first feature
         self._value_slots = np.flatnonzero(self._is_value)
@@ -138,12 +137,19 @@ class MonitorView:
         return _written_out_encoder(self.monitor.state_source(live), live, "t", *self._layout)
 
     def __getstate__(self) -> dict[str, Any]:
-        # `_features` reads this view's monitor: a copy writes its own, over its copy of the monitor
-        return {**self.__dict__, "_features": None}
+        # generated functions do not pickle, and `_features` reads this view's monitor: a copy writes
+        # its own, over its copy of the monitor
+        return {**self.__dict__, "_features": None, "_encode": None}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
+        self._encode = self._written_out_encode()
         self._features = self._written_out_features()
+
+    def _written_out_encode(self) -> Callable[[Sequence[float], int], list[float]]:
+        """`encode` as one function of an exported monitor state and ``t``."""
+        return _written_out_encoder([f"state[{i}]" for i in range(len(self.slots))], CodeWriter(), "state, t",
+                                    *self._layout)
 
     # encoding ----------------------------------------------------------------------------
     def update(self, state: Mapping[str, float], t: int) -> float:

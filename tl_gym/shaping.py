@@ -114,8 +114,19 @@ class _Chain:
                 chain = Then(operand, chain)
             stages.append(Eventually(chain) if k == 1 else chain)
         self.monitors = [PrefixMonitor(f, rho_max) for f in stages]
-        self.operands: list[Callable[[State], float]] = [compile_state_formula(f, rho_max) for f in operands]
+        self.formulas, self.rho_max = operands, rho_max
+        self.operands = self._compiled()
         self.scale = scale
+
+    def _compiled(self) -> list[Callable[[State], float]]:
+        return [compile_state_formula(f, self.rho_max) for f in self.formulas]
+
+    def __getstate__(self) -> dict[str, Any]:  # compiled functions do not pickle: a copy compiles its own
+        return {**self.__dict__, "operands": None}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self.operands = self._compiled()
 
     def reset(self) -> None:
         for monitor in self.monitors:
@@ -136,10 +147,21 @@ class _Until:
 
     def __init__(self, formula: Until, rho_max: float, scale: float):
         self.monitor = PrefixMonitor(formula, rho_max)
-        self.left = compile_state_formula(formula.left, rho_max)
-        self.right = compile_state_formula(formula.right, rho_max)
+        self.formula, self.rho_max = formula, rho_max
+        self.left, self.right = self._compiled()
         self.scale = scale
         self.reset()
+
+    def _compiled(self) -> tuple[Callable[[State], float], Callable[[State], float]]:
+        return compile_state_formula(self.formula.left, self.rho_max), compile_state_formula(self.formula.right,
+                                                                                            self.rho_max)
+
+    def __getstate__(self) -> dict[str, Any]:  # compiled functions do not pickle: a copy compiles its own
+        return {**self.__dict__, "left": None, "right": None}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self.left, self.right = self._compiled()
 
     def reset(self) -> None:
         self.monitor.reset()

@@ -102,12 +102,25 @@ class PrefixMonitor:
         return code.function("state", "", self._root.source(code))
 
     def __getstate__(self) -> dict[str, Any]:
-        # the written-out function reads this monitor's nodes: a copy writes its own
-        return {**self.__dict__, "_state": None}
+        """A copy or a pickle keeps the formula and where the monitor stands, not its nodes.
 
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__dict__.update(state)
-        self._state = self._written_out_state()
+        The nodes hold generated functions (compiled predicates, the written-out `state`), which do
+        not pickle and would read the original's nodes if shared; a copy compiles its own and loads
+        the exported state, which determines every later value (or, outside the fragment, the prefix).
+        """
+        inside = self._root is not None
+        return {"formula": self.formula, "rho_max": self.rho_max, "length": self._length,
+                "state": self.state() if inside and self._length else None,
+                "prefix": None if inside else self._history[:, : self._length].copy()}
+
+    def __setstate__(self, saved: dict[str, Any]) -> None:
+        self.__init__(saved["formula"], saved["rho_max"])  # type: ignore[misc]
+        self._length = saved["length"]
+        if saved["state"] is not None:
+            self._root.load(list(saved["state"]), 0)  # type: ignore[union-attr]
+        if saved["prefix"] is not None and self._length:
+            self._history = np.empty((len(self._names), max(64, 2 * self._length)), dtype=np.float64)
+            self._history[:, : self._length] = saved["prefix"]
 
     @property
     def length(self) -> int:
