@@ -137,17 +137,17 @@ class SB3Agent(Agent):
         on_policy = issubclass(self.algo_class, OnPolicyAlgorithm)
         if tl_reward is not None:
             check_tl_reward(tl_reward)
+        saved = isinstance(hyperparams, _SavedSettings)  # Agent.load: the saved config holds the file's settings
         if isinstance(env, str):
             tl_reward = tl_reward or DEFAULT_TL_REWARD
             env_kwargs = {**TL_REWARD_ENV_KWARGS[tl_reward], **dict(env_kwargs or {})}
         else:
-            tl_reward = _tl_reward_of(env, tl_reward)
+            tl_reward = _tl_reward_of(env, tl_reward, loading=saved)
         explicit = {k: v for k, v in dict(
             steps_per_iteration=steps_per_iteration, n_envs=n_envs, policy=policy, normalize=normalize,
             n_timesteps=n_timesteps, noise_type=noise_type, noise_std=noise_std).items() if v is not None}
         explicit = canonical_settings({**explicit, **algo_kwargs})
         entry = {}
-        saved = isinstance(hyperparams, _SavedSettings)  # Agent.load: the saved config holds the file's settings
         if saved:
             hyperparams = hyperparams.hyperparams
         if hyperparams is not False and not saved:
@@ -505,22 +505,36 @@ def _env_setting(env: Any, name: str) -> Any:
         return None
 
 
-def _tl_reward_of(env: Any, asked: str | None) -> str:
+def _tl_reward_of(env: Any, asked: str | None, loading: bool = False) -> str:
     """The ``tl_reward`` an env object implements: checked against ``asked``, else read from it.
 
-    The object cannot be rebuilt with other keywords, so an explicit choice that one of its
-    readable settings contradicts is an error; a setting it does not expose is not checked.
+    Read: ``"markov"`` when the env observes its monitor (``observe_monitor=True``, whatever its reward
+    mode: dense, potential, with a bonus...), else ``"terminal"``. The object cannot be rebuilt with
+    other keywords, so an explicit choice that one of its readable settings contradicts is an error
+    (``"markov"``: the view and a shaped reward, ``reward_mode`` dense or potential; ``"terminal"``: no
+    view, the terminal reward); a setting it does not expose is not checked. ``loading`` (`Agent.load`,
+    ``asked`` the saved value) checks only what the policy depends on: that the env has the view the
+    agent was trained with, so the observations match.
     """
-    if asked is not None:
-        has = {k: _env_setting(env, k) for k in TL_REWARD_ENV_KWARGS[asked]}
-        wrong = {k: (v, has[k]) for k, v in TL_REWARD_ENV_KWARGS[asked].items() if has[k] is not None and has[k] != v}
-        if wrong:
-            detail = ", ".join(f"{k}={want!r} (the env has {got!r})" for k, (want, got) in wrong.items())
-            raise ValueError(f"tl_reward={asked!r} needs the env keywords {detail}; an env object cannot be rebuilt "
-                             f"by the agent: make it with those keywords, or pass the env id instead")
-        return asked
-    markov = TL_REWARD_ENV_KWARGS["markov"]
-    return "markov" if all(_env_setting(env, k) == v for k, v in markov.items()) else "terminal"
+    if asked is None or loading:
+        view = _env_setting(env, "observe_monitor")
+        read = "markov" if view else "terminal"
+        if loading and read != asked:
+            raise ValueError(f"the agent was trained with tl_reward={asked!r} (observe_monitor={asked == 'markov'}), "
+                             f"the env has observe_monitor={bool(view)}: its observations are not the agent's; "
+                             f"make the env with observe_monitor={asked == 'markov'}, or pass the env id instead")
+        return read
+    has = {k: _env_setting(env, k) for k in TL_REWARD_ENV_KWARGS[asked]}
+    accepted = {k: (v,) for k, v in TL_REWARD_ENV_KWARGS[asked].items()}
+    if asked == "markov":
+        accepted["reward_mode"] = ("dense", "potential")  # both are the monitor's shaped rewards
+    wrong = {k: (TL_REWARD_ENV_KWARGS[asked][k], got) for k, got in has.items()
+             if got is not None and got not in accepted[k]}
+    if wrong:
+        detail = ", ".join(f"{k}={want!r} (the env has {got!r})" for k, (want, got) in wrong.items())
+        raise ValueError(f"tl_reward={asked!r} needs the env keywords {detail}; an env object cannot be rebuilt "
+                         f"by the agent: make it with those keywords, or pass the env id instead")
+    return asked
 
 
 def _make_sync_vec(env_id: str, n_envs: int, env_kwargs: Mapping[str, Any],

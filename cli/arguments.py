@@ -147,6 +147,9 @@ def build_parser(with_hyperparameters: bool = False) -> argparse.ArgumentParser:
     train.add_argument("--spec", default=None, help="a TLTL formula to pay as reward instead of the env's own")
     train.add_argument("--signals", type=parse_signals, default=None,
                        help="with --spec: signal sources, e.g. cos_th=0,th_dot=2 (observation indices or Dict keys)")
+    train.add_argument("--wrapper-kwargs", type=parse_env_kwargs, default={},
+                       help="with --spec: TLTLRewardWrapper keywords as a JSON object, e.g. "
+                            "'{\"reward_mode\": \"dense\", \"satisfaction_bonus\": 5}'")
     train.add_argument("--agent", default="tlps", help="tlps, reps or a stable-baselines3 algorithm (ppo, sac, ...)")
     train.add_argument("--iterations", type=int, default=None,
                        help="policy updates (default: 50; SB3 agents: the task's n_timesteps budget rounded up to "

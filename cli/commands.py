@@ -69,8 +69,8 @@ def build_env(run: dict[str, Any], render_mode: str | None = None) -> Any:
     """The env of a run: its id (the agent adds the kwargs), or the env wrapped with ``--spec``.
 
     SB3 agents get the env keywords of their ``tl_reward`` (`tl_gym.agents.sb3_settings.TL_REWARD_ENV_KWARGS`)
-    here too, since they cannot rewrap an env object: with ``--spec`` they go to the wrapper, for a
-    rendered env to the id (the run's own ``env_kwargs`` win, as in the agent).
+    here too, since they cannot rewrap an env object: with ``--spec`` they go to the wrapper (the run's
+    ``--wrapper-kwargs`` win), for a rendered env to the id (the run's own ``env_kwargs`` win, as in the agent).
     """
     kwargs = dict(run["env_kwargs"])
     tl_kwargs = _tl_reward_env_kwargs(run)
@@ -80,7 +80,8 @@ def build_env(run: dict[str, Any], render_mode: str | None = None) -> Any:
         return run["env"] if render_mode is None else gym.make(run["env"], **{**tl_kwargs, **kwargs})
     if not run.get("signals"):
         raise ValueError("--spec needs --signals to say where each signal comes from, e.g. --signals cos_th=0")
-    return tl_gym.TLTLRewardWrapper(gym.make(run["env"], **kwargs), run["spec"], run["signals"], **tl_kwargs)
+    wrapper_kwargs = {**tl_kwargs, **run.get("wrapper_kwargs", {})}  # run.json files before --wrapper-kwargs lack it
+    return tl_gym.TLTLRewardWrapper(gym.make(run["env"], **kwargs), run["spec"], run["signals"], **wrapper_kwargs)
 
 
 def _tl_reward_env_kwargs(run: dict[str, Any]) -> dict[str, Any]:
@@ -143,8 +144,12 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
         env_kwargs["task"] = args.task
     if args.signals is not None and args.spec is None:
         raise ValueError("--signals only makes sense with --spec")
+    if args.wrapper_kwargs and args.spec is None:
+        raise ValueError("--wrapper-kwargs only makes sense with --spec (a TL id such as TLCarNav-v0 takes the "
+                         "wrapper's keywords in --env-kwargs)")
     run = {
         "env": args.env, "env_kwargs": env_kwargs, "spec": args.spec, "signals": args.signals,
+        "wrapper_kwargs": dict(args.wrapper_kwargs),
         "agent": args.agent, "iterations": args.iterations, "seed": args.seed,
         "hyperparameters": parse_hyperparameters(extra),
     }

@@ -91,6 +91,9 @@ def test_spec_and_signals_train_on_any_env(tmp_path, capsys):
     [
         (["--agent", "nope"], "unknown agent 'nope': tlps, reps, a stable-baselines3 algorithm"),
         (["--agent", "reps", "--signals", "a=0"], "--signals only makes sense with --spec"),
+        (["--agent", "reps", "--wrapper-kwargs", '{"reward_mode": "dense"}'], "--wrapper-kwargs only makes sense"),
+        (["--env", "Pendulum-v1", "--spec", "F(x > 1)", "--signals", "x=0", "--agent", "reps", "--wrapper-kwargs",
+          '{"satisfaction_bonus": -1}'], "satisfaction_bonus must be a finite number >= 0"),
         (["--agent", "reps", "--bogus", "3"], "bogus"),
         (["--agent", "reps", "--epsilon", "-1"], "epsilon"),
         (["--agent", "reps", "--iterations", "0"], "--iterations"),
@@ -218,6 +221,22 @@ def test_sb3_with_spec_gets_the_markov_view_on_the_wrapper(tmp_path, capsys):
     agent = Agent.load(out / "agent.zip", env=build_env(run))
     assert agent.config.tl_reward == "markov" and agent.observation_space.shape[0] > 3
     assert agent.model.gamma == 0.9  # the Pendulum-v1 entry of the hyperparameter file
+    assert main(["eval", str(out), "--episodes", "2"]) == 0
+    assert "2 episodes" in capsys.readouterr().out
+
+
+def test_wrapper_kwargs_reach_the_wrapper_over_the_sb3_defaults(tmp_path, capsys):
+    out = tmp_path / "pendulum"
+    assert main(["train", "--env", "Pendulum-v1", "--spec", "F(cos_th > 0.9)", "--signals", "cos_th=0",
+                 "--wrapper-kwargs", '{"satisfaction_bonus": 5, "reward_mode": "potential"}',
+                 "--agent", "ppo", "--iterations", "1", "--out", str(out), "--quiet", *SB3_TINY]) == 0
+    run = json.loads((out / "run.json").read_text())
+    env = build_env(run)
+    assert run["wrapper_kwargs"] == {"satisfaction_bonus": 5, "reward_mode": "potential"}
+    assert env.satisfaction_bonus == 5.0 and env.reward_mode == "potential"  # over markov's "dense"
+    assert env.observe_monitor  # the rest of markov's keywords stay
+    del run["wrapper_kwargs"]  # a run.json written before the option
+    assert build_env(run).reward_mode == "dense"
     assert main(["eval", str(out), "--episodes", "2"]) == 0
     assert "2 episodes" in capsys.readouterr().out
 

@@ -170,6 +170,30 @@ def test_an_env_object_is_taken_as_it_is():
     assert agent.env.single_observation_space == agent.model.observation_space == viewed.observation_space
 
 
+@pytest.mark.parametrize(("kwargs", "label"), [
+    ({"observe_monitor": True, "reward_mode": "potential", "satisfaction_bonus": 5.0}, "markov"),
+    ({"reward_mode": "dense"}, "terminal"),  # no view: the raw observation
+])
+def test_an_env_object_with_other_reward_settings_saves_and_loads(tmp_path, kwargs, label):
+    """Read from the env by its view; loading checks the view alone (it was an error for any reward mode but the
+    two presets: the saved label was checked against every keyword)."""
+    env = gym.make("TLCarNav-v0", **kwargs)
+    agent = SB3Agent(env, "ppo", seed=0, **TINY)
+    assert agent.config.tl_reward == label
+    if label == "markov":  # asked for: the potential mode is a shaped reward with the view
+        assert SB3Agent(env, "ppo", seed=0, tl_reward=label, **TINY).config.tl_reward == label
+    else:  # asked for, the ablation contradicts the dense reward
+        with pytest.raises(ValueError, match=r"tl_reward='terminal' needs the env keywords reward_mode='terminal'"):
+            SB3Agent(env, "ppo", seed=0, tl_reward=label, **TINY)
+    agent.save(tmp_path / "agent.zip")
+    loaded = Agent.load(tmp_path / "agent.zip", env=env)
+    obs = np.stack([env.observation_space.sample() for _ in range(3)])
+    np.testing.assert_array_equal(loaded.predict(obs)[0], agent.predict(obs)[0])
+    other = gym.make("TLCarNav-v0", observe_monitor=label != "markov")
+    with pytest.raises(ValueError, match=rf"trained with tl_reward='{label}'.*observations are not the agent's"):
+        Agent.load(tmp_path / "agent.zip", env=other)
+
+
 def _stats(agent):
     vec = agent.vec_normalize
     return [vec.obs_rms.mean.copy(), vec.obs_rms.var.copy(), vec.obs_rms.count, vec.ret_rms.mean.copy(),
