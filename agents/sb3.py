@@ -518,6 +518,8 @@ def _tl_reward_of(env: Any, asked: str | None, loading: bool = False) -> str:
     """
     if asked is None or loading:
         view = _env_setting(env, "observe_monitor")
+        if loading and view is None and asked is not None:  # not exposed: nothing to check it against
+            return asked
         read = "markov" if view else "terminal"
         if loading and read != asked:
             raise ValueError(f"the agent was trained with tl_reward={asked!r} (observe_monitor={asked == 'markov'}), "

@@ -194,6 +194,27 @@ def test_an_env_object_with_other_reward_settings_saves_and_loads(tmp_path, kwar
         Agent.load(tmp_path / "agent.zip", env=other)
 
 
+
+class HidesRewardSettings(gym.Wrapper):
+    """An env that does not expose its reward settings (a TL env of the user's own, say)."""
+
+    def get_wrapper_attr(self, name):
+        if name in TL_REWARD_ENV_KWARGS["markov"]:
+            raise AttributeError(name)
+        return super().get_wrapper_attr(name)
+
+
+def test_an_env_object_that_does_not_expose_its_view_loads_with_the_label_it_was_trained_with(tmp_path):
+    """A setting the env does not expose is not checked: not when training, and not when loading either."""
+    env = HidesRewardSettings(gym.make("TLCarNav-v0", observe_monitor=True, reward_mode="dense"))
+    agent = SB3Agent(env, "ppo", seed=0, tl_reward="markov", **TINY)
+    assert agent.config.tl_reward == "markov"
+    agent.save(tmp_path / "agent.zip")
+    loaded = Agent.load(tmp_path / "agent.zip", env=env)
+    assert loaded.config.tl_reward == "markov"
+    obs = np.stack([env.observation_space.sample() for _ in range(3)])
+    np.testing.assert_array_equal(loaded.predict(obs)[0], agent.predict(obs)[0])
+
 def _stats(agent):
     vec = agent.vec_normalize
     return [vec.obs_rms.mean.copy(), vec.obs_rms.var.copy(), vec.obs_rms.count, vec.ret_rms.mean.copy(),
