@@ -103,7 +103,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     ``"satisfied"`` (ρ > 0), ``"trace"`` (a read-only mapping signal name -> float64 array s_0 … s_T)
     and, with ``reward="smooth"``, ``"smooth_robustness"``; with ``end_on_violation=True``, an episode
     ended by a broken invariant also gets ``"violated"`` (the invariant, as text). Rewards are Python
-    floats clipped to ``[-clip, clip]``, so an infinite robustness (``true`` with
+    floats of robustness values clipped to ``[-clip, clip]``, so an infinite robustness (``true`` with
     ``rho_max=inf``, ``X φ`` at the last state) never reaches an agent (a NaN can, on the steps before
     a predicate whose arithmetic overflows raises `TraceError` at the episode's end: docs/wrapper.md). Each
     ``reset`` starts a new trace, so the wrapper works across the autoreset of
@@ -170,7 +170,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 increments plus ``γ Φ(s') − Φ(s)`` of the hierarchical potential of
                 `tl_gym.shaping`, Φ(s_T) = 0 at the last state; use it with ``observe_monitor``).
             env_reward_weight: weight of the wrapped env's own reward, added every step.
-            clip: the temporal-logic part of every reward lies in ``[-clip, clip]``. The
+            clip: every robustness paid (terminal or prefix) is clipped to ``[-clip, clip]``. The
                 default 1e4 leaves every finite robustness of TLCarNav-v0 untouched (its
                 positions stay within a few thousand units) and keeps infinite robustness
                 values out of float32 buffers; lower it for agents sensitive to reward scale.
