@@ -104,9 +104,11 @@ class SB3Agent(Agent):
         steps_per_iteration, n_envs, policy, normalize, n_timesteps, noise_type, noise_std: see
             `SB3Config`; ``None`` takes the task's value from the hyperparameter file, else the default.
         tl_reward: ``"markov"`` or ``"terminal"``. With an env id it adds the env keywords of
-            `TL_REWARD_ENV_KWARGS` (default ``"markov"``). An `Env` or `VectorEnv` object cannot be
-            rebuilt with other keywords: ``None`` reads what it does, and an explicit value it
-            visibly contradicts (its ``observe_monitor`` / ``reward_mode``) is an error.
+            `TL_REWARD_ENV_KWARGS` (default ``"markov"``) under ``env_kwargs``; the label follows the
+            ``observe_monitor`` they leave, and an explicit value they contradict is an error. An `Env`
+            or `VectorEnv` object cannot be rebuilt with other keywords: ``None`` reads what it does,
+            and an explicit value it visibly contradicts (its ``observe_monitor`` / ``reward_mode``)
+            is an error.
         hyperparams: ``True`` (the packaged ``sb3.yml``), ``False`` (none: SB3's defaults) or a file path.
         **algo_kwargs: the algorithm's constructor arguments; each one given wins over the file's.
 
@@ -114,7 +116,7 @@ class SB3Agent(Agent):
 
     Raises:
         ValueError: a bad setting (naming it), an iteration more than 5% off ``steps_per_iteration``,
-            or a ``tl_reward`` the env object contradicts.
+            or a ``tl_reward`` the env object or ``env_kwargs`` contradict.
         TypeError: an env id that does not take the keywords ``tl_reward`` adds.
 
     Example:
@@ -139,8 +141,9 @@ class SB3Agent(Agent):
             check_tl_reward(tl_reward)
         saved = isinstance(hyperparams, _SavedSettings)  # Agent.load: the saved config holds the file's settings
         if isinstance(env, str):
-            tl_reward = tl_reward or DEFAULT_TL_REWARD
-            env_kwargs = {**TL_REWARD_ENV_KWARGS[tl_reward], **dict(env_kwargs or {})}
+            env_kwargs = {**TL_REWARD_ENV_KWARGS[tl_reward or DEFAULT_TL_REWARD], **dict(env_kwargs or {})}
+            # a saved agent's label is re-read: one saved before the check may say "markov" without the view
+            tl_reward = _tl_reward_of_kwargs(None if saved else tl_reward, env_kwargs)
         else:
             tl_reward = _tl_reward_of(env, tl_reward, loading=saved)
         explicit = {k: v for k, v in dict(
@@ -503,6 +506,22 @@ def _env_setting(env: Any, name: str) -> Any:
         return env.get_wrapper_attr(name)
     except AttributeError:
         return None
+
+
+def _tl_reward_of_kwargs(asked: str | None, env_kwargs: Mapping[str, Any]) -> str:
+    """The ``tl_reward`` of an agent on an env id, read from the merged ``env_kwargs``.
+
+    As `_tl_reward_of` reads an object: the user's keywords win over the preset's, so the label
+    follows the view they leave (``observe_monitor``); an explicit ``tl_reward`` they contradict is
+    an error, not a label that would say ``"markov"`` of an env without the view (and refuse to
+    load onto a matching env object).
+    """
+    read = "markov" if env_kwargs.get("observe_monitor") else "terminal"
+    if asked is not None and asked != read:
+        raise ValueError(f"tl_reward={asked!r} sets observe_monitor={asked == 'markov'}, but env_kwargs set "
+                         f"observe_monitor={env_kwargs.get('observe_monitor')!r}: drop one of the two "
+                         f"(without tl_reward, these env_kwargs make tl_reward='{read}')")
+    return read
 
 
 def _tl_reward_of(env: Any, asked: str | None, loading: bool = False) -> str:

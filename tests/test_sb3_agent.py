@@ -131,6 +131,26 @@ def test_markov_view_is_the_default_and_terminal_the_ablation():
     assert mixed.env_kwargs == {"observe_monitor": True, "reward_mode": "terminal", "task": 2}  # the user's win
 
 
+def test_on_an_env_id_the_label_follows_the_view_the_env_kwargs_leave(tmp_path, monkeypatch):
+    """The user's env_kwargs win over the preset's: the label says what the env does (it said "markov" of an env
+    without the view, so the agent refused to load onto a matching env object), and an explicit tl_reward they
+    contradict is refused before any env is built."""
+    unviewed = SB3Agent("TLCarNav-v0", "ppo", seed=0, env_kwargs={"observe_monitor": False}, **TINY)
+    assert unviewed.config.tl_reward == "terminal"
+    assert unviewed.env_kwargs == {"observe_monitor": False, "reward_mode": "dense"}  # the user's win, as before
+    unviewed.save(tmp_path / "agent.zip")
+    env = gym.make("TLCarNav-v0", observe_monitor=False, reward_mode="dense")
+    assert Agent.load(tmp_path / "agent.zip", env=env).config.tl_reward == "terminal"
+
+    import tl_gym.agents.sb3 as sb3_module
+
+    monkeypatch.setattr(sb3_module, "_make_sync_vec", lambda *a, **k: pytest.fail("an env was built"))
+    for asked, view in (("markov", False), ("terminal", True)):
+        with pytest.raises(ValueError, match=rf"tl_reward='{asked}' sets observe_monitor={not view}, but env_kwargs "
+                                             rf"set observe_monitor={view}: drop one"):
+            SB3Agent("TLCarNav-v0", "ppo", tl_reward=asked, env_kwargs={"observe_monitor": view}, **TINY)
+
+
 def test_unknown_tl_reward_is_refused_at_construction():
     with pytest.raises(ValueError, match=r"tl_reward must be one of \['markov', 'terminal'\], got 'dense'"):
         SB3Agent("TLCarNav-v0", "ppo", tl_reward="dense")
