@@ -67,6 +67,7 @@ from .sb3_settings import (
     merge_hyperparameters,
     parse_normalize,
     resolve_algorithm,
+    tl_reward_of_env_kwargs,
 )
 from .serialization import atomic_path, is_jsonable
 
@@ -143,7 +144,7 @@ class SB3Agent(Agent):
         if isinstance(env, str):
             env_kwargs = {**TL_REWARD_ENV_KWARGS[tl_reward or DEFAULT_TL_REWARD], **dict(env_kwargs or {})}
             # a saved agent's label is re-read: one saved before the check may say "markov" without the view
-            tl_reward = _tl_reward_of_kwargs(None if saved else tl_reward, env_kwargs)
+            tl_reward = tl_reward_of_env_kwargs(None if saved else tl_reward, env_kwargs)
         else:
             tl_reward = _tl_reward_of(env, tl_reward, loading=saved)
         explicit = {k: v for k, v in dict(
@@ -506,22 +507,6 @@ def _env_setting(env: Any, name: str) -> Any:
         return env.get_wrapper_attr(name)
     except AttributeError:
         return None
-
-
-def _tl_reward_of_kwargs(asked: str | None, env_kwargs: Mapping[str, Any]) -> str:
-    """The ``tl_reward`` of an agent on an env id, read from the merged ``env_kwargs``.
-
-    As `_tl_reward_of` reads an object: the user's keywords win over the preset's, so the label
-    follows the view they leave (``observe_monitor``); an explicit ``tl_reward`` they contradict is
-    an error, not a label that would say ``"markov"`` of an env without the view (and refuse to
-    load onto a matching env object).
-    """
-    read = "markov" if env_kwargs.get("observe_monitor") else "terminal"
-    if asked is not None and asked != read:
-        raise ValueError(f"tl_reward={asked!r} sets observe_monitor={asked == 'markov'}, but env_kwargs set "
-                         f"observe_monitor={env_kwargs.get('observe_monitor')!r}: drop one of the two "
-                         f"(without tl_reward, these env_kwargs make tl_reward='{read}')")
-    return read
 
 
 def _tl_reward_of(env: Any, asked: str | None, loading: bool = False) -> str:

@@ -116,6 +116,33 @@ def check_tl_reward(value: Any) -> str:
     return value
 
 
+def tl_reward_of_env_kwargs(asked: str | None, env_kwargs: Mapping[str, Any], source: str = "env_kwargs") -> str:
+    """The ``tl_reward`` an env made with ``env_kwargs`` (the preset's merged under the user's) implements.
+
+    The user's keywords win over the preset's, so the label follows the view they leave
+    (``observe_monitor``), as it is read from an env object; an explicit ``tl_reward`` they
+    contradict is an error rather than a label that would say ``"markov"`` of an env without the view.
+
+    Args:
+        asked: the ``tl_reward`` asked for, ``None`` when not.
+        env_kwargs: the merged keywords the env is made with.
+        source: what the user called those keywords, for the message.
+
+    Raises:
+        ValueError: ``asked`` and ``env_kwargs``'s ``observe_monitor`` disagree, naming both.
+
+    Example:
+        >>> tl_reward_of_env_kwargs(None, {"observe_monitor": False, "reward_mode": "dense"})
+        'terminal'
+    """
+    read = "markov" if env_kwargs.get("observe_monitor") else "terminal"
+    if asked is not None and asked != read:
+        raise ValueError(f"tl_reward={asked!r} sets observe_monitor={asked == 'markov'}, but {source} set "
+                         f"observe_monitor={env_kwargs.get('observe_monitor')!r}: drop one of the two "
+                         f"(without tl_reward, these keywords make tl_reward='{read}')")
+    return read
+
+
 def parse_normalize(value: Any) -> dict[str, Any] | None:
     """VecNormalize keyword arguments from a zoo-style ``normalize`` value; ``None`` means off.
 

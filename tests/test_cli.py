@@ -241,6 +241,26 @@ def test_wrapper_kwargs_reach_the_wrapper_over_the_sb3_defaults(tmp_path, capsys
     assert "2 episodes" in capsys.readouterr().out
 
 
+def test_wrapper_kwargs_win_over_an_explicit_tl_reward_as_env_kwargs_do(tmp_path, capsys):
+    """--tl-reward terminal with a dense wrapper was refused with "pass the env id instead", a message for the
+    Python API; now the wrapper keywords win as env_kwargs do for an id, and only a contradicted view is an error."""
+    base = ["train", "--env", "Pendulum-v1", "--spec", "F(cos_th > 0.9)", "--signals", "cos_th=0", "--agent", "ppo",
+            "--iterations", "1", "--quiet", *SB3_TINY]
+    out = tmp_path / "dense"
+    assert main([*base, "--out", str(out), "--tl-reward", "terminal",
+                 "--wrapper-kwargs", '{"reward_mode": "dense"}']) == 0
+    agent = Agent.load(out / "agent.zip")
+    assert agent.config.tl_reward == "terminal"
+    env = build_env(json.loads((out / "run.json").read_text()))
+    assert env.reward_mode == "dense" and not env.observe_monitor
+    assert main(["eval", str(out), "--episodes", "2"]) == 0
+    capsys.readouterr()
+    assert main([*base, "--out", str(tmp_path / "bad"), "--tl-reward", "markov",
+                 "--wrapper-kwargs", '{"observe_monitor": false}']) == 2
+    assert ("tl_reward='markov' sets observe_monitor=True, but --wrapper-kwargs set observe_monitor=False"
+            in capsys.readouterr().err)
+
+
 def test_eval_every_keeps_the_best_agent_and_eval_best_reads_it(tmp_path, capsys):
     out = tmp_path / "run"
     assert main(["train", "--env", "TLCarNav-v0", "--env-kwargs", '{"horizon": 10}', "--agent", "reps",
