@@ -96,17 +96,18 @@ def _tl_reward_env_kwargs(run: dict[str, Any]) -> dict[str, Any]:
 def agent_for_run(run: dict[str, Any]) -> Any:
     """Build the run's agent on its env (through the agent registry).
 
-    With ``--spec`` the ``--wrapper-kwargs`` win over ``--tl_reward``'s keywords, as ``env_kwargs`` do for an
-    id: the agent reads its ``tl_reward`` from the wrapped env, and only a contradicted view is an error.
+    With ``--spec`` the ``--wrapper-kwargs`` win over ``--tl-reward``'s keywords, as ``env_kwargs`` do for an
+    id: the agent reads its ``tl_reward`` from the wrapped env, and only a contradicted view is an error
+    (raised before the env is built).
     """
-    env = build_env(run)
-    env_kwargs = run["env_kwargs"] if isinstance(env, str) else None
     hyperparameters = dict(run["hyperparameters"])
     if run.get("spec") is not None and "tl_reward" in hyperparameters and not is_episodic(run["agent"]):
         from tl_gym.agents.sb3_settings import tl_reward_of_env_kwargs
 
         merged = {**_tl_reward_env_kwargs(run), **run.get("wrapper_kwargs", {})}
         tl_reward_of_env_kwargs(hyperparameters.pop("tl_reward"), merged, "--wrapper-kwargs")  # the agent reads it
+    env = build_env(run)
+    env_kwargs = run["env_kwargs"] if isinstance(env, str) else None
     return make_agent(run["agent"], env, seed=run["seed"], env_kwargs=env_kwargs, **hyperparameters)
 
 
