@@ -16,7 +16,8 @@ A fair baseline uses SB3's own tools the way the zoo does, so by default:
 - **The Markov view and a shaped reward** (``tl_reward="markov"``): the env keywords
   of `TL_REWARD_ENV_KWARGS` append the online monitor's state to the observation and
   pay a dense reward, because the terminal robustness alone is not a Markov reward of
-  the raw observation. ``tl_reward="terminal"`` is the plain terminal reward, for the ablation.
+  the raw observation; a task's entry in the hyperparameter file may add its measured best
+  shaping (``markov_env_kwargs``). ``tl_reward="terminal"`` is the plain terminal reward, for the ablation.
 - **Per-task hyperparameters** from one YAML file in the zoo's format
   (``agents/hyperparams/sb3.yml``, read by `tl_gym.agents.sb3_settings`); explicit keyword arguments win.
 
@@ -53,6 +54,7 @@ from .hindsight import make_hindsight_feeder
 from .sampling import env_attribute
 from .sb3_settings import (
     DEFAULT_TL_REWARD,
+    MARKOV_ENV_KWARGS,
     TL_REWARD_ENV_KWARGS,
     LinearSchedule,  # here too for agents saved before sb3_settings: they pickle tl_gym.agents.sb3.LinearSchedule
     SB3Config,
@@ -101,7 +103,9 @@ class SB3Agent(Agent):
             on a vector env of the same single envs. The env comes first, as for every agent.
         algo: an SB3 / sb3-contrib algorithm class or its name (``"PPO"``, ``"sac"``, ...).
         seed: seeds SB3 (torch, numpy, the envs).
-        env_kwargs: env constructor keywords for an env id; they win over the ones ``tl_reward`` adds.
+        env_kwargs: env constructor keywords for an env id; they win over the ones ``tl_reward`` adds
+            (and, with ``"markov"``, over the task's ``markov_env_kwargs`` in the hyperparameter file: its
+            measured best shaping, e.g. ``satisfaction_bonus`` on ``TLParking-v0`` for SAC).
         steps_per_iteration, n_envs, policy, normalize, n_timesteps, noise_type, noise_std: see
             `SB3Config`; ``None`` takes the task's value from the hyperparameter file, else the default.
         tl_reward: ``"markov"`` or ``"terminal"``. With an env id it adds the env keywords of
@@ -141,8 +145,9 @@ class SB3Agent(Agent):
         if tl_reward is not None:
             check_tl_reward(tl_reward)
         saved = isinstance(hyperparams, _SavedSettings)  # Agent.load: the saved config holds the file's settings
+        users_env_kwargs = dict(env_kwargs or {})
         if isinstance(env, str):
-            env_kwargs = {**TL_REWARD_ENV_KWARGS[tl_reward or DEFAULT_TL_REWARD], **dict(env_kwargs or {})}
+            env_kwargs = {**TL_REWARD_ENV_KWARGS[tl_reward or DEFAULT_TL_REWARD], **users_env_kwargs}
             # a saved agent's label is re-read: one saved before the check may say "markov" without the view
             tl_reward = tl_reward_of_env_kwargs(None if saved else tl_reward, env_kwargs)
         else:
@@ -157,6 +162,11 @@ class SB3Agent(Agent):
         if hyperparams is not False and not saved:
             table = load_hyperparams(None if hyperparams is True else hyperparams)
             entry = find_hyperparams(table, *_env_key(env, env_kwargs), self.algo_class.__name__)
+        added = dict(TL_REWARD_ENV_KWARGS[tl_reward])
+        task_shaping = entry.pop(MARKOV_ENV_KWARGS, {})
+        if isinstance(env, str) and tl_reward == "markov" and task_shaping:  # the task's best shaping, under the user's
+            added.update(task_shaping)
+            env_kwargs = {**added, **users_env_kwargs}
         settings = merge_hyperparameters(entry, explicit, on_policy)
         if isinstance(env, str) and env_kwargs.get("reward_mode") == "potential" and "gamma" not in env_kwargs:
             # potential shaping keeps the optimal policies only with the agent's own discount
@@ -170,7 +180,7 @@ class SB3Agent(Agent):
         self._env_argument = env
         self._train_env_kwargs = dict(env_kwargs or {})  # read by _setup, which runs inside Agent.__init__
         if isinstance(env, str):
-            venv = _make_sync_vec(env, config.n_envs, self._train_env_kwargs, TL_REWARD_ENV_KWARGS[tl_reward])
+            venv = _make_sync_vec(env, config.n_envs, self._train_env_kwargs, added)
             super().__init__(venv, seed=seed, **hyperparameters)
             self.env_kwargs = dict(self._train_env_kwargs)
             self._env_source = describe_env_source(env, self.env_kwargs)
@@ -551,8 +561,9 @@ def _make_sync_vec(env_id: str, n_envs: int, env_kwargs: Mapping[str, Any],
     except TypeError as error:
         if not added:
             raise
-        raise TypeError(f"{env_id} does not take the env keywords {dict(added)} that tl_reward adds ({error}); "
-                        "pass tl_reward='terminal', or env_kwargs that set them") from error
+        raise TypeError(f"{env_id} does not take the env keywords {dict(added)} that tl_reward (and the task's "
+                        f"{MARKOV_ENV_KWARGS}) add ({error}); pass tl_reward='terminal', or env_kwargs that set "
+                        "them") from error
 
 
 def _single_env_factories(env: Any, env_kwargs: dict[str, Any], n_envs: int) -> list[Any]:

@@ -57,7 +57,10 @@ DEFAULT_NORMALIZE: dict[str, Any] = {"norm_obs": True, "norm_reward": False}
 HYPERPARAMS_FILE = Path(__file__).with_name("hyperparams") / "sb3.yml"
 
 #: Keys of a hyperparameter entry that are not the algorithm's constructor arguments.
-ENTRY_KEYS = ("n_envs", "policy", "n_timesteps", "normalize", "noise_type", "noise_std")
+ENTRY_KEYS = ("n_envs", "policy", "n_timesteps", "normalize", "noise_type", "noise_std", "markov_env_kwargs")
+
+#: The entry key of env keywords a task adds to ``TL_REWARD_ENV_KWARGS["markov"]`` (its measured best shaping).
+MARKOV_ENV_KWARGS = "markov_env_kwargs"
 
 #: Exploration noise of off-policy algorithms, by the zoo's ``noise_type`` names.
 NOISE_TYPES = ("normal", "ornstein-uhlenbeck")
@@ -333,7 +336,7 @@ def load_hyperparams(path: str | Path | None = None) -> dict[str, dict[str, dict
         TLCarNav-v0:task=2:          # env id, then optional env keywords it applies to
           ppo:
             n_envs: 8                # tl_gym / zoo keys: n_envs, policy, n_timesteps, normalize,
-            n_timesteps: 1.5e6       #   noise_type, noise_std
+            n_timesteps: 1.5e6       #   noise_type, noise_std, markov_env_kwargs
             normalize: "{'norm_obs': True, 'norm_reward': False}"
             gamma: 0.999             # everything else: the algorithm's constructor arguments
             policy_kwargs: "dict(net_arch=[64, 64], activation_fn=nn.Tanh)"
@@ -449,9 +452,34 @@ def canonical_settings(settings: Mapping[str, Any]) -> dict[str, Any]:
         out["normalize"] = False if normalize is None else normalize
     if "policy_kwargs" in out:
         out["policy_kwargs"] = parse_policy_kwargs(out["policy_kwargs"])
+    if MARKOV_ENV_KWARGS in out:
+        out[MARKOV_ENV_KWARGS] = parse_markov_env_kwargs(out[MARKOV_ENV_KWARGS])
     if isinstance(out.get("train_freq"), list):
         out["train_freq"] = tuple(out["train_freq"])
     return out
+
+
+def parse_markov_env_kwargs(value: Any) -> dict[str, Any]:
+    """An entry's ``markov_env_kwargs``: env keywords the task adds when ``tl_reward="markov"``.
+
+    They sit between `TL_REWARD_ENV_KWARGS` ``["markov"]`` and the user's ``env_kwargs`` (the
+    user's win), so a task can turn on the shaping measured best for it (``satisfaction_bonus``,
+    ``reward_mode``, ...) without touching other tasks; the ``"terminal"`` ablation never gets
+    them. They may not set ``observe_monitor``: the view is what ``"markov"`` means.
+
+    Example:
+        >>> parse_markov_env_kwargs({"satisfaction_bonus": 10.0})
+        {'satisfaction_bonus': 10.0}
+
+    Raises:
+        ValueError: not a mapping of keyword names, or one that sets ``observe_monitor``.
+    """
+    if not isinstance(value, Mapping) or not all(isinstance(k, str) and k.isidentifier() for k in value):
+        raise ValueError(f"{MARKOV_ENV_KWARGS} must be a mapping of env keyword names to values, got {value!r}")
+    if "observe_monitor" in value:
+        raise ValueError(f"{MARKOV_ENV_KWARGS} may not set observe_monitor (tl_reward='markov' is the monitor "
+                         f"view; 'terminal' is the ablation without it), got {dict(value)!r}")
+    return dict(value)
 
 
 def _split_env_key(key: str) -> tuple[str, dict[str, Any]]:

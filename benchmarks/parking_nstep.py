@@ -44,10 +44,12 @@ def trial_spec(n_steps: int, seed: int) -> RunSpec:
     """The suite's parking SAC run, moved to the flattened id with ``n_steps``-step returns."""
     suite_sac = suite_run("parking", "SAC")
     entry = sb3_settings.find_hyperparams(sb3_settings.load_hyperparams(), suite_sac.env, suite_sac.env_kwargs, "sac")
+    # the flat id has no entry of its own: the entry's env keywords go where the suite run's own are
+    env_kwargs = {**entry.pop(sb3_settings.MARKOV_ENV_KWARGS, {}), **suite_sac.env_kwargs}
     hyperparameters = {**entry, **suite_sac.hyperparameters, "hyperparams": False, "policy": "MlpPolicy",
                        "n_steps": n_steps}
-    return dataclasses.replace(suite_sac, env=FLAT_ID, label=f"SAC, {n_steps}-step returns", seed=seed,
-                               hyperparameters=hyperparameters)
+    return dataclasses.replace(suite_sac, env=FLAT_ID, env_kwargs=env_kwargs, label=f"SAC, {n_steps}-step returns",
+                               seed=seed, hyperparameters=hyperparameters)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -358,6 +358,26 @@ def test_the_task_entry_is_read_and_explicit_kwargs_win(tmp_path):
     assert relu.model.policy.activation_fn is torch.nn.ReLU and relu.model.policy.net_arch != [8]  # whole-name win
 
 
+def test_a_task_entry_adds_its_shaping_to_the_markov_view_only(tmp_path):
+    """An entry's markov_env_kwargs sit between the markov preset and the user's env_kwargs; the terminal ablation
+    never gets them; a saved agent keeps the keywords it trained with."""
+    own = tmp_path / "shaped.yml"
+    own.write_text("TLCarNav-v0:\n  ppo:\n    markov_env_kwargs: {satisfaction_bonus: 4.0, reward_mode: potential}\n")
+    shaped = SB3Agent("TLCarNav-v0", "ppo", seed=0, hyperparams=str(own), **TINY)
+    assert shaped.env_kwargs == {"observe_monitor": True, "reward_mode": "potential", "satisfaction_bonus": 4.0,
+                                 "gamma": 0.99}  # potential shaping takes the agent's discount, as always
+    assert shaped.env.get_attr("satisfaction_bonus") == (4.0, 4.0)
+    assert "markov_env_kwargs" not in shaped.config.algo_kwargs
+    loaded = Agent.load(shaped.save(tmp_path / "shaped.zip"))
+    assert loaded.env_kwargs == shaped.env_kwargs and loaded.env.get_attr("satisfaction_bonus") == (4.0, 4.0)
+
+    users = SB3Agent("TLCarNav-v0", "ppo", hyperparams=str(own), env_kwargs={"satisfaction_bonus": 0.0}, **TINY)
+    assert users.env_kwargs["satisfaction_bonus"] == 0.0 and users.env_kwargs["reward_mode"] == "potential"
+    ablation = SB3Agent("TLCarNav-v0", "ppo", hyperparams=str(own), tl_reward="terminal", **TINY)
+    assert ablation.env_kwargs == TL_REWARD_ENV_KWARGS["terminal"]
+    assert ablation.env.get_attr("satisfaction_bonus") == (0.0, 0.0)
+
+
 def test_the_packaged_hyperparameters_validate():
     table = load_hyperparams()
     for suite_id in ("TLCarNav-v0", "TLCarNav-v0:task=2", "TLPendulum-v0", "TLMountainCar-v0", "TLParking-v0"):
@@ -389,6 +409,10 @@ def test_the_packaged_hyperparameters_validate():
          "cannot read 'th.optim.RMSprop'"),
         ("TLCarNav-v0:\n  ppo:\n    normalize: \"{'norm_obs': True, 'gamma2': 1}\"\n", "gamma2"),
         ("TLCarNav-v0:task:\n  ppo: {}\n", "bad env key"),
+        ("TLCarNav-v0:\n  ppo:\n    markov_env_kwargs: {observe_monitor: false}\n",
+         "markov_env_kwargs may not set observe_monitor"),
+        ("TLCarNav-v0:\n  ppo:\n    markov_env_kwargs: 10\n",
+         "markov_env_kwargs must be a mapping of env keyword names to values, got 10"),
     ],
 )
 def test_a_bad_hyperparameter_file_is_refused_naming_the_culprit(tmp_path, text, message):
