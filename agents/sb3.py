@@ -70,6 +70,7 @@ from .sb3_settings import (
     parse_normalize,
     resolve_algorithm,
     tl_reward_of_env_kwargs,
+    tl_reward_of_view,
 )
 from .serialization import atomic_path, is_jsonable
 
@@ -534,7 +535,7 @@ def _tl_reward_of(env: Any, asked: str | None, loading: bool = False) -> str:
         view = _env_setting(env, "observe_monitor")
         if loading and view is None and asked is not None:  # not exposed: nothing to check it against
             return asked
-        read = "markov" if view else "terminal"
+        read = tl_reward_of_view(view)
         if loading and read != asked:
             raise ValueError(f"the agent was trained with tl_reward={asked!r} (observe_monitor={asked == 'markov'}), "
                              f"the env has observe_monitor={bool(view)}: its observations are not the agent's; "

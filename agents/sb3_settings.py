@@ -119,6 +119,19 @@ def check_tl_reward(value: Any) -> str:
     return value
 
 
+def tl_reward_of_view(observe_monitor: Any) -> str:
+    """The ``tl_reward`` label of an env with or without the Markov view: ``"markov"`` iff it observes its monitor.
+
+    The one rule for env keywords (`tl_reward_of_env_kwargs`) and env objects alike; the reward mode
+    does not enter it (dense, potential, with a bonus: all are the view's shaped rewards).
+
+    Example:
+        >>> tl_reward_of_view(True), tl_reward_of_view(None)
+        ('markov', 'terminal')
+    """
+    return "markov" if observe_monitor else "terminal"
+
+
 def tl_reward_of_env_kwargs(asked: str | None, env_kwargs: Mapping[str, Any], source: str = "env_kwargs") -> str:
     """The ``tl_reward`` an env made with ``env_kwargs`` (the preset's merged under the user's) implements.
 
@@ -138,7 +151,7 @@ def tl_reward_of_env_kwargs(asked: str | None, env_kwargs: Mapping[str, Any], so
         >>> tl_reward_of_env_kwargs(None, {"observe_monitor": False, "reward_mode": "dense"})
         'terminal'
     """
-    read = "markov" if env_kwargs.get("observe_monitor") else "terminal"
+    read = tl_reward_of_view(env_kwargs.get("observe_monitor"))
     if asked is not None and asked != read:
         raise ValueError(f"tl_reward={asked!r} sets observe_monitor={asked == 'markov'}, but {source} set "
                          f"observe_monitor={env_kwargs.get('observe_monitor')!r}: drop one of the two "
