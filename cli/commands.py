@@ -70,18 +70,30 @@ def build_env(run: dict[str, Any], render_mode: str | None = None) -> Any:
 
     SB3 agents get the env keywords of their ``tl_reward`` (`tl_gym.agents.sb3_settings.TL_REWARD_ENV_KWARGS`)
     here too, since they cannot rewrap an env object: with ``--spec`` they go to the wrapper (the run's
-    ``--wrapper-kwargs`` win), for a rendered env to the id (the run's own ``env_kwargs`` win, as in the agent).
+    ``--wrapper-kwargs`` win). ``render_mode`` is for ``--spec`` runs; an id's rendered env is `rendered_env`'s.
     """
     kwargs = dict(run["env_kwargs"])
     tl_kwargs = _tl_reward_env_kwargs(run)
+    if run.get("spec") is None:
+        return run["env"]
     if render_mode is not None:
         kwargs["render_mode"] = render_mode
-    if run.get("spec") is None:
-        return run["env"] if render_mode is None else gym.make(run["env"], **{**tl_kwargs, **kwargs})
     if not run.get("signals"):
         raise ValueError("--spec needs --signals to say where each signal comes from, e.g. --signals cos_th=0")
     wrapper_kwargs = {**tl_kwargs, **run.get("wrapper_kwargs", {})}  # run.json files before --wrapper-kwargs lack it
     return tl_gym.TLTLRewardWrapper(gym.make(run["env"], **kwargs), run["spec"], run["signals"], **wrapper_kwargs)
+
+
+def rendered_env(run: dict[str, Any], agent: Any) -> Any:
+    """A single env of the run that renders frames.
+
+    For an id it is made with the agent's own env keywords (what it trained on: ``--env-kwargs``, its
+    ``tl_reward``'s and the task's shaping), so the recorded episode is the evaluated one; for ``--spec``,
+    the run's wrapped env.
+    """
+    if run.get("spec") is None:
+        return gym.make(run["env"], **{**agent.env_kwargs, "render_mode": "rgb_array"})
+    return build_env(run, render_mode="rgb_array")
 
 
 def _tl_reward_env_kwargs(run: dict[str, Any]) -> dict[str, Any]:
@@ -284,7 +296,7 @@ def evaluate(args: argparse.Namespace) -> int:
         print(f"\nwhy ({agent.formula}): each top-level conjunct's robustness over the same episodes\n"
               + format_breakdown(rows))
     if args.gif is not None:
-        frames = record_episode(agent, build_env(run, render_mode="rgb_array"), seed=args.seed,
+        frames = record_episode(agent, rendered_env(run, agent), seed=args.seed,
                                 deterministic=not args.stochastic)
         save_gif(frames, args.gif)
         print(f"wrote {args.gif} ({len(frames)} frames)")

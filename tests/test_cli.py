@@ -77,6 +77,20 @@ def test_eval_saves_a_gif(tmp_path, capsys):
     assert gif.read_bytes()[:3] == b"GIF" and "11 frames" in capsys.readouterr().out
 
 
+def test_eval_gif_uses_the_env_keywords_the_agent_trained_with(tmp_path, capsys):
+    """The GIF's env is made with the agent's own keywords, the task's markov_env_kwargs included (it was made with
+    --env-kwargs and tl_reward's only: here a 200-step episode instead of the agent's 10)."""
+    own = tmp_path / "short.yml"
+    own.write_text("TLCarNav-v0:\n  ppo:\n    markov_env_kwargs: {horizon: 10}\n")
+    out = tmp_path / "ppo"
+    assert main(["train", "--env", "TLCarNav-v0", "--agent", "ppo", "--hyperparams", str(own), "--iterations", "1",
+                 "--steps-per-iteration", "64", "--n-envs", "2", "--n-steps", "32", "--batch-size", "32",
+                 "--n-epochs", "1", "--out", str(out), "--quiet"]) == 0
+    gif = tmp_path / "episode.gif"
+    assert main(["eval", str(out), "--episodes", "2", "--gif", str(gif)]) == 0
+    assert "11 frames" in capsys.readouterr().out
+
+
 def test_spec_and_signals_train_on_any_env(tmp_path, capsys):
     out = tmp_path / "pendulum"
     assert main(["train", "--env", "Pendulum-v1", "--spec", "F(cos_th > 0.9)", "--signals", "cos_th=0",
