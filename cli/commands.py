@@ -218,6 +218,8 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
     if args.eval_every is not None:
         callbacks.append(EvalCallback(args.eval_every, args.eval_episodes, best_path=out / BEST_FILE,
                                       log_path=out / EVALUATIONS_FILE))
+    if not args.quiet and run["spec"] is None:  # what the agent adds to --env-kwargs is said, not silent
+        print(f"{type(agent).__name__} on {run['env']} with the env keywords {agent.env_kwargs}")
     agent.learn(iterations, callback=as_callback(callbacks), progress_bar=not args.quiet)
     agent.save(out / AGENT_FILE)
     write_plots(agent, run, snapshots, out)

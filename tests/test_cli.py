@@ -85,7 +85,10 @@ def test_eval_gif_uses_the_env_keywords_the_agent_trained_with(tmp_path, capsys)
     out = tmp_path / "ppo"
     assert main(["train", "--env", "TLCarNav-v0", "--agent", "ppo", "--hyperparams", str(own), "--iterations", "1",
                  "--steps-per-iteration", "64", "--n-envs", "2", "--n-steps", "32", "--batch-size", "32",
-                 "--n-epochs", "1", "--out", str(out), "--quiet"]) == 0
+                 "--n-epochs", "1", "--out", str(out)]) == 0
+    said = ("SB3Agent on TLCarNav-v0 with the env keywords "
+            "{'observe_monitor': True, 'reward_mode': 'dense', 'horizon': 10}")
+    assert said in capsys.readouterr().out  # train says what the agent added to --env-kwargs
     gif = tmp_path / "episode.gif"
     assert main(["eval", str(out), "--episodes", "2", "--gif", str(gif)]) == 0
     assert "11 frames" in capsys.readouterr().out
