@@ -54,6 +54,7 @@ from .hindsight import make_hindsight_feeder
 from .sampling import env_attribute
 from .sb3_settings import (
     DEFAULT_TL_REWARD,
+    HYPERPARAMS_FILE,
     MARKOV_ENV_KWARGS,
     TL_REWARD_ENV_KWARGS,
     LinearSchedule,  # here too for agents saved before sb3_settings: they pickle tl_gym.agents.sb3.LinearSchedule
@@ -123,7 +124,8 @@ class SB3Agent(Agent):
     Raises:
         ValueError: a bad setting (naming it), an iteration more than 5% off ``steps_per_iteration``,
             or a ``tl_reward`` the env object or ``env_kwargs`` contradict.
-        TypeError: an env id that does not take the keywords ``tl_reward`` adds.
+        TypeError: an env id that does not take a keyword ``tl_reward`` or the task's ``markov_env_kwargs``
+            add (naming it and where it comes from).
 
     Example:
         >>> resolve_algorithm("ppo").__name__  # what SB3Agent("TLCarNav-v0", "ppo") trains
@@ -163,11 +165,17 @@ class SB3Agent(Agent):
         if hyperparams is not False and not saved:
             table = load_hyperparams(None if hyperparams is True else hyperparams)
             entry = find_hyperparams(table, *_env_key(env, env_kwargs), self.algo_class.__name__)
-        added = dict(TL_REWARD_ENV_KWARGS[tl_reward])
+        # where each keyword the agent adds comes from, for the message of an env that does not take it
+        sources = dict.fromkeys(TL_REWARD_ENV_KWARGS[tl_reward], f"tl_reward={tl_reward!r}")
         task_shaping = entry.pop(MARKOV_ENV_KWARGS, {})
-        if isinstance(env, str) and tl_reward == "markov" and task_shaping:  # the task's best shaping, under the user's
-            added.update(task_shaping)
-            env_kwargs = {**added, **users_env_kwargs}
+        if tl_reward == "markov" and task_shaping:  # the task's best shaping, under the user's keywords
+            where = (f"{MARKOV_ENV_KWARGS} of {self.algo_class.__name__.lower()} on {_env_key(env, env_kwargs)[0]} in "
+                     f"{HYPERPARAMS_FILE.name if hyperparams is True else hyperparams}")
+            if isinstance(env, str):
+                env_kwargs = {**TL_REWARD_ENV_KWARGS["markov"], **task_shaping, **users_env_kwargs}
+                sources.update(dict.fromkeys(task_shaping, f"the {where}"))
+            else:
+                _warn_unshaped(env, task_shaping, where)
         settings = merge_hyperparameters(entry, explicit, on_policy)
         if isinstance(env, str) and env_kwargs.get("reward_mode") == "potential" and "gamma" not in env_kwargs:
             # potential shaping keeps the optimal policies only with the agent's own discount
@@ -181,7 +189,7 @@ class SB3Agent(Agent):
         self._env_argument = env
         self._train_env_kwargs = dict(env_kwargs or {})  # read by _setup, which runs inside Agent.__init__
         if isinstance(env, str):
-            venv = _make_sync_vec(env, config.n_envs, self._train_env_kwargs, added)
+            venv = _make_sync_vec(env, config.n_envs, self._train_env_kwargs, sources)
             super().__init__(venv, seed=seed, **hyperparameters)
             self.env_kwargs = dict(self._train_env_kwargs)
             self._env_source = describe_env_source(env, self.env_kwargs)
@@ -554,17 +562,31 @@ def _tl_reward_of(env: Any, asked: str | None, loading: bool = False) -> str:
     return asked
 
 
+def _warn_unshaped(env: Any, shaping: Mapping[str, Any], where: str) -> None:
+    """Warn that an env object lacks the task's shaping keywords (the agent cannot rebuild it with them)."""
+    missing = {k: v for k, v in shaping.items() if _env_setting(env, k) != v}
+    if missing:
+        warnings.warn(f"the env object does not have the {where}: {missing} (an env object is used as it was "
+                      "built); make it with those keywords, or pass the env id", stacklevel=3)
+
+
 def _make_sync_vec(env_id: str, n_envs: int, env_kwargs: Mapping[str, Any],
-                   added: Mapping[str, Any]) -> gym.vector.VectorEnv:
-    """The evaluation env: ``n_envs`` of the very single envs SB3 trains on, so the observation layout matches."""
+                   sources: Mapping[str, str]) -> gym.vector.VectorEnv:
+    """The evaluation env: ``n_envs`` of the very single envs SB3 trains on, so the observation layout matches.
+
+    ``sources`` says where each keyword the agent added comes from; a keyword of theirs that the env
+    refuses is named with its source, one of the user's own is left to the env's own error.
+    """
     try:
         return gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="sync", **env_kwargs)
     except TypeError as error:
-        if not added:
+        own_words = str(error).split(" was raised from the environment creator")[0]  # Gymnasium appends all kwargs
+        refused = [k for k in sources if f"'{k}'" in own_words]
+        if not refused:
             raise
-        raise TypeError(f"{env_id} does not take the env keywords {dict(added)} that tl_reward (and the task's "
-                        f"{MARKOV_ENV_KWARGS}) add ({error}); pass tl_reward='terminal', or env_kwargs that set "
-                        "them") from error
+        detail = ", ".join(f"{k}={env_kwargs[k]!r} (from {sources[k]})" for k in refused)
+        raise TypeError(f"{env_id} does not take the env keyword {detail}: {error}. tl_reward='terminal' "
+                        f"adds no view keywords, hyperparams=False no {MARKOV_ENV_KWARGS}") from error
 
 
 def _single_env_factories(env: Any, env_kwargs: dict[str, Any], n_envs: int) -> list[Any]:

@@ -478,20 +478,24 @@ def parse_markov_env_kwargs(value: Any) -> dict[str, Any]:
     They sit between `TL_REWARD_ENV_KWARGS` ``["markov"]`` and the user's ``env_kwargs`` (the
     user's win), so a task can turn on the shaping measured best for it (``satisfaction_bonus``,
     ``reward_mode``, ...) without touching other tasks; the ``"terminal"`` ablation never gets
-    them. They may not set ``observe_monitor``: the view is what ``"markov"`` means.
+    them. They may not set ``observe_monitor`` (the view is what ``"markov"`` means) nor ``gamma``
+    (potential shaping takes the agent's own discount).
 
     Example:
         >>> parse_markov_env_kwargs({"satisfaction_bonus": 10.0})
         {'satisfaction_bonus': 10.0}
 
     Raises:
-        ValueError: not a mapping of keyword names, or one that sets ``observe_monitor``.
+        ValueError: not a mapping of keyword names, or one that sets ``observe_monitor`` or ``gamma``.
     """
     if not isinstance(value, Mapping) or not all(isinstance(k, str) and k.isidentifier() for k in value):
         raise ValueError(f"{MARKOV_ENV_KWARGS} must be a mapping of env keyword names to values, got {value!r}")
     if "observe_monitor" in value:
         raise ValueError(f"{MARKOV_ENV_KWARGS} may not set observe_monitor (tl_reward='markov' is the monitor "
                          f"view; 'terminal' is the ablation without it), got {dict(value)!r}")
+    if "gamma" in value:
+        raise ValueError(f"{MARKOV_ENV_KWARGS} may not set gamma: the shaping's discount is the agent's (set the "
+                         f"entry's own gamma), got {dict(value)!r}")
     return dict(value)
 
 

@@ -158,7 +158,8 @@ def build_parser(with_hyperparameters: bool = False) -> argparse.ArgumentParser:
     train.add_argument("--out", type=Path, required=True, help="run folder to write")
     train.add_argument("--snapshots", type=parse_snapshots, default=None,
                        help="iterations whose sampled trajectories are plotted, e.g. 1,10,30 (default: spread)")
-    train.add_argument("--quiet", action="store_true", help="no progress bar")
+    train.add_argument("--quiet", action="store_true",
+                       help="no progress bar, and no line saying the env keywords the agent trains with")
     train.add_argument("--eval-every", type=int, default=None, metavar="N",
                        help="every N iterations, evaluate the deterministic policy and keep the best agent as "
                             "best_agent.zip (rl-baselines3-zoo's --eval-freq and best_model.zip)")

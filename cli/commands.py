@@ -72,10 +72,12 @@ def build_env(run: dict[str, Any], render_mode: str | None = None) -> Any:
     here too, since they cannot rewrap an env object: with ``--spec`` they go to the wrapper (the run's
     ``--wrapper-kwargs`` win). ``render_mode`` is for ``--spec`` runs; an id's rendered env is `rendered_env`'s.
     """
+    if run.get("spec") is None:
+        if render_mode is not None:
+            raise ValueError("an env id's rendered env takes the agent's env keywords: use rendered_env(run, agent)")
+        return run["env"]
     kwargs = dict(run["env_kwargs"])
     tl_kwargs = _tl_reward_env_kwargs(run)
-    if run.get("spec") is None:
-        return run["env"]
     if render_mode is not None:
         kwargs["render_mode"] = render_mode
     if not run.get("signals"):

@@ -74,7 +74,9 @@ def test_eval_saves_a_gif(tmp_path, capsys):
                  "--iterations", "1", "--n-episodes", "4", "--out", str(out), "--quiet"]) == 0
     gif = tmp_path / "episode.gif"
     assert main(["eval", str(out), "--episodes", "2", "--gif", str(gif)]) == 0
-    assert gif.read_bytes()[:3] == b"GIF" and "11 frames" in capsys.readouterr().out
+    out_text = capsys.readouterr().out
+    assert gif.read_bytes()[:3] == b"GIF" and "11 frames" in out_text
+    assert "env keywords" not in out_text  # --quiet: no line but the result
 
 
 def test_eval_gif_uses_the_env_keywords_the_agent_trained_with(tmp_path, capsys):
@@ -101,6 +103,9 @@ def test_spec_and_signals_train_on_any_env(tmp_path, capsys):
     assert (out / "trajectories.png").exists()  # signals over time: Pendulum has no plane layout
     assert main(["eval", str(out), "--episodes", "2"]) == 0
     assert "2 episodes" in capsys.readouterr().out
+    gif = tmp_path / "pendulum.gif"  # a --spec run records on its wrapped env, made to render
+    assert main(["eval", str(out), "--episodes", "1", "--gif", str(gif)]) == 0
+    assert gif.read_bytes()[:3] == b"GIF" and "201 frames" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize(

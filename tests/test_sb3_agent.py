@@ -5,6 +5,7 @@ from __future__ import annotations
 import pickle
 import sys
 import tempfile
+import warnings
 import zipfile
 from pathlib import Path
 
@@ -368,14 +369,41 @@ def test_a_task_entry_adds_its_shaping_to_the_markov_view_only(tmp_path):
                                  "gamma": 0.99}  # potential shaping takes the agent's discount, as always
     assert shaped.env.get_attr("satisfaction_bonus") == (4.0, 4.0)
     assert "markov_env_kwargs" not in shaped.config.algo_kwargs
-    loaded = Agent.load(shaped.save(tmp_path / "shaped.zip"))
+    saved = shaped.save(tmp_path / "shaped.zip")
+    own.unlink()  # the keywords come from the save, not from the file read again
+    loaded = Agent.load(saved)
     assert loaded.env_kwargs == shaped.env_kwargs and loaded.env.get_attr("satisfaction_bonus") == (4.0, 4.0)
+    own.write_text("TLCarNav-v0:\n  ppo:\n    markov_env_kwargs: {satisfaction_bonus: 4.0, reward_mode: potential}\n")
 
     users = SB3Agent("TLCarNav-v0", "ppo", hyperparams=str(own), env_kwargs={"satisfaction_bonus": 0.0}, **TINY)
     assert users.env_kwargs["satisfaction_bonus"] == 0.0 and users.env_kwargs["reward_mode"] == "potential"
     ablation = SB3Agent("TLCarNav-v0", "ppo", hyperparams=str(own), tl_reward="terminal", **TINY)
     assert ablation.env_kwargs == TL_REWARD_ENV_KWARGS["terminal"]
     assert ablation.env.get_attr("satisfaction_bonus") == (0.0, 0.0)
+
+
+def test_an_env_object_without_the_tasks_shaping_is_warned_about(tmp_path):
+    own = tmp_path / "shaped.yml"
+    own.write_text("TLCarNav-v0:\n  ppo:\n    markov_env_kwargs: {satisfaction_bonus: 4.0}\n")
+    plain = gym.make("TLCarNav-v0", observe_monitor=True, reward_mode="dense")
+    with pytest.warns(UserWarning, match=r"does not have the markov_env_kwargs of ppo on TLCarNav-v0 in .*shaped.yml: "
+                                         r"\{'satisfaction_bonus': 4.0\}"):
+        SB3Agent(plain, "ppo", hyperparams=str(own), **TINY)
+    shaped = gym.make("TLCarNav-v0", observe_monitor=True, reward_mode="dense", satisfaction_bonus=4.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        SB3Agent(shaped, "ppo", hyperparams=str(own), **TINY)
+
+
+def test_an_env_keyword_the_env_refuses_is_named_with_its_source(tmp_path):
+    own = tmp_path / "typo.yml"
+    own.write_text("TLCarNav-v0:\n  ppo:\n    markov_env_kwargs: {satisfaction_bonsu: 4.0}\n")
+    with pytest.raises(TypeError, match=r"does not take the env keyword satisfaction_bonsu=4.0 \(from the "
+                                        r"markov_env_kwargs of ppo on TLCarNav-v0 in .*typo.yml\)"):
+        SB3Agent("TLCarNav-v0", "ppo", hyperparams=str(own), **TINY)
+    with pytest.raises(TypeError) as raised:  # the user's own keyword: the env's own error, no source invented
+        SB3Agent("TLCarNav-v0", "ppo", env_kwargs={"colour": 1}, **TINY)
+    assert "colour" in str(raised.value) and "(from " not in str(raised.value)
 
 
 def test_the_packaged_hyperparameters_validate():
@@ -411,6 +439,8 @@ def test_the_packaged_hyperparameters_validate():
         ("TLCarNav-v0:task:\n  ppo: {}\n", "bad env key"),
         ("TLCarNav-v0:\n  ppo:\n    markov_env_kwargs: {observe_monitor: false}\n",
          "markov_env_kwargs may not set observe_monitor"),
+        ("TLCarNav-v0:\n  ppo:\n    markov_env_kwargs: {reward_mode: potential, gamma: 0.9}\n",
+         "markov_env_kwargs may not set gamma"),
         ("TLCarNav-v0:\n  ppo:\n    markov_env_kwargs: 10\n",
          "markov_env_kwargs must be a mapping of env keyword names to values, got 10"),
     ],
