@@ -27,7 +27,7 @@ from tl_gym.agents.sb3 import SB3Agent, one_torch_thread
 
 from benchmarks.parking_starts import ParkingController
 from benchmarks.run_one import execute_run
-from benchmarks.suite import suite_run
+from benchmarks.suite import PARKING_WITHOUT_BONUS, suite_run
 from benchmarks.sweep_config import RunSpec
 
 
@@ -76,10 +76,14 @@ def pretrain(agent: SB3Agent, gradient_steps: int) -> None:
 
 
 def trial_spec(demo_steps: int, pretrain_steps: int, seed: int) -> RunSpec:
-    """The suite's parking SAC run, labelled with the trial's demonstrations and pre-training."""
+    """The suite's parking SAC run, labelled with the trial's demonstrations and pre-training.
+
+    As it was when the trial ran: without the satisfaction bonus of the SAC entry since.
+    """
     suite_sac = suite_run("parking", "SAC")
     label = f"SAC, {demo_steps} controller steps in the replay buffer, {pretrain_steps} pre-training steps"
-    return dataclasses.replace(suite_sac, label=label, seed=seed)
+    return dataclasses.replace(suite_sac, label=label, seed=seed, note="",
+                               env_kwargs={**suite_sac.env_kwargs, **PARKING_WITHOUT_BONUS})
 
 
 def preparation(demo_steps: int, pretrain_steps: int) -> Callable[[Any], None]:

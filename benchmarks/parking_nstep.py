@@ -24,7 +24,7 @@ from tl_gym.envs.suite import make_parking
 
 import tl_gym  # noqa: F401  (registers TLParking-v0)
 from benchmarks.run_one import execute_run
-from benchmarks.suite import suite_run
+from benchmarks.suite import PARKING_WITHOUT_BONUS, suite_run
 from benchmarks.sweep_config import RunSpec
 
 FLAT_ID = "TLParkingFlat-v0"
@@ -41,15 +41,18 @@ def register_flat_parking() -> None:
 
 
 def trial_spec(n_steps: int, seed: int) -> RunSpec:
-    """The suite's parking SAC run, moved to the flattened id with ``n_steps``-step returns."""
+    """The suite's parking SAC run, moved to the flattened id with ``n_steps``-step returns.
+
+    As it was when the trial ran: without the satisfaction bonus of the SAC entry since.
+    """
     suite_sac = suite_run("parking", "SAC")
     entry = sb3_settings.find_hyperparams(sb3_settings.load_hyperparams(), suite_sac.env, suite_sac.env_kwargs, "sac")
-    # the flat id has no entry of its own: the entry's env keywords go where the suite run's own are
-    env_kwargs = {**entry.pop(sb3_settings.MARKOV_ENV_KWARGS, {}), **suite_sac.env_kwargs}
+    entry.pop(sb3_settings.MARKOV_ENV_KWARGS, None)  # env keywords, not hyperparameters: the trial pins its own
     hyperparameters = {**entry, **suite_sac.hyperparameters, "hyperparams": False, "policy": "MlpPolicy",
                        "n_steps": n_steps}
-    return dataclasses.replace(suite_sac, env=FLAT_ID, env_kwargs=env_kwargs, label=f"SAC, {n_steps}-step returns",
-                               seed=seed, hyperparameters=hyperparameters)
+    return dataclasses.replace(suite_sac, env=FLAT_ID, env_kwargs={**suite_sac.env_kwargs, **PARKING_WITHOUT_BONUS},
+                               label=f"SAC, {n_steps}-step returns", seed=seed, note="",
+                               hyperparameters=hyperparameters)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -31,8 +31,12 @@ RESULTS = HERE.parent / "docs" / "results"
 #: and were lost with that machine.) ``--quick`` runs go to ``runs/suite-quick``.
 RECORDS = HERE / "results" / "suite"
 #: Record folders beside a task's own whose runs its report also shows, by config stem: runs of the task as it was
-#: before a change, kept for comparison (parking's episode ended at the slot until 2026-12-03; docs/results/parking.md).
-EARLIER_RECORDS = {"parking": ["suite-parking-terminate-on-success-session"]}
+#: before a change, kept for comparison (parking's episode ended at the slot until 2026-12-03, and SAC paid no
+#: satisfaction bonus until 2026-12-05; docs/results/parking.md).
+EARLIER_RECORDS = {"parking": ["suite-parking-terminate-on-success-session", "suite-parking-no-bonus-session"]}
+#: Parking's env keywords before its SAC entry added satisfaction_bonus 10 (2026-12-05): the trials of
+#: docs/results/parking.md built on the suite's SAC run that ran before it pin them, to stay what they ran.
+PARKING_WITHOUT_BONUS = {"satisfaction_bonus": 0.0}
 #: The report's fixed words: `write_report` writes them, `hand_notes` tells its own paragraphs from the notes by them.
 PAGE_TITLE, PRODUCED_BY = "# The TL task suite", "Produced by "
 NOT_RUN, NO_RUN = "Not run for this report", "No finished run for this report"
