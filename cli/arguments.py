@@ -122,7 +122,8 @@ def hyperparameter_help() -> str:
                  "hyperparams=true (agents/hyperparams/sb3.yml, or false, or a path), steps_per_iteration=8000, "
                  "n_envs, policy, n_timesteps, noise_type, noise_std, her_goals=0 (off-policy, goal-conditioned envs: "
                  "relabelled copies of each episode), and the algorithm's own keywords "
-                 "(learning_rate, batch_size, ...); unset ones come from the task's entry in the file")
+                 "(learning_rate, batch_size, ...); unset ones come from the task's entry in the file, whose "
+                 "markov_env_kwargs add the task's shaping to tl_reward='markov' (--env-kwargs win)")
     return "\n".join(lines)
 
 
