@@ -56,11 +56,11 @@ DEFAULT_NORMALIZE: dict[str, Any] = {"norm_obs": True, "norm_reward": False}
 #: The packaged per-task hyperparameters (the zoo's ``hyperparams/<algo>.yml``, all algorithms in one file).
 HYPERPARAMS_FILE = Path(__file__).with_name("hyperparams") / "sb3.yml"
 
-#: Keys of a hyperparameter entry that are not the algorithm's constructor arguments.
-ENTRY_KEYS = ("n_envs", "policy", "n_timesteps", "normalize", "noise_type", "noise_std", "markov_env_kwargs")
-
 #: The entry key of env keywords a task adds to ``TL_REWARD_ENV_KWARGS["markov"]`` (its measured best shaping).
 MARKOV_ENV_KWARGS = "markov_env_kwargs"
+
+#: Keys of a hyperparameter entry that are not the algorithm's constructor arguments.
+ENTRY_KEYS = ("n_envs", "policy", "n_timesteps", "normalize", "noise_type", "noise_std", MARKOV_ENV_KWARGS)
 
 #: Exploration noise of off-policy algorithms, by the zoo's ``noise_type`` names.
 NOISE_TYPES = ("normal", "ornstein-uhlenbeck")
