@@ -27,7 +27,7 @@ from tl_gym.agents.sb3 import SB3Agent, one_torch_thread
 
 from benchmarks.parking_starts import ParkingController
 from benchmarks.run_one import execute_run
-from benchmarks.suite import PARKING_WITHOUT_BONUS, suite_run
+from benchmarks.suite import parking_sac_without_bonus
 from benchmarks.sweep_config import RunSpec
 
 
@@ -80,10 +80,8 @@ def trial_spec(demo_steps: int, pretrain_steps: int, seed: int) -> RunSpec:
 
     As it was when the trial ran: without the satisfaction bonus of the SAC entry since.
     """
-    suite_sac = suite_run("parking", "SAC")
     label = f"SAC, {demo_steps} controller steps in the replay buffer, {pretrain_steps} pre-training steps"
-    return dataclasses.replace(suite_sac, label=label, seed=seed, note="",
-                               env_kwargs={**suite_sac.env_kwargs, **PARKING_WITHOUT_BONUS})
+    return dataclasses.replace(parking_sac_without_bonus(), label=label, seed=seed)
 
 
 def preparation(demo_steps: int, pretrain_steps: int) -> Callable[[Any], None]:

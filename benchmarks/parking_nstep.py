@@ -24,7 +24,7 @@ from tl_gym.envs.suite import make_parking
 
 import tl_gym  # noqa: F401  (registers TLParking-v0)
 from benchmarks.run_one import execute_run
-from benchmarks.suite import PARKING_WITHOUT_BONUS, suite_run
+from benchmarks.suite import parking_sac_without_bonus
 from benchmarks.sweep_config import RunSpec
 
 FLAT_ID = "TLParkingFlat-v0"
@@ -45,13 +45,12 @@ def trial_spec(n_steps: int, seed: int) -> RunSpec:
 
     As it was when the trial ran: without the satisfaction bonus of the SAC entry since.
     """
-    suite_sac = suite_run("parking", "SAC")
+    suite_sac = parking_sac_without_bonus()
     entry = sb3_settings.find_hyperparams(sb3_settings.load_hyperparams(), suite_sac.env, suite_sac.env_kwargs, "sac")
     entry.pop(sb3_settings.MARKOV_ENV_KWARGS, None)  # env keywords, not hyperparameters: the trial pins its own
     hyperparameters = {**entry, **suite_sac.hyperparameters, "hyperparams": False, "policy": "MlpPolicy",
                        "n_steps": n_steps}
-    return dataclasses.replace(suite_sac, env=FLAT_ID, env_kwargs={**suite_sac.env_kwargs, **PARKING_WITHOUT_BONUS},
-                               label=f"SAC, {n_steps}-step returns", seed=seed, note="",
+    return dataclasses.replace(suite_sac, env=FLAT_ID, label=f"SAC, {n_steps}-step returns", seed=seed,
                                hyperparameters=hyperparameters)
 
 

@@ -9,6 +9,7 @@ under ``--out``).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -34,9 +35,6 @@ RECORDS = HERE / "results" / "suite"
 #: before a change, kept for comparison (parking's episode ended at the slot until 2026-12-03, and SAC paid no
 #: satisfaction bonus until 2026-12-05; docs/results/parking.md).
 EARLIER_RECORDS = {"parking": ["suite-parking-terminate-on-success-session", "suite-parking-no-bonus-session"]}
-#: Parking's env keywords before its SAC entry added satisfaction_bonus 10 (2026-12-05): the trials of
-#: docs/results/parking.md built on the suite's SAC run that ran before it pin them, to stay what they ran.
-PARKING_WITHOUT_BONUS = {"satisfaction_bonus": 0.0}
 #: The report's fixed words: `write_report` writes them, `hand_notes` tells its own paragraphs from the notes by them.
 PAGE_TITLE, PRODUCED_BY = "# The TL task suite", "Produced by "
 NOT_RUN, NO_RUN = "Not run for this report", "No finished run for this report"
@@ -61,6 +59,15 @@ def suite_run(task: str, label: str) -> RunSpec:
             return spec
     raise KeyError(f"the suite config {task}.toml has no run labelled {label!r}; its labels: "
                    f"{sorted({spec.label for spec in runs})}")
+
+
+def parking_sac_without_bonus() -> RunSpec:
+    """The suite's parking SAC run as it was before its entry added satisfaction_bonus 10 (2026-12-05).
+
+    The trials of docs/results/parking.md built on that run before then start from it, to stay what they ran.
+    """
+    suite_sac = suite_run("parking", "SAC")
+    return dataclasses.replace(suite_sac, env_kwargs={**suite_sac.env_kwargs, "satisfaction_bonus": 0.0}, note="")
 
 
 #: Mean ρ beyond which the ρ panel of `plot_task` is drawn on a symlog axis.
