@@ -164,12 +164,13 @@ class SB3Agent(Agent):
             hyperparams = hyperparams.hyperparams
         if hyperparams is not False and not saved:
             table = load_hyperparams(None if hyperparams is True else hyperparams)
-            entry = find_hyperparams(table, *_env_key(env, env_kwargs), self.algo_class.__name__)
+            env_id, key_kwargs = _env_key(env, env_kwargs)
+            entry = find_hyperparams(table, env_id, key_kwargs, self.algo_class.__name__)
         # where each keyword the agent adds comes from, for the message of an env that does not take it
         sources = dict.fromkeys(TL_REWARD_ENV_KWARGS[tl_reward], f"tl_reward={tl_reward!r}")
-        task_shaping = entry.pop(MARKOV_ENV_KWARGS, {})
+        task_shaping = entry.pop(MARKOV_ENV_KWARGS, {})  # only an entry the file gave has any
         if tl_reward == "markov" and task_shaping:  # the task's best shaping, under the user's keywords
-            where = (f"{MARKOV_ENV_KWARGS} of {self.algo_class.__name__.lower()} on {_env_key(env, env_kwargs)[0]} in "
+            where = (f"{MARKOV_ENV_KWARGS} of {self.algo_class.__name__.lower()} on {env_id} in "
                      f"{HYPERPARAMS_FILE.name if hyperparams is True else hyperparams}")
             if isinstance(env, str):
                 env_kwargs = {**TL_REWARD_ENV_KWARGS["markov"], **task_shaping, **users_env_kwargs}

@@ -363,7 +363,8 @@ def test_a_task_entry_adds_its_shaping_to_the_markov_view_only(tmp_path):
     """An entry's markov_env_kwargs sit between the markov preset and the user's env_kwargs; the terminal ablation
     never gets them; a saved agent keeps the keywords it trained with."""
     own = tmp_path / "shaped.yml"
-    own.write_text("TLCarNav-v0:\n  ppo:\n    markov_env_kwargs: {satisfaction_bonus: 4.0, reward_mode: potential}\n")
+    entry = "TLCarNav-v0:\n  ppo:\n    markov_env_kwargs: {satisfaction_bonus: 4.0, reward_mode: potential}\n"
+    own.write_text(entry)
     shaped = SB3Agent("TLCarNav-v0", "ppo", seed=0, hyperparams=str(own), **TINY)
     assert shaped.env_kwargs == {"observe_monitor": True, "reward_mode": "potential", "satisfaction_bonus": 4.0,
                                  "gamma": 0.99}  # potential shaping takes the agent's discount, as always
@@ -373,7 +374,7 @@ def test_a_task_entry_adds_its_shaping_to_the_markov_view_only(tmp_path):
     own.unlink()  # the keywords come from the save, not from the file read again
     loaded = Agent.load(saved)
     assert loaded.env_kwargs == shaped.env_kwargs and loaded.env.get_attr("satisfaction_bonus") == (4.0, 4.0)
-    own.write_text("TLCarNav-v0:\n  ppo:\n    markov_env_kwargs: {satisfaction_bonus: 4.0, reward_mode: potential}\n")
+    own.write_text(entry)
 
     users = SB3Agent("TLCarNav-v0", "ppo", hyperparams=str(own), env_kwargs={"satisfaction_bonus": 0.0}, **TINY)
     assert users.env_kwargs["satisfaction_bonus"] == 0.0 and users.env_kwargs["reward_mode"] == "potential"
