@@ -140,6 +140,18 @@ def test_the_dense_satisfaction_bonus_is_paid_when_the_prefix_is_satisfied_and_t
     assert math.fsum(satisfied) == pytest.approx(info["robustness"] + 10.0, abs=1e-12)
 
 
+def test_a_violation_takes_the_dense_bonus_back_and_ends_the_episode_with_end_on_violation():
+    # the parking candidate's pair: the prefix is satisfied at s_3, broken at s_5; the episode stops there
+    spec, values = "F(a > 0.5) & G(a < 0.9)", np.vstack([RISE, np.ones((4, 3))])
+    env = TLTLRewardWrapper(Scripted(values), spec, signals={"a": 0}, reward_mode="dense",
+                            satisfaction_bonus=10.0, end_on_violation=True)
+    rewards, info = run(env)
+    plain, _ = run(TLTLRewardWrapper(Scripted(RISE), spec, signals={"a": 0}, reward_mode="dense"))
+    assert len(rewards) == 5 and info["violated"] == "G a < 0.9" and not info["satisfied"]
+    np.testing.assert_allclose(np.subtract(rewards, plain), [0.0, 0.0, 10.0, 0.0, -10.0], atol=1e-12)
+    assert math.fsum(rewards) == pytest.approx(info["robustness"], abs=1e-12)  # no bonus left in the return
+
+
 def test_infinite_robustness_is_clipped_to_a_float():
     rewards, info = run(TLTLRewardWrapper(Scripted(), "true", signals={}))
     assert info["robustness"] == math.inf and rewards[-1] == tl_gym.wrapper.DEFAULT_CLIP
