@@ -32,9 +32,10 @@ RESULTS = HERE.parent / "docs" / "results"
 #: and were lost with that machine.) ``--quick`` runs go to ``runs/suite-quick``.
 RECORDS = HERE / "results" / "suite"
 #: Record folders beside a task's own whose runs its report also shows, by config stem: runs of the task as it was
-#: before a change, kept for comparison (parking's episode ended at the slot until 2026-12-03, and SAC paid no
-#: satisfaction bonus until 2026-12-05; docs/results/parking.md).
-EARLIER_RECORDS = {"parking": ["suite-parking-terminate-on-success-session", "suite-parking-no-bonus-session"]}
+#: before a change, kept for comparison (parking's episode ended at the slot until 2026-12-03, SAC paid no
+#: satisfaction bonus until 2026-12-05 and went on past a violation until later that day; docs/results/parking.md).
+EARLIER_RECORDS = {"parking": ["suite-parking-terminate-on-success-session", "suite-parking-no-bonus-session",
+                               "suite-parking-no-end-on-violation-session"]}
 #: The report's fixed words: `write_report` writes them, `hand_notes` tells its own paragraphs from the notes by them.
 PAGE_TITLE, PRODUCED_BY = "# The TL task suite", "Produced by "
 NOT_RUN, NO_RUN = "Not run for this report", "No finished run for this report"
@@ -64,10 +65,12 @@ def suite_run(task: str, label: str) -> RunSpec:
 def parking_sac_without_bonus() -> RunSpec:
     """The suite's parking SAC run as it was before its entry added satisfaction_bonus 10 (2026-12-05).
 
-    The trials of docs/results/parking.md built on that run before then start from it, to stay what they ran.
+    The trials of docs/results/parking.md built on that run before then start from it, to stay what they ran: no
+    bonus, and no end at the violation (the entry's since the thirteenth session, also 2026-12-05), both written out.
     """
     suite_sac = suite_run("parking", "SAC")
-    return dataclasses.replace(suite_sac, env_kwargs={**suite_sac.env_kwargs, "satisfaction_bonus": 0.0}, note="")
+    env_kwargs = {**suite_sac.env_kwargs, "satisfaction_bonus": 0.0, "end_on_violation": False}
+    return dataclasses.replace(suite_sac, env_kwargs=env_kwargs, note="")
 
 
 #: Mean ρ beyond which the ρ panel of `plot_task` is drawn on a symlog axis.

@@ -31,7 +31,8 @@ def test_trial_is_the_suite_sac_run_as_it_ran_under_its_own_label():
     spec = parking_demos.trial_spec(100, 5, seed=100)
     suite_sac = suite_run("parking", "SAC")
     assert spec.seed == 100 and "100 controller steps" in spec.label
-    assert spec.env_kwargs == {"satisfaction_bonus": 0.0}  # the trial ran before the SAC entry's bonus
+    assert spec.env_kwargs == {"satisfaction_bonus": 0.0, "end_on_violation": False}  # it ran before the SAC entry's
+    # bonus and end at the violation
     assert dataclasses.replace(spec, label=suite_sac.label, seed=suite_sac.seed, note=suite_sac.note,
                                env_kwargs=suite_sac.env_kwargs) == suite_sac
     assert spec.run_id != suite_sac.run_id

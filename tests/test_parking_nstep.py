@@ -20,9 +20,10 @@ def test_trial_is_the_suite_sac_run_with_the_parking_entry():
         suite_sac.iterations, suite_sac.evaluate_episodes, suite_sac.evaluate_every)
     hyper = dict(spec.hyperparameters)
     assert (hyper.pop("hyperparams"), hyper.pop("policy"), hyper.pop("n_steps")) == (False, "MlpPolicy", 3)
-    assert entry.pop(sb3_settings.MARKOV_ENV_KWARGS) == {"satisfaction_bonus": 10.0}  # env keywords, not passed on
+    assert entry.pop(sb3_settings.MARKOV_ENV_KWARGS) == {"satisfaction_bonus": 10.0, "end_on_violation": True}  # env
+    # keywords, not passed on
     assert hyper == {**{k: v for k, v in entry.items() if k != "policy"}, **suite_sac.hyperparameters}
-    assert spec.env_kwargs == {"satisfaction_bonus": 0.0}  # as the trial ran, before the bonus
+    assert spec.env_kwargs == {"satisfaction_bonus": 0.0, "end_on_violation": False}  # as the trial ran, before both
 
 
 @pytest.fixture
