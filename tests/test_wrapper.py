@@ -141,7 +141,7 @@ def test_the_dense_satisfaction_bonus_is_paid_when_the_prefix_is_satisfied_and_t
 
 
 def test_a_violation_takes_the_dense_bonus_back_and_ends_the_episode_with_end_on_violation():
-    # the parking candidate's pair: the prefix is satisfied at s_3, broken at s_5; the episode stops there
+    # the pair SAC's TLParking-v0 entry sets: the prefix is satisfied at s_3, broken at s_5; the episode stops there
     spec, values = "F(a > 0.5) & G(a < 0.9)", np.vstack([RISE, np.ones((4, 3))])
     env = TLTLRewardWrapper(Scripted(values), spec, signals={"a": 0}, reward_mode="dense",
                             satisfaction_bonus=10.0, end_on_violation=True)
