@@ -5,8 +5,10 @@ Every agent is evaluated on the same fresh episodes (episode ``i`` resets with s
 car at the lot's centre with a random heading and draws a random slot, so a start is two things: which slot
 (its distance: the slots at the rows' ends lie farthest) and where the car faces (the bearing of the slot from
 the car's heading: 0° ahead, 180° behind). The report splits success by both and says how many starts *some*
-policy parks from: evidence for what success a learned policy could reach within the horizon. Prints
-Markdown tables; ``--figure`` draws the lot, each slot coloured by the agents' success there.
+policy parks from: evidence for what success a learned policy could reach within the horizon. It also says how
+each policy's failures end (`ending`: over the speed limit, crashed, at the slot too fast, out of time), read
+from the episodes' traces. Prints Markdown tables; ``--figure`` draws the lot, each slot coloured by the agents'
+success there.
 
     python -m benchmarks.parking_starts RUN_DIR [RUN_DIR ...] --episodes 100 --seed 12345 --figure out.png
 
@@ -38,7 +40,7 @@ from matplotlib.patches import Rectangle
 from tl_gym.agents import Agent
 from tl_gym.agents.evaluation import evaluate_policy
 from tl_gym.envs.dynamics import wrap_angle
-from tl_gym.envs.suite import make_parking
+from tl_gym.envs.suite import make_parking, parking_formula
 
 import tl_gym  # noqa: F401  (registers TLParking-v0)
 from benchmarks.figures import saved
@@ -60,6 +62,15 @@ DISTANCE_BANDS = (0.0, 20.0, 25.0, math.inf)
 BEARING_BANDS = (0.0, 45.0, 90.0, 135.0, 180.0)
 #: A slot's size in the lot (m): 4 wide across the rows (x), 8 long along them (y).
 SLOT_WIDTH, SLOT_LENGTH = 4.0, 8.0
+#: The registered task's horizon and bounds (`check_run` refuses runs that change them): the defaults of
+#: `make_parking` and `parking_formula` (``success_error`` 1.44 m is parking-v0's own success threshold at its
+#: default config, which `make_parking` passes).
+_TASK = {name: p.default for function in (make_parking, parking_formula)
+         for name, p in inspect.signature(function).parameters.items() if p.default is not p.empty}
+HORIZON, SUCCESS_ERROR = int(_TASK["horizon"]), float(_TASK["success_error"])
+ARRIVAL_SPEED, SPEED_LIMIT = float(_TASK["arrival_speed"]), float(_TASK["speed_limit"])
+#: How an episode ends (`ending`): a success, then the four ways to fail.
+ENDINGS = ("parked", "over the speed limit", "crashed", "at the slot, too fast", "out of time")
 
 
 class ParkingController:
@@ -69,9 +80,9 @@ class ParkingController:
     full lock) when the line lies behind, and reverses straight for a new attempt when it overshoots the slot.
     A baseline of what a simple geometric policy parks from, not a bound on what a learned one can.
 
-    Example (success of each of ten fresh episodes; `policy_successes` runs them):
+    Example (success of each of ten fresh episodes; `policy_outcomes` runs them):
 
-        wins, starts = policy_successes(ParkingController, n_episodes=10, seed=0)
+        outcomes, starts = policy_outcomes(ParkingController, n_episodes=10, seed=0)
     """
 
     def __init__(self, cruise: float = 3.0, lookahead: float = 3.0, gain: float = 3.0) -> None:
@@ -148,16 +159,50 @@ class ControllerPredictor:
         return np.stack(actions), state
 
 
-def policy_successes(policy: Callable[[], Callable[[dict[str, np.ndarray]], np.ndarray]], n_episodes: int,
-                     seed: int) -> tuple[np.ndarray, list[Start]]:
-    """Success (ρ > 0) and start of each episode ``seed + i`` driven by ``policy()``, a fresh one per episode.
+def policy_outcomes(policy: Callable[[], Callable[[dict[str, np.ndarray]], np.ndarray]], n_episodes: int,
+                    seed: int) -> tuple[Outcomes, list[Start]]:
+    """Outcomes and start of each episode ``seed + i`` driven by ``policy()``, a fresh one per episode.
 
     The episodes run through `evaluate_policy`, as an agent's do, so episode ``i`` is the agent's episode ``i``.
     """
     predictor = ControllerPredictor(policy)
     with contextlib.closing(gym.make(ENV_ID)) as env:
         result = evaluate_policy(predictor, env, n_episodes=n_episodes, seed=seed)
-    return np.asarray(result["robustness"]) > 0, predictor.starts[:n_episodes]
+    return outcomes_of(result), predictor.starts[:n_episodes]
+
+
+def ending(goal_error: np.ndarray, speed: np.ndarray) -> str:
+    """How one episode of the registered task ended, from its trace s_0 … s_T of the two signals (`ENDINGS`).
+
+    In this order: "over the speed limit" (some state at ≥ 5 m/s; with ``end_on_violation`` the episode ends
+    there), "parked" (some state in the slot, ``goal_error < 1.44``, slower than 1 m/s: with the first, exactly
+    the formula's ρ > 0), "crashed" (the trace ends before the horizon: only a crash ends the task's episode
+    otherwise), "at the slot, too fast" (in the slot, never slowly enough), "out of time" (never in the slot).
+    """
+    goal_error, speed = np.asarray(goal_error, dtype=float), np.asarray(speed, dtype=float)
+    inside = goal_error < SUCCESS_ERROR
+    if np.any(speed >= SPEED_LIMIT):
+        return "over the speed limit"
+    if np.any(inside & (speed < ARRIVAL_SPEED)):
+        return "parked"
+    if len(goal_error) < HORIZON + 1:
+        return "crashed"
+    return "at the slot, too fast" if inside.any() else "out of time"
+
+
+@dataclass(frozen=True)
+class Outcomes:
+    """One policy's episodes: success (ρ > 0) and how each ended (`ending`)."""
+
+    wins: np.ndarray
+    endings: list[str]
+
+
+def outcomes_of(result: dict[str, Any]) -> Outcomes:
+    """The `Outcomes` of an `evaluate_policy` result on the registered task."""
+    traces = result["traces"]
+    return Outcomes(np.asarray(result["robustness"]) > 0,
+                    [ending(e, v) for e, v in zip(traces["goal_error"], traces["speed"])])
 
 
 def check_run(run_dir: Path) -> Path:
@@ -180,14 +225,14 @@ def check_run(run_dir: Path) -> Path:
     return run_dir
 
 
-def agent_successes(run_dir: Path, n_episodes: int, seed: int) -> np.ndarray:
-    """Success of each episode ``seed + i`` of the run's saved agent (deterministic), in its own env."""
+def agent_outcomes(run_dir: Path, n_episodes: int, seed: int) -> Outcomes:
+    """Outcomes of each episode ``seed + i`` of the run's saved agent (deterministic), in its own env."""
     agent = Agent.load(check_run(run_dir) / AGENT)
     try:
         result = agent.evaluate(n_episodes=n_episodes, seed=seed, deterministic=True)
     finally:
         agent.env.close()
-    return np.asarray(result["robustness"]) > 0
+    return outcomes_of(result)
 
 
 def band_rows(wins: dict[str, np.ndarray], values: np.ndarray, edges: Sequence[float], unit: str) -> list[list[str]]:
@@ -201,8 +246,13 @@ def band_rows(wins: dict[str, np.ndarray], values: np.ndarray, edges: Sequence[f
     return rows
 
 
-def report(agent_wins: dict[str, np.ndarray], controller_wins: np.ndarray, geometry: Sequence[Start]) -> str:
-    """The Markdown report: success per policy, the unions, and success by the start's geometry."""
+def report(agent_wins: dict[str, np.ndarray], controller_wins: np.ndarray, geometry: Sequence[Start],
+           endings: dict[str, Sequence[str]] | None = None) -> str:
+    """The Markdown report: success per policy, the unions, success by the start's geometry, how episodes ended.
+
+    ``endings``: each policy's `ending` per episode, keyed as the table's columns ("agent 1", …, "controller");
+    without it the report leaves out how the episodes ended.
+    """
     agents = np.array(list(agent_wins.values()))
     union = agents.any(axis=0)
     everyone = union | controller_wins
@@ -219,6 +269,10 @@ def report(agent_wins: dict[str, np.ndarray], controller_wins: np.ndarray, geome
     lines.append(f"Agents in the order given; starts no agent parks from: "
                  f"{np.flatnonzero(~union).tolist()} (episode indices), of which the controller parks "
                  f"{int((controller_wins & ~union).sum())}.")
+    if endings is not None:
+        lines += ["", table(["how the episode ended", *endings],
+                            [[kind, *(str(sum(e == kind for e in ends)) for ends in endings.values())]
+                             for kind in ENDINGS])]
     return "\n".join(lines)
 
 
@@ -257,10 +311,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"a run folder is given twice: {[str(run) for run in args.runs]}")
     for run in args.runs:  # before minutes of evaluation
         check_run(run)
-    agent_wins = {str(run): agent_successes(run, args.episodes, args.seed) for run in args.runs}
-    controller_wins, geometry = policy_successes(lambda: ParkingController(cruise=args.cruise), args.episodes,
-                                                 args.seed)
-    print(report(agent_wins, controller_wins, geometry))
+    agents = {str(run): agent_outcomes(run, args.episodes, args.seed) for run in args.runs}
+    controller, geometry = policy_outcomes(lambda: ParkingController(cruise=args.cruise), args.episodes, args.seed)
+    agent_wins = {name: outcome.wins for name, outcome in agents.items()}
+    endings = {**{f"agent {k + 1}": outcome.endings for k, outcome in enumerate(agents.values())},
+               "controller": controller.endings}
+    print(report(agent_wins, controller.wins, geometry, endings))
     if args.figure is not None:
         plot_lot(agent_wins, geometry, args.figure)
         print(f"\nfigure: {args.figure}")

@@ -8,14 +8,17 @@ import numpy as np
 import pytest
 
 from benchmarks.parking_starts import (
+    ENDINGS,
+    HORIZON,
     ControllerPredictor,
     ParkingController,
     Start,
     band_rows,
     check_run,
+    ending,
     main,
     plot_lot,
-    policy_successes,
+    policy_outcomes,
     report,
     start_of,
 )
@@ -63,15 +66,50 @@ def test_report_counts_the_unions_and_what_only_the_controller_parks():
     assert "starts no agent parks from: [2, 3] (episode indices), of which the controller parks 1." in text
 
 
+def test_endings_tell_the_four_failures_apart_and_a_violation_comes_first():
+    far, near = np.full(HORIZON + 1, 10.0), np.r_[np.full(HORIZON, 10.0), 1.0]  # in the slot at the last state
+    slow, fast = np.full(HORIZON + 1, 0.5), np.full(HORIZON + 1, 2.0)
+    assert ending(near, slow) == "parked"
+    assert ending(far, slow) == "out of time"
+    assert ending(near, fast) == "at the slot, too fast"
+    assert ending(far[:40], slow[:40]) == "crashed"  # ended before the horizon, within the limit
+    over = slow.copy()
+    over[3] = 5.0  # the limit itself breaks G(speed < 5)
+    assert ending(near, over) == "over the speed limit" and ending(near[:4], over[:4]) == "over the speed limit"
+    assert ending(near, np.full(HORIZON + 1, 1.0)) == "at the slot, too fast"  # speed < 1 is strict
+
+
+def test_the_report_counts_how_each_policys_episodes_ended():
+    agents = {"run1": np.array([True, False, False])}
+    geometry = [Start((0.0, 14.0), 14.0, 0.0)] * 3
+    endings = {"agent 1": ["parked", "crashed", "crashed"], "controller": ["parked", "out of time", "parked"]}
+    text = report(agents, np.array([True, False, True]), geometry, endings)
+    assert "| how the episode ended | agent 1 | controller |" in text
+    assert "| crashed | 2 | 0 |" in text and "| parked | 1 | 2 |" in text and "| out of time | 0 | 1 |" in text
+    assert text.count("\n| ") >= len(ENDINGS) + 2 + 4  # every ending has a row, even at 0
+    assert "how the episode ended" not in report(agents, np.array([True, False, True]), geometry)
+
+
+def test_the_task_bounds_the_endings_read_are_the_registered_tasks():
+    pytest.importorskip("highway_env")
+    import gymnasium as gym
+
+    with contextlib.closing(gym.make("TLParking-v0")) as env:
+        assert str(env.get_wrapper_attr("formula")) == "F (goal_error < 1.44 & speed < 1) & G speed < 5"
+        assert env.get_wrapper_attr("horizon") == HORIZON
+
+
 def test_the_controller_parks_the_same_starts_every_time_and_idling_parks_none():
     pytest.importorskip("highway_env")
-    first, first_starts = policy_successes(ParkingController, n_episodes=3, seed=8)
-    assert first.dtype == bool and first.shape == (3,) and first[0]  # seed 8: the tests' parking start
-    again, again_starts = policy_successes(ParkingController, n_episodes=3, seed=8)
-    np.testing.assert_array_equal(again, first)
-    assert again_starts == first_starts
-    idle, idle_starts = policy_successes(lambda: lambda obs: np.zeros(2, dtype=np.float32), n_episodes=3, seed=8)
-    assert not idle.any() and idle_starts == first_starts
+    first, first_starts = policy_outcomes(ParkingController, n_episodes=3, seed=8)
+    assert first.wins.dtype == bool and first.wins.shape == (3,) and first.wins[0]  # seed 8: the tests' parking start
+    assert [kind == "parked" for kind in first.endings] == first.wins.tolist()  # ending's "parked" is ρ > 0
+    again, again_starts = policy_outcomes(ParkingController, n_episodes=3, seed=8)
+    np.testing.assert_array_equal(again.wins, first.wins)
+    assert again_starts == first_starts and again.endings == first.endings
+    idle, idle_starts = policy_outcomes(lambda: lambda obs: np.zeros(2, dtype=np.float32), n_episodes=3, seed=8)
+    assert not idle.wins.any() and idle_starts == first_starts
+    assert idle.endings == ["out of time"] * 3  # at rest at the lot's centre, never in the slot
 
 
 def test_an_agents_evaluation_episodes_start_where_the_controllers_do():
@@ -86,13 +124,13 @@ def test_an_agents_evaluation_episodes_start_where_the_controllers_do():
     seen = predictor.starts[:5]
     with contextlib.closing(gym.make("TLParking-v0")) as env:
         assert seen == [start_of(env.reset(seed=12345 + i)[0]) for i in range(5)]
-    assert seen == policy_successes(ParkingController, n_episodes=5, seed=12345)[1]
+    assert seen == policy_outcomes(ParkingController, n_episodes=5, seed=12345)[1]
     assert len({start.slot for start in seen} | {round(start.bearing, 3) for start in seen}) > 2  # not one start
 
 
 def test_the_recorded_starts_lie_in_the_slot_rows():
     pytest.importorskip("highway_env")
-    geometry = policy_successes(ParkingController, n_episodes=5, seed=0)[1]
+    geometry = policy_outcomes(ParkingController, n_episodes=5, seed=0)[1]
     assert len(geometry) == 5
     lot = {round(math.hypot(4 * k - 26, 14.0), 6) for k in range(14)}  # slot centres (4k - 26, ±14), car at (0, 0)
     for start in geometry:
