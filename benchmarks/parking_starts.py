@@ -177,7 +177,8 @@ def ending(goal_error: np.ndarray, speed: np.ndarray) -> str:
     In this order: "over the speed limit" (some state at ≥ 5 m/s; with ``end_on_violation`` the episode ends
     there), "parked" (some state in the slot, ``goal_error < 1.44``, slower than 1 m/s: with the first, exactly
     the formula's ρ > 0), "crashed" (the trace ends before the horizon: only a crash ends the task's episode
-    otherwise), "at the slot, too fast" (in the slot, never slowly enough), "out of time" (never in the slot).
+    otherwise; a crash on the horizon's last step leaves the trace whole and counts as one of the next two), "at
+    the slot, too fast" (in the slot, never slowly enough), "out of time" (never in the slot).
     """
     goal_error, speed = np.asarray(goal_error, dtype=float), np.asarray(speed, dtype=float)
     inside = goal_error < SUCCESS_ERROR
