@@ -159,18 +159,6 @@ class ControllerPredictor:
         return np.stack(actions), state
 
 
-def policy_outcomes(policy: Callable[[], Callable[[dict[str, np.ndarray]], np.ndarray]], n_episodes: int,
-                    seed: int) -> tuple[Outcomes, list[Start]]:
-    """Outcomes and start of each episode ``seed + i`` driven by ``policy()``, a fresh one per episode.
-
-    The episodes run through `evaluate_policy`, as an agent's do, so episode ``i`` is the agent's episode ``i``.
-    """
-    predictor = ControllerPredictor(policy)
-    with contextlib.closing(gym.make(ENV_ID)) as env:
-        result = evaluate_policy(predictor, env, n_episodes=n_episodes, seed=seed)
-    return outcomes_of(result), predictor.starts[:n_episodes]
-
-
 def ending(goal_error: np.ndarray, speed: np.ndarray) -> str:
     """How one episode of the registered task ended, from its trace s_0 … s_T of the two signals (`ENDINGS`).
 
@@ -204,6 +192,18 @@ def outcomes_of(result: dict[str, Any]) -> Outcomes:
     traces = result["traces"]
     return Outcomes(np.asarray(result["robustness"]) > 0,
                     [ending(e, v) for e, v in zip(traces["goal_error"], traces["speed"])])
+
+
+def policy_outcomes(policy: Callable[[], Callable[[dict[str, np.ndarray]], np.ndarray]], n_episodes: int,
+                    seed: int) -> tuple[Outcomes, list[Start]]:
+    """Outcomes and start of each episode ``seed + i`` driven by ``policy()``, a fresh one per episode.
+
+    The episodes run through `evaluate_policy`, as an agent's do, so episode ``i`` is the agent's episode ``i``.
+    """
+    predictor = ControllerPredictor(policy)
+    with contextlib.closing(gym.make(ENV_ID)) as env:
+        result = evaluate_policy(predictor, env, n_episodes=n_episodes, seed=seed)
+    return outcomes_of(result), predictor.starts[:n_episodes]
 
 
 def check_run(run_dir: Path) -> Path:
