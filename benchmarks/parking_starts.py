@@ -62,13 +62,12 @@ DISTANCE_BANDS = (0.0, 20.0, 25.0, math.inf)
 BEARING_BANDS = (0.0, 45.0, 90.0, 135.0, 180.0)
 #: A slot's size in the lot (m): 4 wide across the rows (x), 8 long along them (y).
 SLOT_WIDTH, SLOT_LENGTH = 4.0, 8.0
-#: The registered task's horizon and bounds (`check_run` refuses runs that change them): the defaults of
-#: `make_parking` and `parking_formula` (``success_error`` 1.44 m is parking-v0's own success threshold at its
-#: default config, which `make_parking` passes).
+#: The registered task's horizon and bounds that `ending` reads (`check_run` refuses runs that change them): the
+#: defaults of `make_parking` and `parking_formula` (``success_error`` 1.44 m is parking-v0's own success threshold
+#: at its default config, which `make_parking` passes).
 _TASK = {name: p.default for function in (make_parking, parking_formula)
          for name, p in inspect.signature(function).parameters.items() if p.default is not p.empty}
-HORIZON, SUCCESS_ERROR = int(_TASK["horizon"]), float(_TASK["success_error"])
-ARRIVAL_SPEED, SPEED_LIMIT = float(_TASK["arrival_speed"]), float(_TASK["speed_limit"])
+HORIZON, SUCCESS_ERROR, SPEED_LIMIT = int(_TASK["horizon"]), float(_TASK["success_error"]), float(_TASK["speed_limit"])
 #: How an episode ends (`ending`): a success, then the four ways to fail.
 ENDINGS = ("parked", "over the speed limit", "crashed", "at the slot, too fast", "out of time")
 
@@ -159,24 +158,23 @@ class ControllerPredictor:
         return np.stack(actions), state
 
 
-def ending(goal_error: np.ndarray, speed: np.ndarray) -> str:
-    """How one episode of the registered task ended, from its trace s_0 … s_T of the two signals (`ENDINGS`).
+def ending(goal_error: np.ndarray, speed: np.ndarray, satisfied: bool) -> str:
+    """How one episode of the registered task ended (`ENDINGS`), from its trace s_0 … s_T and its success.
 
-    In this order: "over the speed limit" (some state at ≥ 5 m/s; with ``end_on_violation`` the episode ends
-    there), "parked" (some state in the slot, ``goal_error < 1.44``, slower than 1 m/s: with the first, exactly
-    the formula's ρ > 0), "crashed" (the trace ends before the horizon: only a crash ends the task's episode
-    otherwise; a crash on the horizon's last step leaves the trace whole and counts as one of the next two), "at
-    the slot, too fast" (in the slot, never slowly enough), "out of time" (never in the slot).
+    "parked" is ``satisfied`` (ρ > 0, as the formula's robustness decides it); a failure is, in this order: "over
+    the speed limit" (some state at ≥ 5 m/s; with ``end_on_violation`` the episode ends there), "crashed" (the
+    trace ends before the horizon: only a crash ends the task's episode otherwise; a crash on the horizon's last
+    step leaves the trace whole and counts as one of the next two), "at the slot, too fast" (in the slot,
+    ``goal_error < 1.44``, never slowly enough), "out of time" (never in the slot).
     """
+    if satisfied:
+        return "parked"
     goal_error, speed = np.asarray(goal_error, dtype=float), np.asarray(speed, dtype=float)
-    inside = goal_error < SUCCESS_ERROR
     if np.any(speed >= SPEED_LIMIT):
         return "over the speed limit"
-    if np.any(inside & (speed < ARRIVAL_SPEED)):
-        return "parked"
     if len(goal_error) < HORIZON + 1:
         return "crashed"
-    return "at the slot, too fast" if inside.any() else "out of time"
+    return "at the slot, too fast" if np.any(goal_error < SUCCESS_ERROR) else "out of time"
 
 
 @dataclass(frozen=True)
@@ -189,9 +187,8 @@ class Outcomes:
 
 def outcomes_of(result: dict[str, Any]) -> Outcomes:
     """The `Outcomes` of an `evaluate_policy` result on the registered task."""
-    traces = result["traces"]
-    return Outcomes(np.asarray(result["robustness"]) > 0,
-                    [ending(e, v) for e, v in zip(traces["goal_error"], traces["speed"])])
+    traces, wins = result["traces"], np.asarray(result["robustness"]) > 0
+    return Outcomes(wins, [ending(e, v, won) for e, v, won in zip(traces["goal_error"], traces["speed"], wins)])
 
 
 def policy_outcomes(policy: Callable[[], Callable[[dict[str, np.ndarray]], np.ndarray]], n_episodes: int,

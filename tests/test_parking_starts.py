@@ -69,14 +69,15 @@ def test_report_counts_the_unions_and_what_only_the_controller_parks():
 def test_endings_tell_the_four_failures_apart_and_a_violation_comes_first():
     far, near = np.full(HORIZON + 1, 10.0), np.r_[np.full(HORIZON, 10.0), 1.0]  # in the slot at the last state
     slow, fast = np.full(HORIZON + 1, 0.5), np.full(HORIZON + 1, 2.0)
-    assert ending(near, slow) == "parked"
-    assert ending(far, slow) == "out of time"
-    assert ending(near, fast) == "at the slot, too fast"
-    assert ending(far[:40], slow[:40]) == "crashed"  # ended before the horizon, within the limit
+    assert ending(near, slow, satisfied=True) == "parked"  # success is the formula's robustness, given
+    assert ending(far, slow, satisfied=False) == "out of time"
+    assert ending(near, fast, satisfied=False) == "at the slot, too fast"
+    assert ending(far[:40], slow[:40], satisfied=False) == "crashed"  # ended before the horizon, within the limit
     over = slow.copy()
     over[3] = 5.0  # the limit itself breaks G(speed < 5)
-    assert ending(near, over) == "over the speed limit" and ending(near[:4], over[:4]) == "over the speed limit"
-    assert ending(near, np.full(HORIZON + 1, 1.0)) == "at the slot, too fast"  # speed < 1 is strict
+    assert ending(near, over, satisfied=False) == "over the speed limit"
+    assert ending(near[:4], over[:4], satisfied=False) == "over the speed limit"  # before "crashed"
+    assert ending(near, np.full(HORIZON + 1, 1.0), satisfied=False) == "at the slot, too fast"
 
 
 def test_the_report_counts_how_each_policys_episodes_ended():
@@ -103,7 +104,7 @@ def test_the_controller_parks_the_same_starts_every_time_and_idling_parks_none()
     pytest.importorskip("highway_env")
     first, first_starts = policy_outcomes(ParkingController, n_episodes=3, seed=8)
     assert first.wins.dtype == bool and first.wins.shape == (3,) and first.wins[0]  # seed 8: the tests' parking start
-    assert [kind == "parked" for kind in first.endings] == first.wins.tolist()  # ending's "parked" is ρ > 0
+    assert [kind == "parked" for kind in first.endings] == first.wins.tolist()  # each episode's own success
     again, again_starts = policy_outcomes(ParkingController, n_episodes=3, seed=8)
     np.testing.assert_array_equal(again.wins, first.wins)
     assert again_starts == first_starts and again.endings == first.endings
