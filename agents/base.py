@@ -258,25 +258,33 @@ class Agent(abc.ABC):
         return write_archive(path, meta, self._state_arrays(), self._extra_files())
 
     @classmethod
-    def load(cls, path: str | Path, env: Any = None) -> Agent:
+    def load(cls, path: str | Path, env: Any = None, env_kwargs: dict[str, Any] | None = None) -> Agent:
         """Load a saved agent; it acts, evaluates and continues learning as the saved one would.
 
         Args:
             path: a file written by `save`.
             env: the env to attach (id, `Env` or `VectorEnv`); by default the saved env id and kwargs.
                 Its spaces and formula must match the saved ones.
+            env_kwargs: constructor keywords for an env id given as ``env``. By default the saved
+                keywords when it is the saved id (so ``env=<saved id>`` is the saved env, shaping and
+                all), none for another id. Only with an env id.
 
         Raises:
             IncompatibleSaveError: wrong file, format version, class, spaces, formula or array shapes
                 (the message names the culprit).
+            ValueError: ``env_kwargs`` without an env id to make.
         """
+        if env_kwargs is not None and not isinstance(env, str):
+            raise ValueError(f"env_kwargs {env_kwargs!r} are the keywords of an env id; env is {env!r}: "
+                             "build the env with them and pass it, or pass its id")
         meta, arrays, files = read_archive(path)
         klass = _agent_class(meta["class"]) if cls is Agent else cls
         if klass.__name__ != meta["class"]:
             raise IncompatibleSaveError(f"{path} holds a {meta['class']}, not a {klass.__name__}")
-        env_kwargs = None
         if env is None:
             env, env_kwargs = _env_from_source(meta["env"], path)
+        elif env_kwargs is None:
+            env_kwargs = _saved_kwargs_of(meta["env"], env)
         agent = klass(env=env, seed=meta["seed"], env_kwargs=env_kwargs, **klass._saved_config(dict(meta["config"])))
         for key in ("observation_space", "action_space"):
             got = describe_space(getattr(agent, key))
@@ -345,6 +353,13 @@ def _registered_steps(env_id: str) -> int | None:
         return gym.spec(env_id).max_episode_steps
     except gym.error.Error:
         return None
+
+
+def _saved_kwargs_of(source: Mapping[str, Any], env: Any) -> dict[str, Any] | None:
+    """The saved env keywords when ``env`` is the saved env's id (recorded with its keywords), else ``None``."""
+    if isinstance(env, str) and env == source.get("id") and source.get("kwargs") is not None:
+        return dict(source["kwargs"])
+    return None
 
 
 def _env_from_source(source: Mapping[str, Any], path: Any) -> tuple[Any, dict[str, Any] | None]:

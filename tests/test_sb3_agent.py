@@ -374,6 +374,13 @@ def test_a_task_entry_adds_its_shaping_to_the_markov_view_only(tmp_path):
     own.unlink()  # the keywords come from the save, not from the file read again
     loaded = Agent.load(saved)
     assert loaded.env_kwargs == shaped.env_kwargs and loaded.env.get_attr("satisfaction_bonus") == (4.0, 4.0)
+    by_id = Agent.load(saved, env="TLCarNav-v0")  # the saved id is the saved env, shaping and all
+    assert by_id.env_kwargs == shaped.env_kwargs and by_id.env.get_attr("satisfaction_bonus") == (4.0, 4.0)
+    unshaped = Agent.load(saved, env="TLCarNav-v0", env_kwargs={"reward_mode": "potential"})
+    assert "satisfaction_bonus" not in unshaped.env_kwargs  # given keywords: those, as for a new agent
+    assert unshaped.env.get_attr("satisfaction_bonus") == (0.0, 0.0)
+    with pytest.raises(ValueError, match=r"env_kwargs \{'task': 2\} are the keywords of an env id"):
+        Agent.load(saved, env=shaped.env, env_kwargs={"task": 2})
     own.write_text(entry)
 
     users = SB3Agent("TLCarNav-v0", "ppo", hyperparams=str(own), env_kwargs={"satisfaction_bonus": 0.0}, **TINY)
