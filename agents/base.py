@@ -265,9 +265,10 @@ class Agent(abc.ABC):
             path: a file written by `save`.
             env: the env to attach (id, `Env` or `VectorEnv`); by default the saved env id and kwargs.
                 Its spaces and formula must match the saved ones.
-            env_kwargs: constructor keywords for an env id given as ``env``. By default the saved
-                keywords when it is the saved id (so ``env=<saved id>`` is the saved env, shaping and
-                all), none for another id. Only with an env id.
+            env_kwargs: constructor keywords for an env id given as ``env``. Without them the saved id
+                is rebuilt as the saved env, as ``env=None`` does (its keywords, the task's shaping
+                included, and its recorded wrappers or time limit); another id gets none. Only with an
+                env id.
 
         Raises:
             IncompatibleSaveError: wrong file, format version, class, spaces, formula or array shapes
@@ -281,10 +282,10 @@ class Agent(abc.ABC):
         klass = _agent_class(meta["class"]) if cls is Agent else cls
         if klass.__name__ != meta["class"]:
             raise IncompatibleSaveError(f"{path} holds a {meta['class']}, not a {klass.__name__}")
-        if env is None:
-            env, env_kwargs = _env_from_source(meta["env"], path)
-        elif env_kwargs is None:
-            env_kwargs = _saved_kwargs_of(meta["env"], env)
+        source = meta["env"]
+        saved_id = isinstance(env, str) and env == source.get("id") and env_kwargs is None
+        if env is None or (saved_id and (source.get("spec_json") or source.get("kwargs") is not None)):
+            env, env_kwargs = _env_from_source(source, path)
         agent = klass(env=env, seed=meta["seed"], env_kwargs=env_kwargs, **klass._saved_config(dict(meta["config"])))
         for key in ("observation_space", "action_space"):
             got = describe_space(getattr(agent, key))
@@ -353,13 +354,6 @@ def _registered_steps(env_id: str) -> int | None:
         return gym.spec(env_id).max_episode_steps
     except gym.error.Error:
         return None
-
-
-def _saved_kwargs_of(source: Mapping[str, Any], env: Any) -> dict[str, Any] | None:
-    """The saved env keywords when ``env`` is the saved env's id (recorded with its keywords), else ``None``."""
-    if isinstance(env, str) and env == source.get("id") and source.get("kwargs") is not None:
-        return dict(source["kwargs"])
-    return None
 
 
 def _env_from_source(source: Mapping[str, Any], path: Any) -> tuple[Any, dict[str, Any] | None]:

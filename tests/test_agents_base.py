@@ -321,6 +321,7 @@ def test_load_rebuilds_a_wrapped_or_time_limited_env_or_asks_for_it(tmp_path):
     assert short.horizon == 6
     again = Agent.load(short.save(tmp_path / "short.zip")).learn(1)
     assert again.horizon == 6 and again.history[-1]["env_steps"] == 2 * 4 * 6
+    assert Agent.load(tmp_path / "short.zip", env=COUNTER_ID).horizon == 6  # the saved id: the saved env, whole
 
 
 class Counter(gym.Env):
