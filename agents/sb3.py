@@ -37,6 +37,7 @@ import copy
 import dataclasses
 import inspect
 import io
+import os
 import pickle
 import warnings
 from collections.abc import Iterator, Mapping
@@ -62,6 +63,7 @@ from .sb3_settings import (
     activation_class,
     algorithm_parameters,
     canonical_settings,
+    check_hyperparams_source,
     check_tl_reward,
     find_hyperparams,
     is_linear_schedule,
@@ -116,7 +118,8 @@ class SB3Agent(Agent):
             or `VectorEnv` object cannot be rebuilt with other keywords: ``None`` reads what it does,
             and an explicit value it visibly contradicts (its ``observe_monitor`` / ``reward_mode``)
             is an error.
-        hyperparams: ``True`` (the packaged ``sb3.yml``), ``False`` (none: SB3's defaults) or a file path.
+        hyperparams: ``True`` (the packaged ``sb3.yml``), ``False`` (none: SB3's defaults) or a file path
+            (text or a `pathlib.Path`).
         **algo_kwargs: the algorithm's constructor arguments; each one given wins over the file's.
 
     History rows add ``episodes`` (episodes that ended in the iteration).
@@ -137,7 +140,8 @@ class SB3Agent(Agent):
 
     def __init__(self, env: Any, algo: Any, *, seed: int | None = None, env_kwargs: Mapping[str, Any] | None = None,
                  steps_per_iteration: int | None = None, n_envs: int | None = None, policy: str | None = None,
-                 tl_reward: str | None = None, normalize: Any = None, hyperparams: bool | str = True,
+                 tl_reward: str | None = None, normalize: Any = None,
+                 hyperparams: bool | str | os.PathLike = True,
                  n_timesteps: int | None = None, noise_type: str | None = None, noise_std: float | None = None,
                  **algo_kwargs: Any):
         from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
@@ -160,8 +164,7 @@ class SB3Agent(Agent):
             n_timesteps=n_timesteps, noise_type=noise_type, noise_std=noise_std).items() if v is not None}
         explicit = canonical_settings({**explicit, **algo_kwargs})
         entry = {}
-        if saved:
-            hyperparams = hyperparams.hyperparams
+        hyperparams = hyperparams.hyperparams if saved else check_hyperparams_source(hyperparams)
         if hyperparams is not False and not saved:
             table = load_hyperparams(None if hyperparams is True else hyperparams)
             env_id, key_kwargs = _env_key(env, env_kwargs)

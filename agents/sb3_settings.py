@@ -18,6 +18,7 @@ import functools
 import importlib
 import inspect
 import math
+import os
 import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -116,6 +117,25 @@ def check_tl_reward(value: Any) -> str:
     """
     if not isinstance(value, str) or value not in TL_REWARD_ENV_KWARGS:
         raise ValueError(f"tl_reward must be one of {sorted(TL_REWARD_ENV_KWARGS)}, got {value!r}")
+    return value
+
+
+def check_hyperparams_source(value: Any) -> bool | str:
+    """``hyperparams`` as the config holds it: ``True`` (the packaged file), ``False`` (none) or a path as text.
+
+    A `pathlib.Path` (any ``os.PathLike``) is taken and written as text, so the config stays JSON-able.
+
+    Example:
+        >>> check_hyperparams_source(Path("my_zoo.yml")), check_hyperparams_source(False)
+        ('my_zoo.yml', False)
+
+    Raises:
+        ValueError: anything else, named.
+    """
+    if isinstance(value, os.PathLike):
+        value = os.fspath(value)
+    if not isinstance(value, (bool, str)):
+        raise ValueError(f"hyperparams must be true, false or a file path, got {value!r}")
     return value
 
 
@@ -312,8 +332,8 @@ class SB3Config:
         if not (isinstance(self.normalize, bool) or isinstance(self.normalize, Mapping)):
             raise ValueError(f"normalize must be a bool or a dict of VecNormalize keywords, got {self.normalize!r}")
         parse_normalize(self.normalize)
-        if not isinstance(self.hyperparams, (bool, str)):
-            raise ValueError(f"hyperparams must be true, false or a file path, got {self.hyperparams!r}")
+        if check_hyperparams_source(self.hyperparams) != self.hyperparams:  # a Path: SB3Agent writes it as text
+            raise ValueError(f"hyperparams must be true, false or a file path as text, got {self.hyperparams!r}")
         if self.n_timesteps is not None and (not isinstance(self.n_timesteps, (int, np.integer))
                                              or self.n_timesteps < 1):
             raise ValueError(f"n_timesteps must be an int >= 1 or None, got {self.n_timesteps!r}")

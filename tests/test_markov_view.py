@@ -158,6 +158,43 @@ def test_bad_arguments_are_refused():
         TLTLRewardWrapper(Image(), "F(a > 1)", signals={"a": (0, 0)}, observe_monitor=True)
     with pytest.raises(ValueError, match="without observe_monitor"):
         TLTLRewardWrapper(Scripted(), "F(a > 1)", signals={"a": 0}).dense_reward(np.zeros(3), np.zeros(3))
+    with pytest.raises(ValueError, match="without observe_monitor"):
+        TLTLRewardWrapper(Scripted(), "F(a > 1)", signals={"a": 0}).monitor_features(np.zeros(3))
+
+    class HasMonitorKey(Scripted):
+        def __init__(self):
+            super().__init__(dict_obs=True)
+            self.observation_space = spaces.Dict({**self.observation_space.spaces, "monitor": spaces.Discrete(2)})
+
+    with pytest.raises(TypeError, match="adds the key 'monitor', which the Dict observation already has"):
+        TLTLRewardWrapper(HasMonitorKey(), "F(a > 1)", signals={"a": ("pos", 0)}, observe_monitor=True)
+
+
+@pytest.mark.parametrize("dict_obs", [False, True])
+def test_monitor_features_are_the_appended_part_and_decode_to_the_monitors_state(dict_obs):
+    env = TLTLRewardWrapper(Scripted(dict_obs=dict_obs), "F(a > 0.5) & G(b < 2)",
+                            signals={"a": ("pos", 0) if dict_obs else 0, "b": ("speed", 0) if dict_obs else 2},
+                            observe_monitor=True, reward_mode="dense")
+    obs, _ = env.reset(seed=0)
+    for _ in range(3):
+        obs, *_ = env.step(env.action_space.sample())
+    features = env.monitor_features(obs)
+    expected = obs["monitor"] if dict_obs else obs[-env.monitor_view.size:]
+    assert features.shape == (env.monitor_view.size,) and np.array_equal(features, expected)
+    state, first = env.monitor_view.decode(features)
+    assert not first and state == pytest.approx(env.monitor_view.monitor.state(), abs=1e-12)
+
+
+@pytest.mark.parametrize("horizon", [0, -3, 2.5, True, "40"])
+def test_the_view_refuses_a_horizon_that_is_not_a_positive_int(horizon):
+    with pytest.raises(ValueError, match=f"horizon must be an int >= 1 or None, got {horizon!r}"):
+        MonitorView(PrefixMonitor(parse("F(a > 1)")), scale=1.0, clip=100.0, horizon=horizon)
+
+
+def test_decoding_features_of_the_wrong_size_names_both_sizes():
+    view = MonitorView(PrefixMonitor(parse("F(a > 1) & G(a < 5)")), scale=1.0, clip=100.0, horizon=10)
+    with pytest.raises(ValueError, match=f"expected {view.size} monitor features, got {view.size + 1}"):
+        view.decode(np.zeros(view.size + 1))
 
 
 def test_infinite_values_are_flagged_not_clipped_into_the_features():

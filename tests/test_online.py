@@ -21,10 +21,11 @@ from tl_gym.tltl.online_nodes import is_incremental, outside_fragment
 
 a, b = signal("a"), signal("b")
 
-# Temporal-free formulas over two signals, with arithmetic the engine checks for NaN/inf.
+# Temporal-free formulas over two signals, with arithmetic the engine checks for NaN/inf; a number on the left
+# and a predicate of numbers alone take their own paths in the monitors.
 predicates = st.sampled_from([
     a < 1, a > -1, b < 0.5, a + b > 0, abs(a - b) < 1, a * b < 0.25, (a - 1) ** 2 < 2, b >= 0, a <= b,
-    parse("sqrt(a * a + 1) > 1.5"), parse("exp(b) < 2"),
+    parse("sqrt(a * a + 1) > 1.5"), parse("exp(b) < 2"), parse("0.5 > a"), parse("-1 <= b"), parse("1 < 2"),
 ])
 
 
@@ -116,6 +117,25 @@ def test_incremental_fragment_matches_engine_on_every_prefix(formula, trace, rho
 def test_replay_fallback_matches_engine_on_every_prefix(formula, trace, rho_max):
     monitor = _check_every_prefix(formula, trace, rho_max)
     assert not monitor.incremental
+
+
+def test_replay_fallback_past_its_first_buffer_matches_engine_and_survives_a_copy():
+    """Outside the fragment the monitor keeps the prefix in a buffer of 64 states that doubles when full; the
+    values stay the engine's on every prefix across the growths (64, 128), and a copy taken past one continues."""
+    formula = parse("G(a > 2 -> F b < 0)")
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(2.0, 1.0, 200), rng.normal(0.5, 1.0, 200)
+    monitor = PrefixMonitor(formula, 5.0)
+    assert not monitor.incremental
+    for t in range(150):
+        expected = float(formula.robustness({"a": a[: t + 1], "b": b[: t + 1]}, 5.0))
+        assert monitor.update({"a": float(a[t]), "b": float(b[t])}) == pytest.approx(expected, abs=1e-12), t
+    copied = pickle.loads(pickle.dumps(monitor))
+    for t in range(150, 200):
+        expected = float(formula.robustness({"a": a[: t + 1], "b": b[: t + 1]}, 5.0))
+        state = {"a": float(a[t]), "b": float(b[t])}
+        assert copied.update(state) == monitor.update(state) == pytest.approx(expected, abs=1e-12), t
+    assert copied.length == monitor.length == 200
 
 
 @settings(max_examples=100, deadline=None)

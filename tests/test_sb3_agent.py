@@ -175,6 +175,43 @@ def test_a_misspelt_or_reserved_hyperparameter_is_refused_before_any_env_is_buil
         SB3Agent("TLCarNav-v0", "sac", seed=0, **kwargs)
 
 
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"steps_per_iteration": 0}, "steps_per_iteration must be an int >= 1, got 0"),
+        ({"n_envs": 0}, "n_envs must be an int >= 1, got 0"),
+        ({"normalize": "yes"}, "normalize must be true, false or a dict of VecNormalize keywords, got 'yes'"),
+        ({"normalize": 3}, "normalize must be true, false or a dict of VecNormalize keywords, got 3"),
+        ({"hyperparams": 3}, "hyperparams must be true, false or a file path, got 3"),
+        ({"n_timesteps": 0}, "n_timesteps must be a whole number >= 1, got 0"),
+        ({"noise_type": "pink"}, r"noise_type must be None or one of \('normal', 'ornstein-uhlenbeck'\), got 'pink'"),
+        ({"noise_std": -1.0}, "noise_std must be a finite number >= 0, got -1.0"),
+        ({"her_goals": -1}, "her_goals must be an int >= 0, got -1"),
+        ({"her_strategy": "any"}, r"her_strategy must be one of \('future', 'satisfied'\), got 'any'"),
+        ({"end_is_terminal": "no"}, "end_is_terminal must be true or false, got 'no'"),
+    ],
+)
+def test_a_bad_setting_is_refused_naming_it_before_any_env_is_built(kwargs, message, monkeypatch):
+    import tl_gym.agents.sb3 as sb3_module
+
+    monkeypatch.setattr(sb3_module, "_make_sync_vec", lambda *a, **k: pytest.fail("an env was built"))
+    with pytest.raises(ValueError, match=message):
+        SB3Agent("TLCarNav-v0", "sac", seed=0, **kwargs)
+
+
+def test_an_algorithm_that_is_neither_a_class_nor_a_name_is_refused_naming_it():
+    with pytest.raises(TypeError, match="algo must be an SB3 algorithm class or its name, got 3"):
+        SB3Agent("TLCarNav-v0", 3)
+
+
+def test_a_hyperparameter_file_given_as_a_path_object_is_read_and_saved_as_text(tmp_path):
+    path = tmp_path / "mine.yml"
+    path.write_text("TLCarNav-v0:\n  ppo:\n    gamma: 0.9\n")
+    agent = SB3Agent("TLCarNav-v0", "ppo", seed=0, hyperparams=path, **TINY)
+    assert agent.model.gamma == 0.9
+    assert agent.config.hyperparams == str(path)
+
+
 def test_action_noise_on_an_on_policy_algorithm_is_refused_naming_it():
     with pytest.raises(ValueError, match=r"noise_type='normal': PPO takes no action noise"):
         SB3Agent("TLCarNav-v0", "ppo", seed=0, noise_type="normal", **TINY)
@@ -451,6 +488,14 @@ def test_the_packaged_hyperparameters_validate():
          "markov_env_kwargs may not set gamma"),
         ("TLCarNav-v0:\n  ppo:\n    markov_env_kwargs: 10\n",
          "markov_env_kwargs must be a mapping of env keyword names to values, got 10"),
+        ("- TLCarNav-v0\n- ppo\n", "expected a mapping of env keys to algorithms"),
+        ("TLCarNav-v0: 3\n", "TLCarNav-v0: expected a mapping of algorithm names to settings"),
+        ("TLCarNav-v0:\n  ppo: 3\n", "TLCarNav-v0 / ppo: expected a mapping of settings"),
+        ("TLCarNav-v0:\n  ppo:\n    normalize: \"{'norm_obs'\"\n", "normalize must be true, false or a dict"),
+        ("TLCarNav-v0:\n  ppo:\n    normalize: 3\n", "normalize must be true, false or a dict"),
+        ("TLCarNav-v0:\n  ppo:\n    policy_kwargs: \"dict(\"\n", r"policy_kwargs text does not parse: 'dict\('"),
+        ("TLCarNav-v0:\n  ppo:\n    policy_kwargs: [64, 64]\n", "policy_kwargs must be a dict or its text"),
+        ("TLCarNav-v0:\n  ppo:\n    n_timesteps: 1.5\n", "n_timesteps must be a whole number >= 1, got 1.5"),
     ],
 )
 def test_a_bad_hyperparameter_file_is_refused_naming_the_culprit(tmp_path, text, message):

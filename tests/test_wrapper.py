@@ -235,6 +235,11 @@ def test_bad_arguments_fail_at_construction(kwargs, error, match):
         TLTLRewardWrapper(Scripted(), **arguments)
 
 
+def test_an_env_that_is_not_a_gymnasium_env_is_refused_naming_its_type():
+    with pytest.raises(TypeError, match="env must be a gymnasium.Env, got str"):
+        TLTLRewardWrapper("Pendulum-v1", SPEC, signals={"a": 0, "b": 2})
+
+
 @pytest.mark.parametrize(
     ("signals", "error", "match"),
     [
