@@ -414,6 +414,73 @@ def test_load_rejects_incompatible_files(tmp_path):
         Agent.load(not_zip)
 
 
+@pytest.mark.parametrize(
+    ("env", "env_kwargs", "match"),
+    [
+        (PointEnv(), {"goal": 2.0}, "env_kwargs can only be used with an env id, not with an Env object"),
+        (gym.vector.SyncVectorEnv([PointEnv, PointEnv]), {"goal": 2.0},
+         "env_kwargs can only be used with an env id, not with a VectorEnv"),
+        (3, None, "env must be an env id, a gymnasium Env or a VectorEnv, got int"),
+    ],
+)
+def test_an_env_the_agent_cannot_use_is_refused_naming_it(env, env_kwargs, match):
+    with pytest.raises(TypeError, match=match):
+        REPS(env, env_kwargs=env_kwargs, n_episodes=4)
+
+
+def test_an_env_without_a_formula_or_an_episode_length_is_refused_saying_what_to_do():
+    with pytest.raises(TypeError, match=r"the env has no `formula`: wrap it in tl_gym.TLTLRewardWrapper"):
+        REPS(gym.make("Pendulum-v1", max_episode_steps=20), n_episodes=2)
+    endless = PointEnv()
+    del endless.horizon
+    with pytest.raises(ValueError, match=r"the env states no episode length: pass horizon=T"):
+        REPS(endless, n_episodes=2)
+
+
+class SilentPointEnv(PointEnv):
+    """States its formula but reports no robustness at the end."""
+
+    def step(self, action):
+        obs, reward, terminated, truncated, _ = super().step(action)
+        return obs, reward, terminated, truncated, {}
+
+
+def test_an_env_that_reports_no_robustness_is_named_when_its_first_episode_ends():
+    agent = REPS(SilentPointEnv(), n_episodes=2)
+    with pytest.raises(RuntimeError, match="the env's terminal info holds no 'robustness': wrap it in"):
+        agent.learn(1)
+
+
+def test_load_names_what_does_not_fit(tmp_path):
+    from tl_gym.agents import TLPS
+
+    path = make_agent().save(tmp_path / "agent.zip")
+    with pytest.raises(IncompatibleSaveError, match="holds a REPS, not a TLPS"):
+        TLPS.load(path)
+    wider = PointEnv()  # no spec: the agent copies it, with its space
+    wider.observation_space = gym.spaces.Box(-20, 20, (2,), np.float64)
+    with pytest.raises(IncompatibleSaveError, match="the env's observation_space .* differs from the saved one"):
+        REPS.load(path, env=wider)
+
+    _rewrite(path, arrays_change=lambda a: a.update(bogus=np.zeros(2)))
+    with pytest.raises(IncompatibleSaveError, match=r"missing \[\], unexpected \['bogus'\]"):
+        REPS.load(path)
+    path = make_agent().save(tmp_path / "agent2.zip")
+    _rewrite(path, arrays_change=lambda a: a.update(policy_mean=a["policy_mean"].astype(np.int64)))
+    with pytest.raises(IncompatibleSaveError, match="array 'policy_mean' has dtype int64 in the file"):
+        REPS.load(path)
+    path = make_agent().save(tmp_path / "agent3.zip")
+    _rewrite(path, meta_change=lambda m: m.update({"class": "NoSuchAgent"}))
+    with pytest.raises(IncompatibleSaveError, match="NoSuchAgent"):
+        Agent.load(path)
+
+    empty = tmp_path / "empty.zip"
+    with zipfile.ZipFile(empty, "w") as archive:
+        archive.writestr("readme.txt", "not an agent")
+    with pytest.raises(IncompatibleSaveError, match=r"is not a tl_gym agent file \(no meta.json / arrays.npz\)"):
+        Agent.load(empty)
+
+
 def test_load_rejects_an_env_with_another_formula(tmp_path):
     path = make_agent().save(tmp_path / "agent.zip")
     other = gym.make(POINT_ID, goal=2.0)

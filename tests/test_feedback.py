@@ -122,6 +122,20 @@ def test_predict_equals_the_sampled_actions():
     np.testing.assert_allclose(np.clip(acted, -1, 1), batch.actions, rtol=0, atol=1e-12)
 
 
+def test_rollout_takes_gains_as_an_array_as_it_takes_them_as_a_function():
+    """``gains`` as ``K_t`` of shape (T, act_dim, obs_dim) acts as the function ``(t, s) -> K_t s`` does."""
+    agent = REPS("TLCarNav-v0", seed=0, n_episodes=3, env_kwargs={"start_std": (15, 15, 0.3)})
+    obs_dim = agent.env.single_observation_space.shape[0]
+    gains = np.random.default_rng(0).normal(0.0, 0.01, (agent.horizon, 2, obs_dim))
+    feedforward = np.random.default_rng(1).uniform(-0.5, 0.5, (3, agent.horizon, 2))
+    by_array = rollout(agent.env, feedforward, gains, seed=4)
+    by_function = rollout(agent.env, feedforward, lambda t, s: s @ gains[t].T, seed=4)
+    open_loop = rollout(agent.env, feedforward, None, seed=4)
+    np.testing.assert_allclose(by_array.actions, by_function.actions, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(by_array.robustness, by_function.robustness, rtol=0, atol=1e-9)
+    assert not np.allclose(by_array.actions, open_loop.actions)  # the gains did act
+
+
 def test_policy_centre_and_angles_shape_the_feedback():
     policy = LinearGaussianPolicy(horizon=2, obs_dim=2, act_dim=1, gains=np.array([[1.0, 10.0]]),
                                   angles=np.array([False, True]))
