@@ -20,6 +20,10 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any, Union
 
+import numpy as np
+
+from tl_gym.checks import check_finite
+
 from .serialization import write_atomic
 
 Row = dict[str, Any]
@@ -61,9 +65,9 @@ class StopOnSuccessRate(AbstractCallback):
     """Stops training once an iteration's success rate reaches ``threshold``."""
 
     def __init__(self, threshold: float):
-        if not 0 <= threshold <= 1:
-            raise ValueError(f"threshold must be in [0, 1], got {threshold}")
-        self.threshold = threshold
+        if not 0 <= check_finite("threshold", threshold) <= 1:
+            raise ValueError(f"threshold must be in [0, 1], got {threshold!r}")
+        self.threshold = float(threshold)
 
     def on_iteration(self, agent: Any, row: Row) -> bool:
         return row["success_rate"] < self.threshold
@@ -73,7 +77,7 @@ class StopOnRobustness(AbstractCallback):
     """Stops training once an iteration's mean exact robustness exceeds ``threshold``."""
 
     def __init__(self, threshold: float = 0.0):
-        self.threshold = threshold
+        self.threshold = check_finite("threshold", threshold)  # NaN would stop at once: nothing exceeds it
 
     def on_iteration(self, agent: Any, row: Row) -> bool:
         return row["mean_robustness"] <= self.threshold
@@ -83,9 +87,7 @@ class CheckpointCallback(AbstractCallback):
     """Saves the agent every ``every`` iterations as ``<directory>/<prefix>_<iteration>.zip``."""
 
     def __init__(self, every: int, directory: str | Path, prefix: str = "agent"):
-        if every < 1:
-            raise ValueError(f"every must be >= 1, got {every}")
-        self.every = every
+        self.every = _count("every", every)
         self.directory = Path(directory)
         self.prefix = prefix
 
@@ -113,11 +115,7 @@ class EvalCallback(AbstractCallback):
 
     def __init__(self, every: int, n_episodes: int = 100, best_path: str | Path | None = None, seed: int = 20_000_033,
                  log_path: str | Path | None = None):
-        if every < 1:
-            raise ValueError(f"every must be >= 1, got {every}")
-        if n_episodes < 1:
-            raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
-        self.every, self.n_episodes, self.seed = every, n_episodes, seed
+        self.every, self.n_episodes, self.seed = _count("every", every), _count("n_episodes", n_episodes), seed
         self.best_path = None if best_path is None else Path(best_path)
         self.log_path = None if log_path is None else Path(log_path)
         self._log: list[Row] = []
@@ -178,6 +176,13 @@ def write_history(rows: Iterable[Row], path: str | Path) -> None:
     writer.writeheader()
     writer.writerows(rows)
     write_atomic(path, text.getvalue().encode())
+
+
+def _count(name: str, value: Any) -> int:
+    """``value`` if it is an int >= 1 (a count of iterations or episodes), else a ValueError naming ``name``."""
+    if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
+        raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+    return int(value)
 
 
 CallbackLike = Union[AbstractCallback, Callable[[Any, Row], Any], Sequence[Any], None]

@@ -33,7 +33,6 @@ from __future__ import annotations
 import dataclasses
 import inspect
 import math
-import numbers
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, SupportsFloat
@@ -42,7 +41,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.error import DependencyNotInstalled
 
-from tl_gym.checks import check_positive
+from tl_gym.checks import check_finite, check_positive
 from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.parser import parse
 from tl_gym.wrapper import TLTLRewardWrapper
@@ -195,7 +194,7 @@ def mountain_car_formula(flag: float = 0.45, speed_limit: float = 0.045) -> Form
         >>> print(mountain_car_formula())
         F position >= 0.45 & G abs(velocity) < 0.045
     """
-    _check_finite("flag", flag)
+    check_finite("flag", flag)
     check_positive("speed_limit", speed_limit)
     return parse(f"F(position >= {_num(flag)}) & G(abs(velocity) < {_num(speed_limit)})")
 
@@ -396,11 +395,6 @@ def _check_steps(name: str, value: Any) -> int:
     if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
         raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
     return int(value)
-
-
-def _check_finite(name: str, value: Any) -> None:
-    if not (isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)):
-        raise ValueError(f"{name} must be a finite number, got {value!r}")
 
 
 def _num(value: float) -> str:

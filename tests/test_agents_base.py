@@ -14,7 +14,16 @@ import zipfile
 import gymnasium as gym
 import numpy as np
 import pytest
-from tl_gym.agents import REPS, Agent, CallbackList, CheckpointCallback, LinearGaussianPolicy, StopOnSuccessRate
+from tl_gym.agents import (
+    REPS,
+    Agent,
+    CallbackList,
+    CheckpointCallback,
+    EvalCallback,
+    LinearGaussianPolicy,
+    StopOnRobustness,
+    StopOnSuccessRate,
+)
 from tl_gym.agents.evaluation import evaluate_policy
 from tl_gym.agents.sampling import rollout
 
@@ -184,6 +193,34 @@ def test_callbacks_see_rows_and_stop_training(tmp_path):
     assert len(agent.history) == 1
     assert (tmp_path / "agent_1.zip").exists()
     assert CallbackList([lambda a, r: None]).on_iteration(agent, agent.history[0]) is True
+
+
+def test_stop_on_robustness_stops_once_the_mean_robustness_exceeds_its_threshold():
+    stopped = make_agent().learn(4, callback=StopOnRobustness(-1e9))  # every mean exceeds it
+    assert len(stopped.history) == 1
+    unreachable = make_agent().learn(3, callback=StopOnRobustness(1e9))
+    assert len(unreachable.history) == 3
+    assert all(row["mean_robustness"] <= 1e9 for row in unreachable.history)
+
+
+@pytest.mark.parametrize(
+    ("make", "error", "match"),
+    [
+        (lambda: StopOnSuccessRate(1.5), ValueError, r"threshold must be in \[0, 1\], got 1.5"),
+        (lambda: StopOnSuccessRate("0.5"), ValueError, "threshold must be a finite number, got '0.5'"),
+        (lambda: StopOnRobustness(float("nan")), ValueError,
+         "threshold must be a finite number, got nan"),
+        (lambda: CheckpointCallback(0, "ckpt"), ValueError, "every must be an int >= 1, got 0"),
+        (lambda: CheckpointCallback(2.5, "ckpt"), ValueError, "every must be an int >= 1, got 2.5"),
+        (lambda: EvalCallback(1, n_episodes=0), ValueError,
+         "n_episodes must be an int >= 1, got 0"),
+        (lambda: make_agent().learn(1, callback=3), TypeError,
+         "callback must be an AbstractCallback, a function or a list of them, got 3"),
+    ],
+)
+def test_a_bad_callback_argument_is_refused_naming_it(make, error, match):
+    with pytest.raises(error, match=match):
+        make()
 
 
 def test_a_callback_returning_none_continues_alone_and_in_a_list():
@@ -665,8 +702,6 @@ def test_files_are_written_atomically_with_plain_permissions(tmp_path, monkeypat
 
 
 def test_eval_callback_keeps_the_best_evaluated_policy(tmp_path):
-    from tl_gym.agents import EvalCallback
-
     best = tmp_path / "best.zip"
     callback = EvalCallback(every=2, n_episodes=4, best_path=best, seed=7)
     make_agent().learn(6, callback=[CheckpointCallback(2, tmp_path), callback])

@@ -33,6 +33,18 @@ def check_positive(name: str, value: Any, *, allow_inf: bool = False, allow_zero
     return float(value)
 
 
+def check_finite(name: str, value: Any) -> float:
+    """``value`` as a float if it is a finite real number (not a bool); the message names ``name``.
+
+    Example:
+        >>> check_finite("threshold", -2)
+        -2.0
+    """
+    if not (isinstance(value, numbers.Real) and not isinstance(value, bool) and math.isfinite(value)):
+        raise ValueError(f"{name} must be a finite number, got {value!r}")
+    return float(value)
+
+
 def check_floats(name: str, value: Any, size: int, what: str) -> tuple[float, ...]:
     """``value`` as ``size`` floats; a ``ValueError`` naming ``name`` for anything else (a scalar, None, text).
 

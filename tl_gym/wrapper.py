@@ -11,7 +11,7 @@ from typing import Any, SupportsFloat
 import gymnasium as gym
 import numpy as np
 
-from tl_gym.checks import check_positive
+from tl_gym.checks import check_finite, check_positive
 from tl_gym.monitor_view import MonitorView, augment, augment_space, split
 from tl_gym.shaping import HierarchicalPotential, discounted_increment, satisfaction_value
 from tl_gym.signals import SignalMap, SignalReader
@@ -209,8 +209,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         settings = RewardSettings(reward=reward, beta=beta, rho_max=rho_max, reward_mode=reward_mode, clip=clip,
                                   observe_monitor=observe_monitor, monitor_scale=monitor_scale, gamma=gamma,
                                   satisfaction_bonus=satisfaction_bonus)
-        if not (isinstance(env_reward_weight, numbers.Real) and math.isfinite(env_reward_weight)):
-            raise ValueError(f"env_reward_weight must be a finite number, got {env_reward_weight!r}")
+        check_finite("env_reward_weight", env_reward_weight)
         if not isinstance(env, gym.Env):
             raise TypeError(f"env must be a gymnasium.Env, got {type(env).__name__}")
         if not isinstance(end_on_violation, bool):
