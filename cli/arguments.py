@@ -38,6 +38,8 @@ def parse_value(text: str) -> Any:
 def parse_signals(text: str) -> dict[str, Any]:
     """Parse ``name=source,...``: an integer source is an observation index, any other a Dict key.
 
+    Raises ``argparse.ArgumentTypeError``, which argparse reports as ``argument --signals: ...``.
+
     Example:
         >>> parse_signals("cos_th=0,th_dot=2")
         {'cos_th': 0, 'th_dot': 2}
@@ -46,7 +48,8 @@ def parse_signals(text: str) -> dict[str, Any]:
     for item in filter(None, (part.strip() for part in text.split(","))):
         name, sep, source = item.partition("=")
         if not sep or not name.strip() or not source.strip():
-            raise ValueError(f"--signals expects name=index pairs separated by commas, got {item!r}")
+            raise argparse.ArgumentTypeError(f"expects name=source pairs separated by commas, such as "
+                                             f"cos_th=0,th_dot=2 (an index, or a Dict key), got {item!r}")
         source = source.strip()
         signals[name.strip()] = int(source) if source.lstrip("-").isdigit() else source
     return signals

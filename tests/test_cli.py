@@ -122,6 +122,10 @@ def test_spec_and_signals_train_on_any_env(tmp_path, capsys):
         (["--agent", "reps", "--eval-every", "0"], "--eval-every"),
         (["--env", "Pendulum-v1", "--spec", "F(x > 1", "--signals", "x=0", "--agent", "reps"], "column"),
         (["--env", "NoSuchEnv-v0", "--agent", "reps"], "NoSuchEnv"),  # Gymnasium's NameNotFound: was a traceback
+        (["--env", "Pendulum-v1", "--spec", "F(x > 1)", "--agent", "reps"], "--spec needs --signals"),
+        (["--agent", "reps", "-x", "3"], "expected a hyperparameter --name value, got '-x'"),
+        (["--agent", "reps", "3"], "expected a hyperparameter --name value, got '3'"),
+        (["--agent", "reps", "--epsilon"], "hyperparameter --epsilon has no value"),
     ],
 )
 def test_bad_input_exits_with_a_clear_message(tmp_path, capsys, argv, message):
@@ -136,6 +140,8 @@ def test_bad_input_exits_with_a_clear_message(tmp_path, capsys, argv, message):
         (["--env-kwargs", "{bad"], "argument --env-kwargs: not valid JSON"),
         (["--snapshots", "1,,a"], "argument --snapshots: expects iterations >= 1"),  # was int()'s own message
         (["--snapshots", "0"], "argument --snapshots"),
+        (["--env", "Pendulum-v1", "--spec", "F(x > 1)", "--signals", "x"],
+         "argument --signals: expects name=source pairs separated by commas"),  # was "invalid parse_signals value"
     ],
 )
 def test_an_argument_that_does_not_parse_is_argparses_error(tmp_path, capsys, argv, message):
