@@ -41,7 +41,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.error import DependencyNotInstalled
 
-from tl_gym.checks import check_finite, check_positive
+from tl_gym.checks import check_finite, check_floats, check_positive
 from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.parser import parse
 from tl_gym.wrapper import TLTLRewardWrapper
@@ -122,6 +122,19 @@ class PendulumAngle:
         return math.atan2(float(obs[1]), float(obs[0]))
 
 
+def check_goal_weighting(name: str, values: Any) -> tuple[float, ...]:
+    """parking-v0's ``reward_weights`` or observation ``scales`` as floats, checked.
+
+    One per feature of `PARKING_FEATURES`, the x one > 0 (the goal error is expressed along x); a
+    ``ValueError`` naming ``name`` otherwise.
+    """
+    what = f"{len(PARKING_FEATURES)} finite numbers ({', '.join(PARKING_FEATURES)}), the x one > 0"
+    floats = check_floats(f"parking's {name}", values, len(PARKING_FEATURES), what)
+    if not (all(math.isfinite(v) for v in floats) and floats[0] > 0):
+        raise ValueError(f"parking's {name} must be {what}, got {values!r}")
+    return floats
+
+
 @dataclass(frozen=True)
 class ParkingGoalError:
     """Parking-v0's own distance to the slot, in metres: ``Σ_i w_i |achieved_i - desired_i| · s_x / w_x``.
@@ -143,17 +156,8 @@ class ParkingGoalError:
     scales: tuple[float, ...]
 
     def __post_init__(self) -> None:
-        weights = tuple(float(w) for w in self.weights)
-        scales = tuple(float(s) for s in self.scales)
-        if len(weights) != len(PARKING_FEATURES) or len(scales) != len(PARKING_FEATURES):
-            raise ValueError(
-                f"parking goal error: need {len(PARKING_FEATURES)} reward weights and scales "
-                f"({', '.join(PARKING_FEATURES)}), got {len(weights)} and {len(scales)}"
-            )
-        if not (weights[0] > 0 and scales[0] > 0):
-            raise ValueError(f"parking goal error: the x weight and scale must be > 0, got {weights[0]}, {scales[0]}")
-        object.__setattr__(self, "weights", weights)
-        object.__setattr__(self, "scales", scales)
+        object.__setattr__(self, "weights", check_goal_weighting("reward_weights", self.weights))
+        object.__setattr__(self, "scales", check_goal_weighting("observation scales", self.scales))
 
     def __call__(self, obs: Mapping[str, np.ndarray]) -> float:
         diff = np.abs(np.asarray(obs["achieved_goal"], dtype=np.float64) - np.asarray(obs["desired_goal"]))
@@ -336,6 +340,10 @@ def make_parking(
     spec = dataclasses.replace(gym.spec("parking-v0"), entry_point=NumpyParkingEnv)
     if config is not None and "terminate_on_success" in config:
         raise ValueError("pass terminate_on_success as TLParking-v0's own keyword, not in config")
+    for name, given in (("reward_weights", (config or {}).get("reward_weights")),
+                        ("observation scales", ((config or {}).get("observation") or {}).get("scales"))):
+        if given is not None:  # checked before parking-v0's constructor, which fails on them with numpy's words
+            check_goal_weighting(name, given)
     config = {**(config or {}), "terminate_on_success": bool(terminate_on_success)}
     base = gym.make(spec, config=config, render_mode=render_mode)
     cfg = base.unwrapped.config

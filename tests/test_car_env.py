@@ -211,6 +211,9 @@ def test_make_returns_the_wrapped_car_with_its_formula():
         ({"goals": 5}, "1 goal"),
         ({"obstacle": "abc"}, "obstacle must be"),
         ({"arena": 300}, "arena"),
+        ({"arena": (300, -1)}, r"arena must be \(width, height\) > 0"),
+        ({"start": (0, 0, float("inf"))}, "start must be three finite numbers"),
+        ({"goals": [(0, float("nan"), 0, 1)]}, "a goal is four finite numbers"),
     ],
 )
 def test_bad_env_arguments(kwargs, match):
@@ -353,6 +356,32 @@ def test_vector_env_pays_the_satisfaction_bonus_as_the_wrapper_does():
     for action in actions:
         _, reward, *_ = terminal.step(np.stack([action, np.zeros(2, dtype=np.float32)]))
     assert reward[0] == pytest.approx(info["robustness"] + 50.0, abs=1e-9)
+
+
+def test_the_single_car_refuses_a_step_out_of_an_episode_or_of_the_wrong_shape():
+    env = gym.make("TLCarNav-v0", horizon=2).unwrapped
+    with pytest.raises(RuntimeError, match=r"call reset\(\) before step\(\)"):
+        env.step(np.zeros(2))
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"action must have shape \(2,\).*got \(3,\)"):
+        env.step(np.zeros(3))
+    env.step(np.zeros(2))
+    env.step(np.zeros(2))
+    with pytest.raises(RuntimeError, match="the episode is over"):
+        env.step(np.zeros(2))
+
+
+def test_render_without_a_render_mode_warns_and_draws_nothing():
+    single = gym.make("TLCarNav-v0").unwrapped
+    single.reset(seed=0)
+    with pytest.warns(UserWarning, match='render_mode="rgb_array"'):
+        assert single.render() is None
+    envs = CarNavVectorEnv(num_envs=2)
+    envs.reset(seed=0)
+    with pytest.warns(UserWarning, match='render_mode="rgb_array"'):
+        assert envs.render() is None
+    with pytest.raises(ValueError, match="seed must be an int or 2 seeds, got 3"):
+        envs.reset(seed=[1, 2, 3])
 
 
 def test_vector_env_autoreset_and_errors():

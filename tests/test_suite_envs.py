@@ -247,6 +247,35 @@ def test_parking_terminate_on_success_ends_at_the_slots_edge():
     assert 0 < info["robustness"] < 0.1
 
 
+@pytest.mark.parametrize(
+    ("config", "match"),
+    [
+        ({"observation": {"type": "Kinematics"}}, "reads parking's KinematicsGoal observation with features"),
+        ({"observation": {"type": "KinematicsGoal", "features": ["y", "x", "vx", "vy", "cos_h", "sin_h"],
+                          "scales": [100, 100, 5, 5, 1, 1]}},
+         r"features \['x', 'y', 'vx', 'vy', 'cos_h', 'sin_h'\]"),
+        ({"observation": {"type": "KinematicsGoal", "features": ["x", "y", "vx", "vy", "cos_h", "sin_h"],
+                          "scales": [100, 100, 5, 5, 1, 1], "normalize": True}}, "reads unnormalised observations"),
+        ({"reward_weights": [1, 0.3, 0, 0]}, r"parking's reward_weights must be 6 finite numbers \(x, y, vx, vy, "
+                                              r"cos_h, sin_h\), the x one > 0, got \[1, 0.3, 0, 0\]"),
+        ({"reward_weights": [0, 0.3, 0, 0, 0.02, 0.02]}, "parking's reward_weights must be 6 finite numbers"),
+        ({"observation": {"type": "KinematicsGoal", "features": ["x", "y", "vx", "vy", "cos_h", "sin_h"],
+                          "scales": [0, 100, 5, 5, 1, 1]}}, "parking's observation scales must be"),
+    ],
+)
+def test_a_parking_config_the_task_cannot_read_is_refused_naming_it(config, match):
+    pytest.importorskip("highway_env")
+    with pytest.raises(ValueError, match=match):
+        gym.make("TLParking-v0", config=config)
+
+
+def test_a_signal_from_a_missing_info_key_names_the_key_and_the_keys_there():
+    from tl_gym.envs.suite import InfoValue
+
+    with pytest.raises(KeyError, match=r"info\['t'\]: the env's info has no such key \(keys: \['other'\]\)"):
+        InfoValue("t")(None, {"other": 1})
+
+
 def test_parking_terminate_on_success_in_config_is_refused():
     pytest.importorskip("highway_env")
     with pytest.raises(ValueError, match="terminate_on_success as TLParking-v0's own keyword"):
