@@ -164,6 +164,20 @@ def test_unfittable_agent_is_refused_at_construction(cls):
         cls("TLCarNav-v0", n_episodes=4, feedback="fitted", feedback_features=[7])
 
 
+def test_explicit_feedback_components_are_what_auto_picks_on_the_car_and_others_change_the_fit():
+    """On the car "auto" regresses on the signals' components x, y (0, 1) and the ±π-bounded θ (2), θ as an angle."""
+    kwargs = dict(seed=3, n_episodes=8, env_kwargs={"start_std": (15, 15, 0.3)})
+    auto = REPS("TLCarNav-v0", **kwargs).learn(2)
+    explicit = REPS("TLCarNav-v0", feedback_features=(0, 1, 2), feedback_angles=(2,), **kwargs).learn(2)
+    np.testing.assert_array_equal(explicit.policy.gains, auto.policy.gains)
+    assert [r["mean_robustness"] for r in explicit.history] == [r["mean_robustness"] for r in auto.history]
+    xy = REPS("TLCarNav-v0", feedback_features=(0, 1), **kwargs).learn(2)
+    assert not np.array_equal(xy.policy.gains, auto.policy.gains)
+    assert not xy.policy.gains[..., 2:].any()  # only x and y are regressed on
+    with pytest.raises(ValueError, match=r"feedback_features=\[0, 9\] names a component past the observation's 6"):
+        REPS("TLCarNav-v0", feedback_features=(0, 9), **kwargs)
+
+
 @pytest.mark.parametrize(
     ("hyperparameters", "culprit"),
     [
