@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 import zipfile
 
 import gymnasium as gym
@@ -268,6 +269,16 @@ def test_predict_clips_to_the_action_space():
     agent = make_agent(init_mean=3.0)
     action, _ = agent.predict(np.zeros(2))
     np.testing.assert_array_equal(action, [1.0, 1.0])
+
+
+@pytest.mark.parametrize("shape", [(3,), (4,), (2, 3), ()])
+def test_predict_refuses_observations_of_another_size_instead_of_regrouping_them(shape):
+    """The point env observes 2 numbers: a 4-vector is not two observations, and 3 are not 1.5 of them."""
+    agent = make_agent()
+    message = rf"obs must have 2 components \(last axis\), got shape {re.escape(str(shape))}"
+    with pytest.raises(ValueError, match=message):
+        agent.predict(np.zeros(shape))
+    assert agent.predict(np.zeros((5, 2)))[0].shape == (5, 2)
 
 
 def test_evaluate_matches_a_rollout_of_the_mean_actions():
