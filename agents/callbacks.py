@@ -20,9 +20,7 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any, Union
 
-import numpy as np
-
-from tl_gym.checks import check_finite
+from tl_gym.checks import check_count, check_finite
 
 from .serialization import write_atomic
 
@@ -87,7 +85,7 @@ class CheckpointCallback(AbstractCallback):
     """Saves the agent every ``every`` iterations as ``<directory>/<prefix>_<iteration>.zip``."""
 
     def __init__(self, every: int, directory: str | Path, prefix: str = "agent"):
-        self.every = _count("every", every)
+        self.every = check_count("every", every)
         self.directory = Path(directory)
         self.prefix = prefix
 
@@ -115,7 +113,8 @@ class EvalCallback(AbstractCallback):
 
     def __init__(self, every: int, n_episodes: int = 100, best_path: str | Path | None = None, seed: int = 20_000_033,
                  log_path: str | Path | None = None):
-        self.every, self.n_episodes, self.seed = _count("every", every), _count("n_episodes", n_episodes), seed
+        self.every, self.n_episodes = check_count("every", every), check_count("n_episodes", n_episodes)
+        self.seed = seed
         self.best_path = None if best_path is None else Path(best_path)
         self.log_path = None if log_path is None else Path(log_path)
         self._log: list[Row] = []
@@ -176,13 +175,6 @@ def write_history(rows: Iterable[Row], path: str | Path) -> None:
     writer.writeheader()
     writer.writerows(rows)
     write_atomic(path, text.getvalue().encode())
-
-
-def _count(name: str, value: Any) -> int:
-    """``value`` if it is an int >= 1 (a count of iterations or episodes), else a ValueError naming ``name``."""
-    if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
-        raise ValueError(f"{name} must be an int >= 1, got {value!r}")
-    return int(value)
 
 
 CallbackLike = Union[AbstractCallback, Callable[[Any, Row], Any], Sequence[Any], None]

@@ -198,10 +198,10 @@ class LinearGaussianPolicy:
         drawing ``k_t^i`` per episode, since the ``k_t^i`` of different steps are independent.
         """
         obs = np.asarray(obs, dtype=float)
-        if obs.size and (obs.ndim == 0 or obs.shape[-1] != self.obs_dim):  # before a reshape could mix them up
+        if obs.ndim == 0 or obs.shape[-1] != self.obs_dim:  # before a reshape could regroup the numbers
             raise ValueError(f"obs must have {self.obs_dim} components (last axis), got shape {obs.shape}")
         single = obs.ndim == 1
-        batch = obs.reshape(-1, self.obs_dim) if obs.size else obs.reshape(0, self.obs_dim)
+        batch = obs.reshape(-1, self.obs_dim)
         n = batch.shape[0]
         t = np.zeros(n, dtype=np.int64) if state is None else np.broadcast_to(np.asarray(state), (n,)).astype(np.int64)
         if episode_start is not None:

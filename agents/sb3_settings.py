@@ -332,7 +332,8 @@ class SB3Config:
         if not (isinstance(self.normalize, bool) or isinstance(self.normalize, Mapping)):
             raise ValueError(f"normalize must be a bool or a dict of VecNormalize keywords, got {self.normalize!r}")
         parse_normalize(self.normalize)
-        if check_hyperparams_source(self.hyperparams) != self.hyperparams:  # a Path: SB3Agent writes it as text
+        check_hyperparams_source(self.hyperparams)
+        if isinstance(self.hyperparams, os.PathLike):  # the config is JSON: SB3Agent writes a Path as text
             raise ValueError(f"hyperparams must be true, false or a file path as text, got {self.hyperparams!r}")
         if self.n_timesteps is not None and (not isinstance(self.n_timesteps, (int, np.integer))
                                              or self.n_timesteps < 1):

@@ -49,6 +49,7 @@ from tl_gym.agents.registry import is_episodic, make_agent
 from tl_gym.agents.sampling import env_attribute, run_episodes
 
 import tl_gym
+from tl_gym.checks import check_count
 from tl_gym.diagnosis import conjunct_breakdown, format_breakdown
 from tl_gym.errors import TLGymError
 
@@ -178,10 +179,11 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
         "agent": args.agent, "iterations": args.iterations, "seed": args.seed,
         "hyperparameters": parse_hyperparameters(extra),
     }
-    if args.iterations is not None and args.iterations < 1:
-        raise ValueError(f"--iterations must be >= 1, got {args.iterations}")
-    if args.eval_every is not None and (args.eval_every < 1 or args.eval_episodes < 1):
-        raise ValueError(f"--eval-every and --eval-episodes must be >= 1, got {args.eval_every}, {args.eval_episodes}")
+    if args.iterations is not None:
+        check_count("--iterations", args.iterations)
+    if args.eval_every is not None:  # checked here, in the flags' names, before the agent is built
+        check_count("--eval-every", args.eval_every)
+        check_count("--eval-episodes", args.eval_episodes)
     out: Path = args.out
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} is a file: name a folder for the run")

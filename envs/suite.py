@@ -340,10 +340,7 @@ def make_parking(
     spec = dataclasses.replace(gym.spec("parking-v0"), entry_point=NumpyParkingEnv)
     if config is not None and "terminate_on_success" in config:
         raise ValueError("pass terminate_on_success as TLParking-v0's own keyword, not in config")
-    for name, given in (("reward_weights", (config or {}).get("reward_weights")),
-                        ("observation scales", ((config or {}).get("observation") or {}).get("scales"))):
-        if given is not None:  # checked before parking-v0's constructor, which fails on them with numpy's words
-            check_goal_weighting(name, given)
+    _check_goal_weighting_of(config or {})
     config = {**(config or {}), "terminate_on_success": bool(terminate_on_success)}
     base = gym.make(spec, config=config, render_mode=render_mode)
     cfg = base.unwrapped.config
@@ -397,6 +394,22 @@ def _wrap(
             f"({', '.join(p for p in params if p not in ('env', 'spec', 'signals'))})"
         )
     return TLTLRewardWrapper(StepClock(base, horizon), formula, signals, **kwargs)
+
+
+def _check_goal_weighting_of(config: Mapping[str, Any]) -> None:
+    """The goal weighting a parking config gives, checked before parking-v0 is built.
+
+    parking-v0's constructor fails on a bad one in numpy's words. Checked: ``reward_weights``, and the
+    ``scales`` of an observation that is the task's own (another observation is refused after the
+    build, naming its type and features).
+    """
+    if config.get("reward_weights") is not None:
+        check_goal_weighting("reward_weights", config["reward_weights"])
+    observation = config.get("observation")
+    if (isinstance(observation, Mapping) and observation.get("scales") is not None
+            and observation.get("type", "KinematicsGoal") == "KinematicsGoal"
+            and tuple(observation.get("features", PARKING_FEATURES)) == PARKING_FEATURES):
+        check_goal_weighting("observation scales", observation["scales"])
 
 
 def _check_steps(name: str, value: Any) -> int:

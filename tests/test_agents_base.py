@@ -201,7 +201,6 @@ def test_stop_on_robustness_stops_once_the_mean_robustness_exceeds_its_threshold
     assert len(stopped.history) == 1
     unreachable = make_agent().learn(3, callback=StopOnRobustness(1e9))
     assert len(unreachable.history) == 3
-    assert all(row["mean_robustness"] <= 1e9 for row in unreachable.history)
 
 
 @pytest.mark.parametrize(
@@ -271,7 +270,7 @@ def test_predict_clips_to_the_action_space():
     np.testing.assert_array_equal(action, [1.0, 1.0])
 
 
-@pytest.mark.parametrize("shape", [(3,), (4,), (2, 3), ()])
+@pytest.mark.parametrize("shape", [(3,), (4,), (2, 3), (), (0, 5)])
 def test_predict_refuses_observations_of_another_size_instead_of_regrouping_them(shape):
     """The point env observes 2 numbers: a 4-vector is not two observations, and 3 are not 1.5 of them."""
     agent = make_agent()
@@ -279,6 +278,7 @@ def test_predict_refuses_observations_of_another_size_instead_of_regrouping_them
     with pytest.raises(ValueError, match=message):
         agent.predict(np.zeros(shape))
     assert agent.predict(np.zeros((5, 2)))[0].shape == (5, 2)
+    assert agent.predict(np.zeros((0, 2)))[0].shape == (0, 2)  # an empty batch of the right width is no error
 
 
 def test_evaluate_matches_a_rollout_of_the_mean_actions():

@@ -20,6 +20,7 @@ from tl_gym.agents import Agent, SB3Agent
 from tl_gym.agents.sb3 import VECNORMALIZE_MEMBER, one_torch_thread
 from tl_gym.agents.sb3_settings import (
     TL_REWARD_ENV_KWARGS,
+    SB3Config,
     find_hyperparams,
     load_hyperparams,
     parse_normalize,
@@ -210,6 +211,8 @@ def test_a_hyperparameter_file_given_as_a_path_object_is_read_and_saved_as_text(
     agent = SB3Agent("TLCarNav-v0", "ppo", seed=0, hyperparams=path, **TINY)
     assert agent.model.gamma == 0.9
     assert agent.config.hyperparams == str(path)
+    with pytest.raises(ValueError, match="hyperparams must be true, false or a file path as text"):
+        SB3Config(algo="PPO", hyperparams=path)  # the config itself is JSON: the agent writes the path as text
 
 
 def test_action_noise_on_an_on_policy_algorithm_is_refused_naming_it():

@@ -251,6 +251,8 @@ def test_parking_terminate_on_success_ends_at_the_slots_edge():
     ("config", "match"),
     [
         ({"observation": {"type": "Kinematics"}}, "reads parking's KinematicsGoal observation with features"),
+        ({"observation": {"type": "Kinematics", "features": ["x", "y", "vx", "vy"], "scales": [100, 100, 5, 5]}},
+         "reads parking's KinematicsGoal observation with features"),  # its scales are not the culprit
         ({"observation": {"type": "KinematicsGoal", "features": ["y", "x", "vx", "vy", "cos_h", "sin_h"],
                           "scales": [100, 100, 5, 5, 1, 1]}},
          r"features \['x', 'y', 'vx', 'vy', 'cos_h', 'sin_h'\]"),

@@ -45,6 +45,18 @@ def check_finite(name: str, value: Any) -> float:
     return float(value)
 
 
+def check_count(name: str, value: Any) -> int:
+    """``value`` as an int if it is an integer >= 1 (a count: iterations, episodes, a period); not a bool.
+
+    Example:
+        >>> check_count("every", 5)
+        5
+    """
+    if not isinstance(value, numbers.Integral) or isinstance(value, bool) or value < 1:
+        raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+    return int(value)
+
+
 def check_floats(name: str, value: Any, size: int, what: str) -> tuple[float, ...]:
     """``value`` as ``size`` floats; a ``ValueError`` naming ``name`` for anything else (a scalar, None, text).
 
