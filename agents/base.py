@@ -28,6 +28,7 @@ import numpy as np
 from tqdm import tqdm
 
 import tl_gym
+from tl_gym.checks import check_count
 from tl_gym.errors import IncompatibleSaveError
 
 from .callbacks import CallbackLike, as_callback
@@ -70,8 +71,7 @@ def check_episodic(n_episodes: Any, horizon: Any) -> None:
     """
     if not isinstance(n_episodes, (int, np.integer)) or n_episodes < 2:
         raise ValueError(f"n_episodes must be an int >= 2 (weights need several episodes), got {n_episodes!r}")
-    if horizon is not None and (not isinstance(horizon, (int, np.integer)) or horizon < 1):
-        raise ValueError(f"horizon must be an int >= 1 or None, got {horizon!r}")
+    check_count("horizon", horizon, allow_none=True)
 
 
 class Agent(abc.ABC):

@@ -15,6 +15,8 @@ from typing import Any, Protocol
 import gymnasium as gym
 import numpy as np
 
+from tl_gym.checks import check_count
+
 from .sampling import Controller, run_episodes
 
 
@@ -64,8 +66,7 @@ def evaluate_policy(
         ValueError: ``n_episodes < 1``.
         RuntimeError: the env reports no robustness (not wrapped in `tl_gym.TLTLRewardWrapper`).
     """
-    if n_episodes < 1:
-        raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
+    check_count("n_episodes", n_episodes)
     if isinstance(env, gym.Env):
         env = as_vector_env(env)
     elif not isinstance(env, gym.vector.VectorEnv):

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from tl_gym.checks import check_positive
+from tl_gym.checks import check_count, check_positive
 from tl_gym.relabel import RELABEL_STRATEGIES
 
 from .registry import SB3_CONTRIB_ALGORITHMS
@@ -324,10 +324,8 @@ class SB3Config:
     """Keyword arguments for the algorithm's constructor (``learning_rate``, ``n_steps``, ...)."""
 
     def __post_init__(self) -> None:
-        if not isinstance(self.steps_per_iteration, (int, np.integer)) or self.steps_per_iteration < 1:
-            raise ValueError(f"steps_per_iteration must be an int >= 1, got {self.steps_per_iteration!r}")
-        if not isinstance(self.n_envs, (int, np.integer)) or self.n_envs < 1:
-            raise ValueError(f"n_envs must be an int >= 1, got {self.n_envs!r}")
+        check_count("steps_per_iteration", self.steps_per_iteration)
+        check_count("n_envs", self.n_envs)
         check_tl_reward(self.tl_reward)
         if not (isinstance(self.normalize, bool) or isinstance(self.normalize, Mapping)):
             raise ValueError(f"normalize must be a bool or a dict of VecNormalize keywords, got {self.normalize!r}")
@@ -335,9 +333,7 @@ class SB3Config:
         check_hyperparams_source(self.hyperparams)
         if isinstance(self.hyperparams, os.PathLike):  # the config is JSON: SB3Agent writes a Path as text
             raise ValueError(f"hyperparams must be true, false or a file path as text, got {self.hyperparams!r}")
-        if self.n_timesteps is not None and (not isinstance(self.n_timesteps, (int, np.integer))
-                                             or self.n_timesteps < 1):
-            raise ValueError(f"n_timesteps must be an int >= 1 or None, got {self.n_timesteps!r}")
+        check_count("n_timesteps", self.n_timesteps, allow_none=True)
         if not isinstance(self.end_is_terminal, bool):
             raise ValueError(f"end_is_terminal must be true or false, got {self.end_is_terminal!r}")
         if not isinstance(self.her_goals, (int, np.integer)) or isinstance(self.her_goals, bool) or self.her_goals < 0:

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tl_gym.checks import check_floats, check_positive
+from tl_gym.checks import check_count, check_floats, check_positive
 
 STATE_SIZE = 6  # x, y, θ, ẋ, ẏ, θ̇
 NOISE_SIZE = 3  # additive noise on x, y, θ
@@ -60,9 +60,7 @@ class CarParams:
             if not all(math.isfinite(v) and v >= 0 for v in value):
                 raise ValueError(f"{name} must be {what}, got {given!r}")
             object.__setattr__(self, name, value)
-        if isinstance(self.horizon, bool) or not isinstance(self.horizon, (int, np.integer)) or self.horizon < 1:
-            raise ValueError(f"horizon must be an integer >= 1, got {self.horizon!r}")
-        object.__setattr__(self, "horizon", int(self.horizon))
+        object.__setattr__(self, "horizon", check_count("horizon", self.horizon))
 
     @property
     def max_turn_rate(self) -> float:

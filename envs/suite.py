@@ -41,7 +41,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.error import DependencyNotInstalled
 
-from tl_gym.checks import check_finite, check_floats, check_positive
+from tl_gym.checks import check_count, check_finite, check_floats, check_positive
 from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.parser import parse
 from tl_gym.wrapper import TLTLRewardWrapper
@@ -75,7 +75,7 @@ class StepClock(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     def __init__(self, env: gym.Env, horizon: int):
         """Wrap ``env``, whose episodes last at most ``horizon`` steps."""
-        _check_steps("horizon", horizon)
+        check_count("horizon", horizon)
         gym.utils.RecordConstructorArgs.__init__(self, horizon=horizon)
         gym.Wrapper.__init__(self, env)
         self.horizon = int(horizon)
@@ -185,7 +185,7 @@ def pendulum_formula(up_by: int = 100, max_angle: float = 0.3, max_speed: float 
         >>> print(pendulum_formula())
         G (t >= 100 -> abs(th) < 0.3) & G abs(th_dot) < 8
     """
-    _check_steps("up_by", up_by)
+    check_count("up_by", up_by)
     check_positive("max_angle", max_angle)
     check_positive("max_speed", max_speed)
     return parse(f"G(t >= {int(up_by)} -> abs(th) < {_num(max_angle)}) & G(abs(th_dot) < {_num(max_speed)})")
@@ -253,7 +253,7 @@ def make_pendulum(
     Raises:
         ValueError: a bad horizon, ``up_by`` not below it, or a bound that is not > 0.
     """
-    horizon = _check_steps("horizon", horizon)  # a plain int: Gymnasium's TimeLimit refuses numpy integers
+    horizon = check_count("horizon", horizon)  # a plain int: Gymnasium's TimeLimit refuses numpy integers
     formula = pendulum_formula(up_by, max_angle, max_speed)
     if up_by >= horizon:
         raise ValueError(f"up_by must be below horizon ({horizon}), got {up_by!r}")
@@ -284,7 +284,7 @@ def make_mountain_car(
         ValueError: a bad horizon or a speed limit that is not > 0.
     """
     formula = mountain_car_formula(0.45, speed_limit)
-    horizon = _check_steps("horizon", horizon)
+    horizon = check_count("horizon", horizon)
     base = gym.make("MountainCarContinuous-v0", max_episode_steps=horizon, render_mode=render_mode)
     signals = {"position": 0, "velocity": 1}
     return _wrap(base, horizon, formula, signals, wrapper_kwargs, monitor_scale=0.5)
@@ -333,7 +333,7 @@ def make_parking(
         ) from error
     from tl_gym.envs.fast_parking import NumpyParkingEnv
 
-    horizon = _check_steps("horizon", horizon)  # a plain int: Gymnasium's TimeLimit refuses numpy integers
+    horizon = check_count("horizon", horizon)  # a plain int: Gymnasium's TimeLimit refuses numpy integers
     if not isinstance(terminate_on_success, (bool, np.bool_)):  # bool("no") would be True
         raise ValueError(f"terminate_on_success must be True or False, got {terminate_on_success!r}")
     # parking-v0's own wrappers and checks, on its subclass that reads the goal observation without pandas
@@ -410,12 +410,6 @@ def _check_goal_weighting_of(config: Mapping[str, Any]) -> None:
             and observation.get("type", "KinematicsGoal") == "KinematicsGoal"
             and tuple(observation.get("features", PARKING_FEATURES)) == PARKING_FEATURES):
         check_goal_weighting("observation scales", observation["scales"])
-
-
-def _check_steps(name: str, value: Any) -> int:
-    if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
-        raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
-    return int(value)
 
 
 def _num(value: float) -> str:

@@ -27,6 +27,7 @@ from tl_gym.envs.car import (
 from tl_gym.envs.dynamics import car_step, sample_episode_noise
 from tl_gym.envs.tasks import task_formula
 
+from tl_gym.checks import check_count
 from tl_gym.monitor_view import MonitorView, augment_space
 from tl_gym.shaping import HierarchicalPotential, discounted_increment, satisfaction_value
 from tl_gym.tltl.online import PrefixMonitor
@@ -77,8 +78,7 @@ class CarNavVectorEnv(CarProperties, VectorEnv):
 
         ``kwargs`` are the reward settings (`tl_gym.wrapper.RewardSettings`) and the car's keywords.
         """
-        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
-            raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
+        check_count("num_envs", num_envs)
         settings, car_kwargs = car_reward_settings(kwargs)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")

@@ -126,7 +126,7 @@ def test_returned_values_are_not_changed_by_later_updates(text):
 def test_errors_name_their_culprit():
     with pytest.raises(ValueError, match=r"'G \(a > 0 -> F b > 1\)' is outside the incremental fragment"):
         BatchPrefixMonitor(parse("F(a > 1) & G(a > 0 -> F b > 1)"), 2)
-    with pytest.raises(ValueError, match="n must be an integer >= 1"):
+    with pytest.raises(ValueError, match="n must be an int >= 1"):
         BatchPrefixMonitor(parse("F(a > 1)"), 0)
     batch = BatchPrefixMonitor(parse("F(sqrt(a) > 1) & G(b < 2)"), 2)
     with pytest.raises(UnknownSignalError, match="no signal 'b'"):

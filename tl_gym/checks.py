@@ -45,15 +45,19 @@ def check_finite(name: str, value: Any) -> float:
     return float(value)
 
 
-def check_count(name: str, value: Any) -> int:
-    """``value`` as an int if it is an integer >= 1 (a count: iterations, episodes, a period); not a bool.
+def check_count(name: str, value: Any, *, allow_none: bool = False) -> int | None:
+    """``value`` as an int if it is an integer >= 1 (a count: steps, episodes, envs, a period); not a bool.
+
+    With ``allow_none``, None passes through (a count the env or a default supplies).
 
     Example:
-        >>> check_count("every", 5)
-        5
+        >>> check_count("every", 5), check_count("horizon", None, allow_none=True)
+        (5, None)
     """
+    if value is None and allow_none:
+        return None
     if not isinstance(value, numbers.Integral) or isinstance(value, bool) or value < 1:
-        raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+        raise ValueError(f"{name} must be an int >= 1{' or None' if allow_none else ''}, got {value!r}")
     return int(value)
 
 

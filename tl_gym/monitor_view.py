@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
-from tl_gym.checks import check_positive
+from tl_gym.checks import check_count, check_positive
 from tl_gym.shaping import discounted_increment, satisfaction_value
 from tl_gym.tltl.codegen import CodeWriter
 from tl_gym.tltl.online import PrefixMonitor
@@ -81,9 +81,7 @@ class MonitorView:
         if not monitor.incremental:
             monitor.state()  # raises the ValueError that names the sub-formula
         check_positive("monitor_scale", scale)
-        if horizon is not None and (isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer))
-                                    or horizon < 1):
-            raise ValueError(f"horizon must be an int >= 1 or None, got {horizon!r}")
+        check_count("horizon", horizon, allow_none=True)
         self.monitor = monitor
         self.scale = float(scale)
         self.clip = float(clip)

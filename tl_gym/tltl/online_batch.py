@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from tl_gym.checks import check_count
 from tl_gym.errors import TraceError, UnknownSignalError
 from tl_gym.tltl import online_nodes, operators
 from tl_gym.tltl.ast import And, Constant, Formula, Num, Or, Predicate, Var
@@ -373,8 +374,7 @@ class BatchPrefixMonitor:
         scalar = PrefixMonitor(formula, rho_max)
         if not scalar.incremental:
             scalar.state()  # raises the ValueError that names the sub-formula
-        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-            raise ValueError(f"n must be an integer >= 1, got {n!r}")
+        check_count("n", n)
         self.formula = formula
         self.n = int(n)
         self.rho_max = scalar.rho_max
