@@ -328,6 +328,7 @@ class SB3Agent(Agent):
         the global ones SB3's training draws from: sampling episodes between iterations (an evaluation,
         ``tl-gym train``'s trajectory plots) leaves training as it would have been without them.
         """
+        self._check_observation(obs)
         if self.vec_normalize is not None:
             obs = self.vec_normalize.normalize_obs(obs)
         # epsilon-greedy predict (DQN, QR-DQN) explores with numpy's global generator and the action space's
@@ -335,6 +336,29 @@ class SB3Agent(Agent):
         own = contextlib.nullcontext() if deterministic else drawn_from(self._predict_rng, space)
         with one_torch_thread(), own:
             return self.model.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
+
+    def _check_observation(self, obs: Any) -> None:
+        """Refuse an observation of another shape than the agent's, before VecNormalize meets it in numpy's words.
+
+        The likely cause is the Markov view: an agent trained with ``tl_reward="markov"`` observes the env's
+        observation with the monitor's state appended, which an env made without ``observe_monitor=True`` lacks.
+        """
+        space = self.observation_space
+        if isinstance(space, gym.spaces.Dict) and isinstance(obs, Mapping):
+            fits = set(obs) == set(space.spaces)
+            got, wanted = sorted(obs), sorted(space.spaces)
+        elif isinstance(space, gym.spaces.Box) and space.shape:
+            got, wanted = np.shape(obs), space.shape
+            fits = tuple(got[len(got) - len(wanted):]) == tuple(wanted)
+        else:
+            return
+        if not fits:
+            hint = (" The agent observes its env's monitor (the Markov view, tl_reward='markov'): act on observations "
+                    "of an env made as the agent's, gym.make(id, **agent.env_kwargs), or of agent.env."
+                    if self.config.tl_reward == "markov" else "")
+            what = "keys" if isinstance(got, list) else "shape"
+            raise ValueError(f"the observation has {what} {got}; the agent's observation space has {what} {wanted}."
+                             f"{hint}")
 
     def _config(self) -> dict[str, Any]:
         config = dataclasses.asdict(self.config)

@@ -215,6 +215,19 @@ def test_a_hyperparameter_file_given_as_a_path_object_is_read_and_saved_as_text(
         SB3Config(algo="PPO", hyperparams=path)  # the config itself is JSON: the agent writes the path as text
 
 
+def test_predict_on_an_observation_without_the_view_says_the_agent_observes_its_monitor():
+    agent = SB3Agent("TLCarNav-v0", "ppo", seed=0, **TINY)
+    raw, _ = gym.make("TLCarNav-v0").reset(seed=0)
+    with pytest.raises(ValueError, match=r"shape \(6,\); the agent's observation space has shape \(12,\)\. "
+                                         r"The agent observes its env's monitor"):
+        agent.predict(raw)
+    viewed, _ = gym.make("TLCarNav-v0", **agent.env_kwargs).reset(seed=0)
+    assert agent.predict(viewed)[0].shape == (2,) and agent.predict(np.stack([viewed] * 3))[0].shape == (3, 2)
+    plain = SB3Agent("TLCarNav-v0", "ppo", seed=0, tl_reward="terminal", **TINY)
+    with pytest.raises(ValueError, match=r"observation space has shape \(6,\)\.$"):  # no view: no hint
+        plain.predict(np.zeros(12))
+
+
 def test_action_noise_on_an_on_policy_algorithm_is_refused_naming_it():
     with pytest.raises(ValueError, match=r"noise_type='normal': PPO takes no action noise"):
         SB3Agent("TLCarNav-v0", "ppo", seed=0, noise_type="normal", **TINY)
