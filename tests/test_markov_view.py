@@ -183,6 +183,9 @@ def test_monitor_features_are_the_appended_part_and_decode_to_the_monitors_state
     assert features.shape == (env.monitor_view.size,) and np.array_equal(features, expected)
     state, first = env.monitor_view.decode(features)
     assert not first and state == pytest.approx(env.monitor_view.monitor.state(), abs=1e-12)
+    raw = env.unwrapped._obs()  # the env's own observation, without the monitor
+    with pytest.raises(ValueError, match="not an observation of this wrapper: (keys|shape)"):
+        env.dense_reward(raw, raw)
 
 
 @pytest.mark.parametrize("horizon", [0, -3, 2.5, True, "40"])

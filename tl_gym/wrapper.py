@@ -349,10 +349,27 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     # The Markov view ----------------------------------------------------------------------
     def monitor_features(self, obs: Any) -> np.ndarray:
-        """The monitor features of an observation of this wrapper (``observe_monitor=True``)."""
-        if self.monitor_view is None:
+        """The monitor features of an observation of this wrapper (``observe_monitor=True``).
+
+        Raises:
+            ValueError: the wrapper has no view, or ``obs`` is not one of its observations (a raw one, say).
+        """
+        view = self.monitor_view
+        if view is None:
             raise ValueError("the wrapper was made without observe_monitor=True: its observations hold no monitor")
-        return split(obs, self.monitor_view, MONITOR_KEY)
+        space = self.observation_space
+        if isinstance(space, gym.spaces.Dict):
+            fits = isinstance(obs, Mapping) and MONITOR_KEY in obs
+        else:
+            fits = not isinstance(obs, Mapping) and np.shape(obs)[-1:] == space.shape
+        if not fits:
+            def layout(x: Any) -> str:
+                return f"keys {sorted(x)}" if isinstance(x, Mapping) else f"shape {np.shape(x)}"
+
+            expected = layout(space.spaces) if isinstance(space, gym.spaces.Dict) else f"shape {space.shape}"
+            raise ValueError(f"not an observation of this wrapper: {layout(obs)}, where its observations have "
+                             f"{expected} (the env's observation with the monitor's state appended)")
+        return split(obs, view, MONITOR_KEY)
 
     def dense_reward(self, obs_before: Any, obs_after: Any, last: bool = False) -> float:
         """The ``reward_mode="dense"`` reward of a step, recomputed from its two observations alone.
@@ -362,11 +379,9 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         sees): with the monitor's state in the observation, the dense reward is Markov. It equals
         what `step` pays in dense mode (env reward excluded), up to the rounding of ``monitor_scale``.
         """
-        view = self.monitor_view
-        if view is None:
-            raise ValueError("the wrapper was made without observe_monitor=True: its observations hold no monitor")
-        return view.dense_reward(split(obs_before, view, MONITOR_KEY), split(obs_after, view, MONITOR_KEY),
-                                 gamma=1.0 if last else self.gamma, bonus=self.satisfaction_bonus)
+        before, after = self.monitor_features(obs_before), self.monitor_features(obs_after)
+        return self.monitor_view.dense_reward(before, after,  # type: ignore[union-attr]
+                                              gamma=1.0 if last else self.gamma, bonus=self.satisfaction_bonus)
 
 
 def terminal_info(formula: Formula, trace: Mapping[str, np.ndarray], rho_max: float,
