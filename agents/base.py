@@ -33,7 +33,7 @@ from tl_gym.errors import IncompatibleSaveError
 
 from .callbacks import CallbackLike, as_callback
 from .evaluation import evaluate_policy
-from .sampling import find_formula, make_vector_env
+from .sampling import find_formula, make_vector_env, registered_spec
 from .serialization import (
     FORMAT_VERSION,
     check_arrays,
@@ -351,8 +351,8 @@ def describe_env_source(env: Any, env_kwargs: dict[str, Any]) -> dict[str, Any]:
 def _registered_steps(env_id: str) -> int | None:
     """The ``max_episode_steps`` the registry gives ``env_id`` (None when it is not registered)."""
     try:
-        return gym.spec(env_id).max_episode_steps
-    except gym.error.Error:
+        return registered_spec(env_id).max_episode_steps
+    except (gym.error.Error, ImportError):
         return None
 
 

@@ -14,6 +14,7 @@ The Python loop runs over time steps only; all envs of a step move in one call.
 from __future__ import annotations
 
 import copy
+import importlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -22,6 +23,22 @@ import gymnasium as gym
 import numpy as np
 
 from tl_gym.tltl.ast import Formula
+
+
+def registered_spec(env_id: str) -> gym.envs.registration.EnvSpec:
+    """`gymnasium.spec` of an env id, Gymnasium's ``"module:EnvId"`` form included.
+
+    As `gymnasium.make` does, the module is imported first (it registers the id), so that an agent,
+    a run config or ``tl-gym train --env`` takes the ids ``gym.make`` takes.
+
+    Example:
+        >>> registered_spec("gymnasium.envs.classic_control:Pendulum-v1").id
+        'Pendulum-v1'
+    """
+    module, _, name = env_id.rpartition(":")
+    if module:
+        importlib.import_module(module)
+    return gym.spec(name)
 
 
 def make_vector_env(env: Any, num_envs: int, env_kwargs: Mapping[str, Any] | None = None) -> gym.vector.VectorEnv:
@@ -42,7 +59,7 @@ def make_vector_env(env: Any, num_envs: int, env_kwargs: Mapping[str, Any] | Non
             raise TypeError("env_kwargs can only be used with an env id, not with a VectorEnv")
         return env
     if isinstance(env, str):
-        spec = gym.spec(env)
+        spec = registered_spec(env)
         mode = "vector_entry_point" if spec.vector_entry_point is not None else "sync"
         return gym.make_vec(env, num_envs=num_envs, vectorization_mode=mode, **env_kwargs)
     if isinstance(env, gym.Env):
@@ -356,7 +373,9 @@ def infer_horizon(venv: gym.vector.VectorEnv) -> int | None:
     """The env's episode length if it states one.
 
     Looks for a ``horizon`` attribute (on the vector env, else on its sub-envs), then for
-    ``params.horizon`` (the car env's parameters), then for the spec's ``max_episode_steps``.
+    ``params.horizon`` (the car env's parameters), then for the spec's ``max_episode_steps``, then
+    for the sub-env's (an id whose entry point returns an env with its own time limit, e.g. a
+    `TLTLRewardWrapper` around ``gym.make(..., max_episode_steps=T)``, registers none itself).
     """
     for name in ("horizon", "params"):
         value = env_attribute(venv, name)
@@ -364,8 +383,14 @@ def infer_horizon(venv: gym.vector.VectorEnv) -> int | None:
             value = getattr(value, "horizon", None)
         if isinstance(value, (int, np.integer)):
             return int(value)
-    steps = getattr(getattr(venv, "spec", None), "max_episode_steps", None)
-    return None if steps is None else int(steps)
+    specs = [getattr(venv, "spec", None)]
+    if isinstance(venv, (gym.vector.SyncVectorEnv, gym.vector.AsyncVectorEnv)):
+        specs.append(venv.get_attr("spec")[0])  # every Env has one (None when made without the registry)
+    for spec in specs:
+        steps = getattr(spec, "max_episode_steps", None)
+        if steps is not None:
+            return int(steps)
+    return None
 
 
 def env_attribute(venv: gym.vector.VectorEnv, name: str) -> Any:

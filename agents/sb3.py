@@ -538,7 +538,7 @@ def _action_noise(noise_type: str, std: float, space: gym.Space) -> Any:
 def _env_key(env: Any, env_kwargs: Mapping[str, Any] | None) -> tuple[str | None, dict[str, Any]]:
     """The env id and keywords the hyperparameter file is looked up with."""
     if isinstance(env, str):
-        return env, dict(env_kwargs or {})
+        return env.rpartition(":")[2], dict(env_kwargs or {})  # "module:EnvId" is looked up as EnvId
     spec = getattr(env, "spec", None)
     if spec is None:
         return None, {}

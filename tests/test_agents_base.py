@@ -499,6 +499,32 @@ def test_an_env_that_reports_no_robustness_is_named_when_its_first_episode_ends(
         agent.learn(1)
 
 
+MODULE_TASK = """
+import gymnasium as gym
+
+import tl_gym
+
+
+def make(**wrapper_kwargs):
+    env = gym.make("Pendulum-v1", max_episode_steps=30)
+    return tl_gym.TLTLRewardWrapper(env, "F(G(cos_th > 0.9))", signals={"cos_th": 0}, **wrapper_kwargs)
+
+
+gym.register("ModuleFormTask-v0", entry_point=make)
+"""
+
+
+def test_an_id_in_gymnasiums_module_form_is_taken_as_gym_make_takes_it(tmp_path, monkeypatch):
+    """ "module:EnvId" imports the module (which registers the id) before the id is looked up; the horizon is the
+    wrapped env's own time limit, since the id registers none."""
+    (tmp_path / "module_form_task.py").write_text(MODULE_TASK)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    agent = REPS("module_form_task:ModuleFormTask-v0", seed=0, n_episodes=3).learn(1)
+    assert agent.horizon == 30 and agent.history[0]["env_steps"] == 3 * 30
+    loaded = Agent.load(agent.save(tmp_path / "agent.zip"))
+    assert loaded.evaluate(2, seed=1)["robustness"].tolist() == agent.evaluate(2, seed=1)["robustness"].tolist()
+
+
 def test_load_names_what_does_not_fit(tmp_path):
     from tl_gym.agents import TLPS
 

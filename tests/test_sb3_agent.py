@@ -228,6 +228,13 @@ def test_predict_on_an_observation_without_the_view_says_the_agent_observes_its_
         plain.predict(np.zeros(12))
 
 
+def test_an_id_in_module_form_finds_the_ids_hyperparameters():
+    module_form = SB3Agent("tl_gym:TLPendulum-v0", "sac", seed=0)  # Gymnasium's "module:EnvId"
+    plain = SB3Agent("TLPendulum-v0", "sac", seed=0)
+    assert module_form.n_timesteps == plain.n_timesteps is not None
+    assert module_form.config.algo_kwargs == plain.config.algo_kwargs and module_form.env_kwargs == plain.env_kwargs
+
+
 def test_action_noise_on_an_on_policy_algorithm_is_refused_naming_it():
     with pytest.raises(ValueError, match=r"noise_type='normal': PPO takes no action noise"):
         SB3Agent("TLCarNav-v0", "ppo", seed=0, noise_type="normal", **TINY)
