@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from typing import Any
+from typing import Any, overload
 
 
 def check_positive(name: str, value: Any, *, allow_inf: bool = False, allow_zero: bool = False) -> float:
@@ -45,6 +45,10 @@ def check_finite(name: str, value: Any) -> float:
     return float(value)
 
 
+@overload
+def check_count(name: str, value: Any) -> int: ...
+@overload
+def check_count(name: str, value: Any, *, allow_none: bool) -> int | None: ...
 def check_count(name: str, value: Any, *, allow_none: bool = False) -> int | None:
     """``value`` as an int if it is an integer >= 1 (a count: steps, episodes, envs, a period); not a bool.
 
