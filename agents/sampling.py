@@ -374,8 +374,8 @@ def infer_horizon(venv: gym.vector.VectorEnv) -> int | None:
 
     Looks for a ``horizon`` attribute (on the vector env, else on its sub-envs), then for
     ``params.horizon`` (the car env's parameters), then for the spec's ``max_episode_steps``, then
-    for the sub-env's (an id whose entry point returns an env with its own time limit, e.g. a
-    `TLTLRewardWrapper` around ``gym.make(..., max_episode_steps=T)``, registers none itself).
+    for a `SyncVectorEnv`'s first sub-env's (an id whose entry point returns an env with its own time
+    limit, e.g. a `TLTLRewardWrapper` around ``gym.make(..., max_episode_steps=T)``, registers none itself).
     """
     for name in ("horizon", "params"):
         value = env_attribute(venv, name)
@@ -383,24 +383,19 @@ def infer_horizon(venv: gym.vector.VectorEnv) -> int | None:
             value = getattr(value, "horizon", None)
         if isinstance(value, (int, np.integer)):
             return int(value)
-    specs = [getattr(venv, "spec", None)]
-    if isinstance(venv, (gym.vector.SyncVectorEnv, gym.vector.AsyncVectorEnv)):
-        specs.append(venv.get_attr("spec")[0])  # every Env has one (None when made without the registry)
-    for spec in specs:
-        steps = getattr(spec, "max_episode_steps", None)
-        if steps is not None:
-            return int(steps)
-    return None
+    steps = getattr(getattr(venv, "spec", None), "max_episode_steps", None)
+    if steps is None and isinstance(venv, gym.vector.SyncVectorEnv):  # read in this process: no pickling
+        steps = getattr(venv.envs[0].spec, "max_episode_steps", None)
+    return None if steps is None else int(steps)
 
 
 def env_attribute(venv: gym.vector.VectorEnv, name: str) -> Any:
     """Attribute ``name`` of the vector env, or of its first sub-env; ``None`` when absent."""
     value = getattr(venv, name, None)
     if value is None and isinstance(venv, (gym.vector.SyncVectorEnv, gym.vector.AsyncVectorEnv)):
-        try:
+        # asked first: an AsyncVectorEnv's workers shut down on an attribute their env lacks
+        if venv.call("has_wrapper_attr", name)[0]:
             value = venv.get_attr(name)[0]
-        except AttributeError:
-            value = None
     return value
 
 

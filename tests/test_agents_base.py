@@ -10,6 +10,7 @@ from __future__ import annotations
 import io
 import json
 import re
+import sys
 import zipfile
 
 import gymnasium as gym
@@ -519,10 +520,32 @@ def test_an_id_in_gymnasiums_module_form_is_taken_as_gym_make_takes_it(tmp_path,
     wrapped env's own time limit, since the id registers none."""
     (tmp_path / "module_form_task.py").write_text(MODULE_TASK)
     monkeypatch.syspath_prepend(str(tmp_path))
-    agent = REPS("module_form_task:ModuleFormTask-v0", seed=0, n_episodes=3).learn(1)
-    assert agent.horizon == 30 and agent.history[0]["env_steps"] == 3 * 30
-    loaded = Agent.load(agent.save(tmp_path / "agent.zip"))
-    assert loaded.evaluate(2, seed=1)["robustness"].tolist() == agent.evaluate(2, seed=1)["robustness"].tolist()
+    def forget() -> None:  # as in a new process: the id not registered, the module not imported
+        gym.registry.pop("ModuleFormTask-v0", None)
+        sys.modules.pop("module_form_task", None)
+
+    try:
+        agent = REPS("module_form_task:ModuleFormTask-v0", seed=0, n_episodes=3).learn(1)
+        assert agent.horizon == 30 and agent.history[0]["env_steps"] == 3 * 30
+        path = agent.save(tmp_path / "agent.zip")
+        forget()
+        loaded = Agent.load(path)  # imports the module again, which registers the id
+        assert loaded.evaluate(2, seed=1)["robustness"].tolist() == agent.evaluate(2, seed=1)["robustness"].tolist()
+    finally:
+        forget()
+
+
+def test_an_attribute_an_async_vector_envs_envs_lack_is_none_and_the_workers_live_on():
+    from tl_gym.agents.sampling import env_attribute, infer_horizon
+
+    envs = gym.make_vec("Pendulum-v1", num_envs=2, vectorization_mode="async")
+    try:
+        assert env_attribute(envs, "horizon") is None  # asking Gymnasium's get_attr would stop the workers
+        assert infer_horizon(envs) == 200
+        envs.reset(seed=0)
+        assert envs.step(np.zeros((2, 1), dtype=np.float32))[0].shape == (2, 3)
+    finally:
+        envs.close()
 
 
 def test_load_names_what_does_not_fit(tmp_path):
