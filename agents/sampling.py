@@ -35,10 +35,20 @@ def registered_spec(env_id: str) -> gym.envs.registration.EnvSpec:
         >>> registered_spec("gymnasium.envs.classic_control:Pendulum-v1").id
         'Pendulum-v1'
     """
-    module, _, name = env_id.rpartition(":")
+    module, _, name = env_id.rpartition(":")  # Gymnasium's ids hold no ":" themselves
     if module:
         importlib.import_module(module)
     return gym.spec(name)
+
+
+def unqualified_id(env_id: str) -> str:
+    """``EnvId`` of an id in Gymnasium's ``"module:EnvId"`` form, the id itself otherwise (`registered_spec`'s name).
+
+    Example:
+        >>> unqualified_id("my_tasks:SwingUp-v0"), unqualified_id("Pendulum-v1")
+        ('SwingUp-v0', 'Pendulum-v1')
+    """
+    return env_id.rpartition(":")[2]
 
 
 def make_vector_env(env: Any, num_envs: int, env_kwargs: Mapping[str, Any] | None = None) -> gym.vector.VectorEnv:

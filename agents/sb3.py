@@ -52,7 +52,7 @@ from tl_gym.relabel import EpisodeRecorder, GoalRelabeller, find_wrapper
 
 from .base import Agent, describe_env_source
 from .hindsight import make_hindsight_feeder
-from .sampling import env_attribute
+from .sampling import env_attribute, unqualified_id
 from .sb3_settings import (
     DEFAULT_TL_REWARD,
     HYPERPARAMS_FILE,
@@ -538,7 +538,7 @@ def _action_noise(noise_type: str, std: float, space: gym.Space) -> Any:
 def _env_key(env: Any, env_kwargs: Mapping[str, Any] | None) -> tuple[str | None, dict[str, Any]]:
     """The env id and keywords the hyperparameter file is looked up with."""
     if isinstance(env, str):
-        return env.rpartition(":")[2], dict(env_kwargs or {})  # "module:EnvId" is looked up as EnvId
+        return unqualified_id(env), dict(env_kwargs or {})
     spec = getattr(env, "spec", None)
     if spec is None:
         return None, {}
