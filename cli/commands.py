@@ -346,7 +346,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == "train":
             return train(args, extra)
         return evaluate(args)
-    # gym.error.Error: an unknown env id (NameNotFound), a missing extra (DependencyNotInstalled), ...
-    except (TLGymError, ValueError, TypeError, FileNotFoundError, ImportError, gym.error.Error) as error:
+    # gym.error.Error: an unknown env id (NameNotFound), a missing extra (DependencyNotInstalled), ...;
+    # OSError: a run folder that is missing, or cannot be made or written (--out under a file, no permission)
+    except (TLGymError, ValueError, TypeError, OSError, ImportError, gym.error.Error) as error:
         print(f"tl-gym {args.command}: error: {error}", file=sys.stderr)
         return 2

@@ -163,6 +163,14 @@ def test_out_that_is_a_file(tmp_path, capsys):
     assert "--out" in capsys.readouterr().err
 
 
+def test_out_under_a_file_is_an_error_not_a_traceback(tmp_path, capsys):
+    (tmp_path / "taken").write_text("")
+    assert main(["train", "--agent", "reps", "--iterations", "1", "--n-episodes", "2",
+                 "--out", str(tmp_path / "taken" / "run"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("tl-gym train: error:") and "taken" in err
+
+
 def test_a_new_run_in_an_old_folder_leaves_none_of_its_files(tmp_path, capsys):
     """An earlier run's best_agent.zip passed for the new run's in `tl-gym eval --best`."""
     tiny = ["--env", "TLCarNav-v0", "--env-kwargs", '{"horizon": 5}', "--agent", "reps", "--n-episodes", "4",
