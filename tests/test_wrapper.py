@@ -269,6 +269,49 @@ def test_bad_callable_signals_fail_at_the_first_reset(signals, error, match):
         env.reset()
 
 
+def test_a_callable_with_its_own_defaulted_parameter_gets_the_observation_alone():
+    goal = np.array([0.5, 0.5])
+
+    def dist(obs, goal=goal):  # its second parameter is its own: not handed info
+        return float(np.linalg.norm(obs[:2] - goal))
+
+    env = TLTLRewardWrapper(Scripted(), "F(d < 0.1) & F(n > 0) & F(i >= 0)",
+                            signals={"d": dist, "n": np.linalg.norm, "i": lambda obs, info=None: info["t"]})
+    _, info = run(env)
+    values = env.unwrapped.values
+    np.testing.assert_allclose(info["trace"]["d"], np.linalg.norm(values[:, :2] - goal, axis=1))
+    np.testing.assert_allclose(info["trace"]["n"], np.linalg.norm(values, axis=1))
+    np.testing.assert_array_equal(info["trace"]["i"], np.arange(6.0))  # the parameter named `info` was handed it
+
+
+def test_an_error_in_a_signal_callable_names_the_signal():
+    def broken(obs):
+        return obs["missing"]
+
+    env = TLTLRewardWrapper(Scripted(), "F(a > 0)", signals={"a": broken})
+    with pytest.raises(IndexError) as caught:
+        env.reset()
+    assert "raised by the callable of signal 'a', called as fn(obs)" in caught.value.__notes__
+    every = TLTLRewardWrapper(Scripted(), "F(a > 0)", signals=lambda obs, info: {"a": info["missing"]})
+    with pytest.raises(KeyError) as caught:
+        every.reset()
+    assert "raised by the signals callable" in caught.value.__notes__[0]
+
+
+def test_key_index_signals_survive_the_specs_json_round_trip():
+    """JSON writes a (key, index) tuple as a list; the spec's env must come back the same."""
+    from gymnasium.envs.registration import EnvSpec
+
+    gym.register("ScriptedDict-v0", entry_point="tests.test_wrapper:Scripted", kwargs={"dict_obs": True})
+    try:
+        env = TLTLRewardWrapper(gym.make("ScriptedDict-v0"), "F(x > 0.5)", signals={"x": ("pos", 0)})
+        again = gym.make(EnvSpec.from_json(env.spec.to_json()))
+        _, info = run(again)
+        np.testing.assert_allclose(info["trace"]["x"], again.unwrapped.values[:, 0])
+    finally:
+        gym.registry.pop("ScriptedDict-v0")
+
+
 def test_nan_signal_names_the_signal_and_the_step():
     values = np.zeros((6, 3))
     values[3, 2] = np.nan

@@ -34,13 +34,29 @@ def _is_index(value: Any) -> bool:
 
 
 def _accepts_info(fn: Callable[..., Any]) -> bool:
-    """Whether ``fn`` takes ``(obs, info)`` rather than ``(obs)``."""
+    """Whether ``fn`` takes ``(obs, info)`` rather than ``(obs)``.
+
+    It does when it needs a second positional argument, or names its second one ``info``, or takes ``*args``. A
+    second parameter with a default that is not called ``info`` is the function's own (``np.linalg.norm``'s
+    ``ord``, ``def dist(obs, goal=GOAL)``): such a function is called with the observation alone.
+
+    Example:
+        >>> _accepts_info(lambda obs, info: 0.0), _accepts_info(lambda obs, info=None: 0.0)
+        (True, True)
+        >>> _accepts_info(lambda obs, goal=3.0: 0.0), _accepts_info(lambda obs: 0.0)
+        (False, False)
+    """
     try:
         params = inspect.signature(fn).parameters.values()
     except (TypeError, ValueError):  # builtins without a signature: assume (obs)
         return False
+    if any(p.kind == p.VAR_POSITIONAL for p in params):
+        return True
     positional = [p for p in params if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
-    return len(positional) >= 2 or any(p.kind == p.VAR_POSITIONAL for p in params)
+    if len(positional) < 2:
+        return False
+    second = positional[1]
+    return second.default is second.empty or second.name == "info"
 
 
 def _box_index(name: str, space: spaces.Space, index: tuple, where: str) -> tuple:
@@ -92,7 +108,9 @@ class SignalReader:
     @staticmethod
     def _getter(name: str, source: Any, space: spaces.Space) -> Callable[[Any, dict], Any]:
         if callable(source):
-            return _CallableGetter(source, _accepts_info(source))
+            return _CallableGetter(name, source, _accepts_info(source))
+        if isinstance(source, list):  # a (key, index) tuple after a JSON round trip (an EnvSpec, a saved agent)
+            source = tuple(source)
         if _is_index(source) or (isinstance(source, tuple) and source and all(_is_index(i) for i in source)):
             index = _box_index(name, space, source if isinstance(source, tuple) else (source,), "the observation")
             return _KeyGetter(None, index)
@@ -141,7 +159,11 @@ class SignalReader:
 
     def _check_callables(self, obs: Any, info: dict) -> None:
         if self._all_at_once is not None:
-            values = self._all_at_once(obs, info)
+            try:
+                values = self._all_at_once(obs, info)
+            except Exception as error:
+                error.add_note("raised by the signals callable, called as fn(obs, info)")
+                raise
             if not isinstance(values, Mapping):
                 raise TypeError(
                     f"the signals callable must return a mapping name -> number, got {type(values).__name__}"
@@ -189,14 +211,20 @@ class _KeyGetter:
 
 
 class _CallableGetter:
-    """Calls a user's signal function with ``(obs)`` or ``(obs, info)``."""
+    """Calls a user's signal function with ``(obs)`` or ``(obs, info)``; its errors say which signal's it is."""
 
-    def __init__(self, fn: Callable[..., Any], with_info: bool):
+    def __init__(self, name: str, fn: Callable[..., Any], with_info: bool):
+        self.name = name
         self.fn = fn
         self.with_info = with_info
 
     def __call__(self, obs: Any, info: dict) -> Any:
-        return self.fn(obs, info) if self.with_info else self.fn(obs)
+        try:
+            return self.fn(obs, info) if self.with_info else self.fn(obs)
+        except Exception as error:
+            called = "(obs, info)" if self.with_info else "(obs)"
+            error.add_note(f"raised by the callable of signal {self.name!r}, called as fn{called}")
+            raise
 
 
 def _check_scalar(name: str, value: Any) -> None:
