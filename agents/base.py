@@ -33,7 +33,7 @@ from tl_gym.errors import IncompatibleSaveError
 
 from .callbacks import CallbackLike, as_callback
 from .evaluation import evaluate_policy
-from .sampling import find_formula, make_vector_env, registered_spec
+from .sampling import check_time_limits, find_formula, make_vector_env, registered_spec
 from .serialization import (
     FORMAT_VERSION,
     check_arrays,
@@ -104,6 +104,7 @@ class Agent(abc.ABC):
         self._env_source = describe_env_source(env, self.env_kwargs)
         self.env: gym.vector.VectorEnv = make_vector_env(env, self._num_envs(), self.env_kwargs)
         self.formula = find_formula(self.env)
+        check_time_limits(self.env)
         self.observation_space = self.env.single_observation_space
         self.action_space = self.env.single_action_space
         self.history: list[dict[str, Any]] = []

@@ -22,7 +22,9 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from tl_gym.time_limits import episode_length, limit_outside
 from tl_gym.tltl.ast import Formula
+from tl_gym.wrapper import TLTLRewardWrapper
 
 
 def registered_spec(env_id: str) -> gym.envs.registration.EnvSpec:
@@ -395,8 +397,32 @@ def infer_horizon(venv: gym.vector.VectorEnv) -> int | None:
             return int(value)
     steps = getattr(getattr(venv, "spec", None), "max_episode_steps", None)
     if steps is None and isinstance(venv, gym.vector.SyncVectorEnv):  # read in this process: no pickling
-        steps = getattr(venv.envs[0].spec, "max_episode_steps", None)
+        steps = episode_length(venv.envs[0])  # a TimeLimit applied by hand too
     return None if steps is None else int(steps)
+
+
+def check_time_limits(venv: gym.vector.VectorEnv) -> None:
+    """Refuse envs whose ``TimeLimit`` sits outside their `TLTLRewardWrapper` and cuts its episodes.
+
+    Such a limit (``gym.make("TLPendulum-v0", max_episode_steps=50)``: Gymnasium wraps what the id's entry
+    point returns) ends episodes before the wrapper sees their end, so no step pays the robustness and an agent
+    would fail at its first update, blaming a missing wrapper. The sub-envs of a `SyncVectorEnv` are checked;
+    an `AsyncVectorEnv`'s live in other processes, and a batched simulator has no wrappers.
+
+    Raises:
+        ValueError: naming the limit and where the episode length belongs instead.
+    """
+    if not isinstance(venv, gym.vector.SyncVectorEnv):
+        return
+    limit = limit_outside(venv.envs[0], lambda layer: isinstance(layer, TLTLRewardWrapper))
+    if limit is not None:
+        raise ValueError(
+            f"a TimeLimit of {limit} steps wraps the env's TLTLRewardWrapper from outside (gym.make(tl_id, "
+            f"max_episode_steps={limit}) puts it there): it ends episodes before the wrapper sees their end, so no "
+            f"step pays the robustness. Set the episode length inside the wrapper: the task's own keyword "
+            f"(horizon={limit} on TLCarNav-v0 and the suite's ids), or TLTLRewardWrapper(gym.make(base_id, "
+            f"max_episode_steps={limit}), ...)"
+        )
 
 
 def env_attribute(venv: gym.vector.VectorEnv, name: str) -> Any:

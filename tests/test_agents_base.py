@@ -23,6 +23,7 @@ from tl_gym.agents import (
     CheckpointCallback,
     EvalCallback,
     LinearGaussianPolicy,
+    SB3Agent,
     StopOnRobustness,
     StopOnSuccessRate,
 )
@@ -484,6 +485,42 @@ def test_an_env_without_a_formula_or_an_episode_length_is_refused_saying_what_to
     del endless.horizon
     with pytest.raises(ValueError, match=r"the env states no episode length: pass horizon=T"):
         REPS(endless, n_episodes=2)
+
+
+def _walk(time_limit: int | None = None):
+    """A point env wrapped in the TL reward, ending only where a hand-applied TimeLimit says (or never)."""
+    point = PointEnv()
+    del point.horizon
+    inner = point if time_limit is None else gym.wrappers.TimeLimit(point, time_limit)
+    return tl_gym.TLTLRewardWrapper(inner, "F(x > 1)", signals={"x": 0, "y": 1})
+
+
+def test_a_time_limit_applied_by_hand_is_the_episode_length():
+    """No spec says so: the agents and the Markov view read the TimeLimit itself."""
+    assert REPS(_walk(time_limit=7), n_episodes=2).horizon == 7
+    viewed = tl_gym.TLTLRewardWrapper(gym.wrappers.TimeLimit(PointEnv(), 7), "F(x > 1)", signals={"x": 0},
+                                      observe_monitor=True, reward_mode="dense")
+    assert viewed.monitor_view.horizon == 7
+
+
+@pytest.mark.parametrize("agent", ["reps", "ppo"])
+def test_a_time_limit_outside_the_reward_wrapper_is_refused_at_construction(agent):
+    make = (lambda env, **kw: REPS(env, n_episodes=2, **kw)) if agent == "reps" else (
+        lambda env, **kw: SB3Agent(env, "ppo", n_envs=1, n_steps=64, batch_size=32, steps_per_iteration=64, **kw))
+    with pytest.raises(ValueError, match=r"a TimeLimit of 50 steps wraps the env's TLTLRewardWrapper from outside.*"
+                                         r"horizon=50"):
+        make("TLPendulum-v0", env_kwargs={"max_episode_steps": 50})
+    with pytest.raises(ValueError, match="a TimeLimit of 5 steps wraps"):
+        make(gym.wrappers.TimeLimit(_walk(time_limit=20), 5))
+    with pytest.raises(ValueError, match="a TimeLimit of 5 steps wraps"):  # the only limit there is
+        make(gym.wrappers.TimeLimit(_walk(), 5))
+    longer = make(gym.wrappers.TimeLimit(_walk(time_limit=20), 30))  # cuts nothing: the wrapper ends first
+    assert longer.formula == tl_gym.parse("F(x > 1)")
+
+
+def test_an_sb3_agent_needs_an_episode_length_as_the_episodic_agents_do():
+    with pytest.raises(ValueError, match=r"the env states no episode length: .*max_episode_steps=T"):
+        SB3Agent(_walk(), "ppo", n_envs=1, n_steps=64, batch_size=32, steps_per_iteration=64)
 
 
 class SilentPointEnv(PointEnv):

@@ -15,6 +15,7 @@ from tl_gym.checks import check_finite, check_positive
 from tl_gym.monitor_view import MonitorView, augment, augment_space, split
 from tl_gym.shaping import HierarchicalPotential, discounted_increment, satisfaction_value
 from tl_gym.signals import SignalMap, SignalReader
+from tl_gym.time_limits import episode_length
 from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.invariants import InvariantMonitor
 from tl_gym.tltl.online import PrefixMonitor
@@ -218,7 +219,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         reader = SignalReader(formula.signals, signals, env.observation_space)
         view = None
         if observe_monitor:
-            horizon = _env_horizon(env) if horizon is None else horizon
+            horizon = episode_length(env) if horizon is None else horizon
             view = MonitorView(PrefixMonitor(formula, rho_max), monitor_scale, clip, horizon,
                                reader.bounds(env.observation_space))
             observation_space = augment_space(env.observation_space, view, MONITOR_KEY)
@@ -460,15 +461,3 @@ def check_discount(gamma: Any) -> None:
     """Raise a ValueError unless ``gamma`` is a real number in (0, 1] (the potential shaping's discount)."""
     if isinstance(gamma, bool) or not (isinstance(gamma, numbers.Real) and 0 < gamma <= 1):
         raise ValueError(f"gamma must lie in (0, 1], got {gamma!r}")
-
-
-def _env_horizon(env: gym.Env) -> int | None:
-    """The env's episode length: ``spec.max_episode_steps``, else a ``horizon`` attribute, else None."""
-    steps = getattr(env.spec, "max_episode_steps", None) if env.spec is not None else None
-    if isinstance(steps, (int, np.integer)) and not isinstance(steps, bool):
-        return int(steps)
-    try:
-        horizon = env.get_wrapper_attr("horizon")
-    except AttributeError:
-        return None
-    return int(horizon) if isinstance(horizon, (int, np.integer)) and not isinstance(horizon, bool) else None
