@@ -48,6 +48,24 @@ def test_batch_reports_the_values_and_states_of_n_monitors(formula, n, length, d
         assert batch.length == length
 
 
+@pytest.mark.parametrize("text", [
+    "x > 0 & G F F y > 0",  # φ reads the formula's second signal alone
+    "G F (F z > 0 & y < 1) | x > 2",
+    "F G (G y > 0) & F G (F x > 1) & z < 0",
+])
+def test_at_end_nodes_read_their_own_signals_whatever_the_formulas_order(text):
+    """``F G φ`` / ``G F φ`` judge φ on its signals' rows of the window, not on the formula's first rows."""
+    formula = parse(text)
+    rng = np.random.default_rng(0)
+    batch = BatchPrefixMonitor(formula, 4)
+    scalars = [PrefixMonitor(formula) for _ in range(4)]
+    for _ in range(6):
+        state = {name: rng.normal(size=4) for name in formula.signals}
+        got = batch.update(state)
+        _same(got, [m.update({k: float(v[i]) for k, v in state.items()}) for i, m in enumerate(scalars)])
+        _same(batch.state(), [m.state() for m in scalars])
+
+
 CAR_CASES = [(1, "leave", "dense"), (2, "leave", "dense"), (2, "strict", "dense"), (2, "leave", "potential")]
 
 

@@ -163,12 +163,13 @@ def _predicate(node: Predicate) -> Callable[[_Window, list], np.ndarray]:
 class _Step:
     """What one update hands every group: the clock, the window and the parts' values."""
 
-    def __init__(self, parts: _Parts, window: np.ndarray):
+    def __init__(self, parts: _Parts, window: np.ndarray, names: tuple[str, ...]):
         self.t = -1  # position of the new state (0 right after a reset)
         self.width = 0  # states in the window: min(t + 1, L)
         self.values = parts.values  # each part's (n, width) values on the window, by step index
         self.window = window  # the last L states, (L, len(names), n), oldest first (the first `width` are set)
         self.new = window[0]  # the new state, (len(names), n)
+        self.row = {name: i for i, name in enumerate(names)}  # a signal's row in `new` (the formula's order)
 
 
 class _Group:
@@ -290,7 +291,8 @@ class _AtEnd(_Group):
             return self.block[0]
         for j, phi in enumerate(self.formulas):
             names = phi.signals
-            trace = {n: step.new[i][:, None] for i, n in enumerate(names)} if names else {
+            # rows follow the whole formula's signals, of which φ's are a subset in any order
+            trace = {n: step.new[step.row[n]][:, None] for n in names} if names else {
                 "_": np.zeros((step.new.shape[1], 1))}
             self.block[0, j] = phi.robustness(trace, self.rho_max)
         return self.block[0]
@@ -389,7 +391,7 @@ class BatchPrefixMonitor:
             _Window({name: self._window[:width, i].T for i, name in enumerate(self.names)}, (self.n, width), 0)
             for width in range(1, self._lookahead + 2)
         ]
-        self._step = _Step(self._parts, self._window)
+        self._step = _Step(self._parts, self._window, self.names)
         self._t = -1
 
     # building ------------------------------------------------------------------------------
