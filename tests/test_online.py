@@ -73,6 +73,9 @@ never_again = st.one_of(
 temporal_atoms = st.one_of(
     windowed, windowed.map(F), windowed.map(G), then_chains, never_again,
     windowed.map(lambda f: F(G(f))), windowed.map(lambda f: G(F(f))), then_chains.map(lambda f: F(G(f))),
+    # F G / G F over any temporal φ: φ at the last state, φ's signals any of the formula's
+    st.one_of(never_again, windowed.map(F), windowed.map(G)).map(lambda f: F(G(f))),
+    st.one_of(then_chains, windowed.map(G)).map(lambda f: G(F(f))),
     st.tuples(state_formulas, state_formulas).map(lambda p: U(p[0], p[1])),
 )
 fragment = _connectives(temporal_atoms | state_formulas, max_leaves=4)
