@@ -52,6 +52,17 @@ def test_non_finite_torch_trace_is_refused():
         PHI.smooth_robustness({"x": torch.zeros(3), "y": y}, 1.0)
 
 
+def test_a_second_derivative_of_the_smooth_robustness_is_refused():
+    """Its gradient comes from numpy: with create_graph=True it would be a constant whose own gradient reads 0."""
+    x = torch.tensor([0.0, 0.5, 2.0], dtype=torch.float64, requires_grad=True)
+    value = parse("F(x > 1)").smooth_robustness({"x": x}, 5.0)
+    with pytest.raises(RuntimeError, match="differentiable once"):
+        torch.autograd.grad(value, x, create_graph=True)
+    value = parse("F(x > 1)").smooth_robustness({"x": x}, 5.0)
+    (gradient,) = torch.autograd.grad(value, x)  # once is fine
+    assert gradient[2] > gradient[1] > gradient[0] > 0
+
+
 def test_nan_in_an_unread_signal_is_ignored():
     trace = {"x": [2.0, 0.0], "y": [0.0, 0.0], "unused": [math.nan, 1.0]}
     assert PHI.robustness(trace) == 1.0

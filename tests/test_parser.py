@@ -228,6 +228,8 @@ MALFORMED = [
     ("abs x < 1", 5),
     ("min() < 1", 5),
     ("x < 1e999", 5),
+    ("x > -1e999", 6),  # a negative literal is folded into one number: checked the same
+    ("x > -1.8e308", 6),
     ("x < 1 -> ", 10),
     ("x < 1 =>", 9),
     ("x < 1 && || y > 1", 10),
@@ -333,6 +335,14 @@ def test_any_name_a_signal_may_have_parses_back():
     assert pickle.loads(pickle.dumps(deep)) == deep
     with pytest.raises(SpecError, match="'x²' cannot name a signal"):
         parse("x² > 1")
+
+
+@pytest.mark.parametrize("name", ["a·b", "x\u0301", "℘", "℮"])
+def test_a_name_python_takes_but_the_parser_does_not_cannot_name_a_signal(name):
+    """Python identifiers the tokenizer does not read: a formula on them would not print as text that parses."""
+    assert name.isidentifier()
+    with pytest.raises(ValueError, match="cannot name a signal"):
+        signal(name)
 
 
 def test_parse_takes_text_only():

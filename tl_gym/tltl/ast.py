@@ -22,6 +22,7 @@ import dataclasses
 import math
 import numbers
 import operator
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar, Union
@@ -32,6 +33,7 @@ if TYPE_CHECKING:
     from tl_gym.tltl.trace import Trace
 
 # Words that cannot name a signal (operators, keywords, constants, functions).
+_SIGNAL_NAME = re.compile(r"[^\W\d]\w*")  # the parser's `ident` token
 RESERVED = frozenset(
     "F G X U T true false not and or implies eventually always next until then "
     "abs sqrt exp log min max".split()
@@ -153,7 +155,8 @@ class Var(Expr):
     name: str
 
     def __post_init__(self) -> None:
-        if not self.name.isidentifier() or self.name in RESERVED:
+        # the parser's identifiers (letters, digits, underscores), so that every formula prints as text that parses
+        if not (self.name.isidentifier() and _SIGNAL_NAME.fullmatch(self.name)) or self.name in RESERVED:
             raise ValueError(f"{self.name!r} cannot name a signal (reserved or not an identifier)")
 
     def _pieces(self) -> list[Any]:

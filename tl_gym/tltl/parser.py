@@ -291,6 +291,8 @@ class _Parser:
             if self.tok.kind == "num" and not (nxt.kind == "op" and nxt.text == "^"):
                 # A negative literal is one number, so `-3` prints and parses back alike.
                 value = float(self.tok.raw)
+                if value == float("inf"):
+                    raise self.error(f"number -{self.tok.raw} is too large", self.tok)
                 self.pos += 1
                 expr: Expr = nodes.Num(-value)
                 break

@@ -628,6 +628,11 @@ def _autograd_function() -> Any:
 
         @staticmethod
         def backward(ctx: Any, grad_out: Any) -> Any:
+            if torch.is_grad_enabled():  # create_graph=True: the gradient would be a constant, its own gradient 0
+                raise RuntimeError(
+                    "the smooth robustness is differentiable once: its gradient is computed by numpy, so "
+                    "create_graph=True (a gradient penalty, a Hessian) cannot differentiate it again"
+                )
             g = grad_out.detach().cpu().double().numpy()
             if ctx.first_only:
                 grads = _hand_over(ctx, g[0][:, None])
