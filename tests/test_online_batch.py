@@ -153,3 +153,10 @@ def test_errors_name_their_culprit():
         batch.update({"a": np.ones(2), "b": np.array([0.0, np.nan])})
     with pytest.raises(TraceError, match=r"predicate 'sqrt\(a\) > 1' is NaN or infinite at trace 0, position 0"):
         batch.update({"a": np.array([-1.0, 1.0]), "b": np.zeros(2)})
+    for bad, message in [("7", "'b' must be numbers, got str"), (None, "'b' must be numbers, got NoneType"),
+                         (np.zeros(3), r"'b' must hold 2 values \(one per trace\) or one, got shape \(3,\)"),
+                         (["1", "2"], "'b' must be numbers, got list")]:
+        with pytest.raises(TraceError, match=message):
+            BatchPrefixMonitor(parse("F(a > 1) & G(b < 2)"), 2).update({"a": np.ones(2), "b": bad})
+    one = BatchPrefixMonitor(parse("F(a > 1) & G(b < 2)"), 2)  # one number, a list, ints: every trace alike
+    assert one.update({"a": [0.0, 3], "b": 1}).tolist() == [-1.0, 1.0]

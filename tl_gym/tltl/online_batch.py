@@ -495,7 +495,7 @@ class BatchPrefixMonitor:
         t = self._t + 1
         new = self._new
         for i, name in enumerate(self.names):
-            new[i] = signals[name]
+            new[i] = _numbers(name, signals[name], self.n)
         if not math.isfinite(new.sum()) and not np.isfinite(new).all():  # one sum clears almost every call
             i, trace = np.argwhere(~np.isfinite(new))[0]
             raise TraceError(f"signal {self.names[i]!r} is NaN or infinite at trace {trace}, position {t}")
@@ -534,6 +534,23 @@ class BatchPrefixMonitor:
         """Pickled and copied as its formula and state: the groups hold closures and views of the state."""
         values = [group.value if isinstance(group, _AtStart) else None for group in self._groups]
         return _restore, (self.formula, self.n, self.rho_max, self._store.copy(), self._window.copy(), self._t, values)
+
+
+def _numbers(name: str, value: Any, n: int) -> Any:
+    """``value`` if it is ``n`` real numbers (or one, for every trace); else a TraceError naming the signal.
+
+    A numeric array passes with one type test (the batched car's every step); anything else is looked at,
+    so that a string, None or an array of another length is refused as `PrefixMonitor` refuses them rather
+    than converted by numpy ("7" as 7.0, None as NaN) or failing in its words.
+    """
+    if isinstance(value, np.ndarray) and value.dtype.kind in "biuf" and value.shape == (n,):
+        return value
+    array = np.asarray(value) if not isinstance(value, (str, bytes)) else None
+    if array is None or array.dtype.kind not in "biuf":
+        raise TraceError(f"signal {name!r} must be numbers, got {type(value).__name__}: {value!r}")
+    if array.shape not in ((), (n,)):
+        raise TraceError(f"signal {name!r} must hold {n} values (one per trace) or one, got shape {array.shape}")
+    return array
 
 
 def _push(block: np.ndarray, t: int, new: np.ndarray) -> None:
