@@ -57,8 +57,8 @@ def make_vector_env(env: Any, num_envs: int, env_kwargs: Mapping[str, Any] | Non
     """Build a vector env of ``num_envs`` copies of ``env``.
 
     Args:
-        env: an env id (``"TLCarNav-v0"``), an `Env` (rebuilt from its spec, or deep-copied when it
-            has none) or a `VectorEnv` (returned as is).
+        env: an env id (``"TLCarNav-v0"``), an `Env` (copied, `env_copies`) or a `VectorEnv`
+            (returned as is).
         num_envs: number of parallel envs wanted.
         env_kwargs: keyword arguments for the env constructor (env ids only).
 
@@ -78,17 +78,40 @@ def make_vector_env(env: Any, num_envs: int, env_kwargs: Mapping[str, Any] | Non
         if env_kwargs:
             raise TypeError("env_kwargs can only be used with an env id, not with an Env object")
         spec = env.spec
-        if spec is not None:
-            try:
-                if spec.vector_entry_point is not None and not spec.additional_wrappers:
-                    return gym.make_vec(spec.id, num_envs=num_envs, vectorization_mode="vector_entry_point",
-                                        **spec.kwargs)
-                return gym.make_vec(spec, num_envs=num_envs, vectorization_mode="sync")
-            except Exception:  # noqa: BLE001 - a spec that cannot rebuild the env: copy it instead
+        if spec is not None and spec.vector_entry_point is not None and not spec.additional_wrappers:
+            try:  # the env's own batched simulator (the car), made with the env's keywords
+                return gym.make_vec(spec.id, num_envs=num_envs, vectorization_mode="vector_entry_point",
+                                    **spec.kwargs)
+            except Exception:  # noqa: BLE001 - keywords the batched simulator does not take: copy the env
                 pass
-        copies = [copy.deepcopy(env) for _ in range(num_envs)]
-        return gym.vector.SyncVectorEnv([lambda e=e: e for e in copies])
+        return gym.vector.SyncVectorEnv(env_copies(env, num_envs))
     raise TypeError(f"env must be an env id, a gymnasium Env or a VectorEnv, got {type(env).__name__}")
+
+
+def env_copies(env: gym.Env, n: int) -> list[Callable[[], gym.Env]]:
+    """Constructors of ``n`` copies of the env object ``env``, for the agents' vector envs.
+
+    Copies (`copy.deepcopy`), so that what was set after ``gym.make`` stays (``env.unwrapped.configure(...)``
+    of highway-env, an attribute changed by hand), as SB3 keeps the env object it is given; the user's env
+    itself is not stepped. An env that cannot be copied (a live render window) is rebuilt from its spec.
+
+    Raises:
+        TypeError: the env can be neither copied nor rebuilt (naming both reasons).
+    """
+    try:
+        copies = [copy.deepcopy(env) for _ in range(n)]
+    except Exception as copy_error:  # noqa: BLE001 - any failure of a user's env to copy: try its spec
+        if env.spec is None:
+            raise TypeError(f"the env cannot be copied ({copy_error!r}) and has no spec to rebuild it from: "
+                            "pass an env id or a factory-registered id instead") from copy_error
+        try:
+            gym.make(env.spec).close()
+        except Exception as make_error:  # noqa: BLE001
+            raise TypeError(f"the env can neither be copied ({copy_error!r}) nor rebuilt from its spec "
+                            f"({make_error!r})") from make_error
+        spec = env.spec
+        return [lambda: gym.make(spec) for _ in range(n)]
+    return [lambda e=e: e for e in copies]
 
 
 def find_formula(venv: gym.vector.VectorEnv) -> Formula:

@@ -33,7 +33,6 @@ saved one; it can continue learning, but not bit-identically to an uninterrupted
 from __future__ import annotations
 
 import contextlib
-import copy
 import dataclasses
 import inspect
 import io
@@ -52,7 +51,7 @@ from tl_gym.relabel import EpisodeRecorder, GoalRelabeller, find_wrapper
 
 from .base import Agent, describe_env_source
 from .hindsight import make_hindsight_feeder
-from .sampling import env_attribute, infer_horizon, unqualified_id
+from .sampling import env_attribute, env_copies, infer_horizon, unqualified_id
 from .sb3_settings import (
     DEFAULT_TL_REWARD,
     HYPERPARAMS_FILE,
@@ -624,21 +623,29 @@ def _make_sync_vec(env_id: str, n_envs: int, env_kwargs: Mapping[str, Any],
 
 
 def _single_env_factories(env: Any, env_kwargs: dict[str, Any], n_envs: int) -> list[Any]:
-    """Constructors of ``n_envs`` single envs equivalent to ``env`` (an id, an Env or a VectorEnv)."""
+    """Constructors of ``n_envs`` single envs equivalent to ``env`` (an id, an Env or a VectorEnv).
+
+    An Env is copied (`env_copies`: what was set after ``gym.make`` stays). A VectorEnv is rebuilt from its spec
+    as ``gym.make_vec`` made its sub-envs, its ``wrappers`` included; a `SyncVectorEnv` without spec is copied.
+    """
     if isinstance(env, str):
         return [lambda: gym.make(env, **env_kwargs) for _ in range(n_envs)]
+    if not isinstance(env, gym.vector.VectorEnv):
+        return env_copies(env, n_envs)
     spec = getattr(env, "spec", None)
-    if isinstance(env, gym.vector.VectorEnv):
-        if spec is None:
-            raise TypeError("SB3Agent needs single envs: pass an env id or an Env, not a VectorEnv without spec")
-        kwargs = {k: v for k, v in spec.kwargs.items()
-                  if k not in ("num_envs", "vectorization_mode", "vector_kwargs", "wrappers")}
-        return [lambda: gym.make(spec.id, **kwargs) for _ in range(n_envs)]
-    if spec is not None:
-        try:
-            gym.make(spec).close()
-            return [lambda: gym.make(spec) for _ in range(n_envs)]
-        except Exception:  # noqa: BLE001 - a spec that cannot rebuild the env: copy the env instead
-            pass
-    copies = [copy.deepcopy(env) for _ in range(n_envs)]
-    return [lambda e=e: e for e in copies]
+    if spec is None:
+        if isinstance(env, gym.vector.SyncVectorEnv):
+            return [make for i in range(n_envs) for make in env_copies(env.envs[i % len(env.envs)], 1)]
+        raise TypeError("SB3Agent needs single envs: pass an env id, an Env or a VectorEnv made by gym.make_vec "
+                        f"(a {type(env).__name__} without spec cannot be rebuilt)")
+    kwargs = {k: v for k, v in spec.kwargs.items()
+              if k not in ("num_envs", "vectorization_mode", "vector_kwargs", "wrappers")}
+    wrappers = spec.kwargs.get("wrappers") or ()
+
+    def make() -> gym.Env:
+        single = gym.make(spec.id, **kwargs)
+        for wrapper in wrappers:  # as gym.make_vec applies them to each sub-env
+            single = wrapper(single)
+        return single
+
+    return [make for _ in range(n_envs)]

@@ -523,6 +523,35 @@ def test_an_sb3_agent_needs_an_episode_length_as_the_episodic_agents_do():
         SB3Agent(_walk(), "ppo", n_envs=1, n_steps=64, batch_size=32, steps_per_iteration=64)
 
 
+def test_an_env_object_is_copied_with_what_was_set_after_make():
+    """An attribute changed after gym.make (highway-env's configure, a physics constant) reaches every agent's
+    envs, and the user's env itself is not stepped."""
+    base = gym.make("Pendulum-v1", max_episode_steps=20)
+    base.unwrapped.g = 0.0
+    env = tl_gym.TLTLRewardWrapper(base, "F(cos_th > 0.9)", signals={"cos_th": 0})
+    reps = REPS(env, n_episodes=2).learn(1)
+    sac = SB3Agent(env, "sac", steps_per_iteration=40, learning_starts=20, batch_size=16)
+    assert [e.unwrapped.g for e in reps.env.envs] == [0.0, 0.0]
+    assert [e.unwrapped.g for e in sac.env.envs + sac.sb3_env.envs] == [0.0, 0.0]
+    assert all(e.unwrapped is not base.unwrapped for e in reps.env.envs + sac.sb3_env.envs)
+    assert not hasattr(base.unwrapped, "state")  # never reset: the agents stepped copies
+
+
+def test_sb3_on_a_make_vec_env_keeps_its_wrappers():
+    def wrap(env):
+        return tl_gym.TLTLRewardWrapper(env, "F(cos_th > 0.9)", signals={"cos_th": 0}, observe_monitor=True,
+                                        reward_mode="dense")
+
+    venv = gym.make_vec("Pendulum-v1", num_envs=2, wrappers=[wrap], max_episode_steps=20)
+    agent = SB3Agent(venv, "sac", n_envs=2, steps_per_iteration=40, learning_starts=20, batch_size=16)
+    assert agent.model.observation_space == venv.single_observation_space  # the view's, not bare Pendulum's
+    assert agent.learn(1).history[0]["env_steps"] == 40
+    sync = gym.vector.SyncVectorEnv([lambda: wrap(gym.make("Pendulum-v1", max_episode_steps=20))])
+    sync.spec = None  # built by hand: no spec to rebuild from, so its env is copied
+    copied = SB3Agent(sync, "sac", n_envs=1, steps_per_iteration=40, learning_starts=20, batch_size=16)
+    assert copied.model.observation_space == sync.single_observation_space
+
+
 class SilentPointEnv(PointEnv):
     """States its formula but reports no robustness at the end."""
 
