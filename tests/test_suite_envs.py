@@ -87,8 +87,17 @@ def test_random_episode_ends_with_the_robustness(env_id):
     assert all(len(v) == steps + 1 for v in info["trace"].values())
 
 
+@pytest.mark.parametrize("view", [{}, {"observe_monitor": True}], ids=["plain", "observe_monitor"])
 @pytest.mark.parametrize("env_id", ALL)
-def test_gymnasium_env_checker(env_id):
+def test_gymnasium_and_sb3_env_checkers(env_id, view):
+    """Gymnasium's check_env on every id, with and without the Markov view; SB3's on all but parking.
+
+    SB3's check of a goal env (parking-v0 has `compute_reward`) calls `env.compute_reward` on the outermost
+    wrapper, which Gymnasium 1.x wrappers do not forward: it fails on parking-v0 itself (AttributeError,
+    'OrderEnforcing' object has no attribute 'compute_reward'), so parking is checked by Gymnasium's alone.
+    """
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
     needs(env_id)
     with warnings.catch_warnings():
         # the task is the wrapped env, so check it as a whole (the checker only suggests `.unwrapped`)
@@ -96,8 +105,22 @@ def test_gymnasium_env_checker(env_id):
         # the base envs' own spaces, which the suite keeps as they are: Pendulum's torque Box is
         # [-2, 2], parking's observation Boxes are unbounded
         warnings.filterwarnings("ignore", message=".*we recommend using a symmetric and normalized space")
+        warnings.filterwarnings("ignore", message=".*use a symmetric and normalized Box action space")  # SB3's
         warnings.filterwarnings("ignore", message=".*observation space (minimum|maximum) value is")
-        check_env(gym.make(env_id), skip_render_check=True)
+        check_env(gym.make(env_id, **view), skip_render_check=True)
+        if env_id != "TLParking-v0":
+            sb3_check_env(gym.make(env_id, **view), warn=True)
+
+
+def test_parking_refuses_its_goal_reward_which_is_not_the_tl_reward():
+    """parking-v0's compute_reward prices one transition; the TL reward is the episode's robustness, so the
+    wrapper shadows it (SB3's HerReplayBuffer would relabel with the wrong reward) and says what to use."""
+    needs("TLParking-v0")
+    env = gym.make("TLParking-v0")
+    obs, _ = env.reset(seed=0)
+    with pytest.raises(NotImplementedError, match=r"HerReplayBuffer cannot relabel it.*her_goals=k"):
+        env.get_wrapper_attr("compute_reward")(obs["achieved_goal"], obs["desired_goal"], {})
+    assert not gym.make("TLPendulum-v0").has_wrapper_attr("compute_reward")  # only goal envs get the refusal
 
 
 @pytest.mark.parametrize("env_id", ALL)

@@ -233,6 +233,8 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         gym.Wrapper.__init__(self, env)
         if view is not None:
             self.observation_space = observation_space
+        if env.has_wrapper_attr("compute_reward"):  # a goal env's reward of one transition is not this one's
+            self.compute_reward = refuse_goal_reward
         self.formula = formula
         self.settings = settings
         self.reward = reward
@@ -455,6 +457,25 @@ def _as_formula(spec: Any) -> Formula:
     if isinstance(spec, str):
         return parse(spec)
     raise TypeError(f"spec must be formula text or a Formula, got {type(spec).__name__}")
+
+
+def refuse_goal_reward(achieved_goal: Any, desired_goal: Any, info: Any) -> float:
+    """What `TLTLRewardWrapper` answers for a goal env's ``compute_reward``: it cannot.
+
+    A goal env (highway-env's parking) states its reward of one transition as
+    ``compute_reward(achieved_goal, desired_goal, info)``, which SB3's ``HerReplayBuffer`` calls to relabel
+    transitions. The wrapper's reward is the robustness of the whole episode, which no single transition
+    determines, so the env's own function would pay relabelled transitions another reward than the one trained
+    on; the wrapper shadows it with this error.
+
+    Raises:
+        NotImplementedError: always, saying what relabels TL episodes instead.
+    """
+    raise NotImplementedError(
+        "a TLTLRewardWrapper's reward is the robustness of the whole episode, not a function of one transition's "
+        "(achieved_goal, desired_goal, info): SB3's HerReplayBuffer cannot relabel it. Relabel whole episodes "
+        "with SB3Agent(..., her_goals=k) (tl_gym.relabel)"
+    )
 
 
 def check_discount(gamma: Any) -> None:
