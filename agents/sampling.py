@@ -222,9 +222,16 @@ def flat_observations(space: gym.Space, obs: Any) -> np.ndarray:
         [[0.1, 0.2, 0.3]]
     """
     if isinstance(space, gym.spaces.Dict):
+        missing = [key for key in space.spaces if key not in obs]
+        if missing:
+            raise KeyError(f"the observation has no key {missing[0]!r} (the space's keys: {', '.join(space.spaces)})")
         parts = [np.asarray(obs[key], dtype=float) for key in space.spaces]
         single = all(p.shape == sub.shape for p, sub in zip(parts, space.spaces.values()))
-        rows = 1 if single else parts[0].shape[0]
+        rows = 1 if single or parts[0].ndim == 0 else parts[0].shape[0]
+        for part, (key, sub) in zip(parts, space.spaces.items()):
+            if part.shape != sub.shape and part.shape != (rows, *sub.shape):
+                raise ValueError(f"observation[{key!r}] has shape {part.shape}: the space's is {sub.shape}, a batch "
+                                 f"of {rows} is ({rows}, {', '.join(map(str, sub.shape))})")
         return np.concatenate([p.reshape(rows, -1) for p in parts], axis=1)
     array = np.asarray(obs, dtype=float)
     return array.reshape(-1, int(np.prod(space.shape))) if space.shape else array.reshape(-1, 1)

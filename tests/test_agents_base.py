@@ -755,6 +755,16 @@ def test_episodic_agents_read_dict_observations_concatenated(feedback):
     assert single.shape == (2,) and batch.shape == (2, 2)
 
 
+def test_a_dict_observation_with_a_key_missing_or_a_wrong_shape_is_named():
+    agent = REPS(DictPointEnv(), seed=3, n_episodes=2)
+    with pytest.raises(KeyError, match=r"the observation has no key 'y' \(the space's keys: x, y\)"):
+        agent.predict({"x": np.zeros(1)})
+    with pytest.raises(ValueError, match=r"observation\['x'\] has shape \(2,\): the space's is \(1,\)"):
+        agent.predict({"x": np.zeros(2), "y": np.zeros(1)})
+    with pytest.raises(ValueError, match=r"observation\['y'\] has shape \(3, 1\).*a batch of 2 is \(2, 1\)"):
+        agent.predict({"x": np.zeros((2, 1)), "y": np.zeros((3, 1))})
+
+
 def test_a_file_saved_before_fitted_feedback_loads_as_the_open_loop_it_holds(tmp_path):
     agent = make_agent(feedback="open").learn(1)
     path = agent.save(tmp_path / "old.zip")
