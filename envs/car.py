@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 from collections.abc import Mapping
 from typing import Any
@@ -242,9 +243,38 @@ def make_car_env(task: int = 1, no_revisit: str = "leave", **kwargs: Any) -> TLT
             layout overrides, ``render_mode``).
     """
     settings, car_kwargs = car_reward_settings(kwargs)
+    check_car_keywords(car_kwargs)
     car = CarNavEnv(task=task, **car_kwargs)
     formula = task_formula(task, no_revisit, **car.layout_overrides)
     return TLTLRewardWrapper(car, formula, signals={"x": 0, "y": 1}, **dataclasses.asdict(settings))
+
+
+#: TLTLRewardWrapper keywords TLCarNav-v0 does not take, and why (its error says so).
+CAR_REFUSED_WRAPPER_KEYWORDS = {
+    "end_on_violation": "the car's tasks keep the episode going after an obstacle is touched, as the paper's do",
+    "env_reward_weight": "the car pays no reward of its own to weigh",
+}
+
+
+def check_car_keywords(car_kwargs: Mapping[str, Any]) -> None:
+    """Refuse keywords TLCarNav-v0 does not take, listing every one it does (the task's, the reward's, the car's).
+
+    Raises:
+        TypeError: naming the keyword, the closest one it takes, and why a wrapper keyword is not the car's.
+    """
+    fields = [f.name for f in dataclasses.fields(CarParams)]
+    known = fields + list(LAYOUT_KEYS) + ["render_mode"]
+    unknown = sorted(set(car_kwargs) - set(known))
+    if not unknown:
+        return
+    culprit = unknown[0]
+    reward = [f.name for f in dataclasses.fields(RewardSettings)]
+    why = CAR_REFUSED_WRAPPER_KEYWORDS.get(culprit)
+    close = difflib.get_close_matches(culprit, known + reward + ["task", "no_revisit"], n=1)
+    hint = (f" ({culprit} is a TLTLRewardWrapper keyword the car does not take: {why})" if why
+            else f" (did you mean {close[0]!r}?)" if close else "")
+    raise TypeError(f"TLCarNav-v0 has no keyword {culprit!r}{hint}; it takes task, no_revisit, the reward's "
+                    f"{reward} and the car's {known}")
 
 
 def car_reward_settings(kwargs: Mapping[str, Any]) -> tuple[RewardSettings, dict[str, Any]]:

@@ -31,9 +31,10 @@ Example:
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import inspect
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, SupportsFloat
 
@@ -259,7 +260,7 @@ def make_pendulum(
         raise ValueError(f"up_by must be below horizon ({horizon}), got {up_by!r}")
     base = gym.make("Pendulum-v1", max_episode_steps=horizon, render_mode=render_mode)
     signals = {"th": PendulumAngle(), "th_dot": 2, "t": InfoValue("t")}
-    return _wrap(base, horizon, formula, signals, wrapper_kwargs, monitor_scale=1.0)
+    return _wrap(base, horizon, formula, signals, wrapper_kwargs, monitor_scale=1.0, task=make_pendulum)
 
 
 def make_mountain_car(
@@ -287,7 +288,7 @@ def make_mountain_car(
     horizon = check_count("horizon", horizon)
     base = gym.make("MountainCarContinuous-v0", max_episode_steps=horizon, render_mode=render_mode)
     signals = {"position": 0, "velocity": 1}
-    return _wrap(base, horizon, formula, signals, wrapper_kwargs, monitor_scale=0.5)
+    return _wrap(base, horizon, formula, signals, wrapper_kwargs, monitor_scale=0.5, task=make_mountain_car)
 
 
 def make_parking(
@@ -361,7 +362,7 @@ def make_parking(
         "goal_error": ParkingGoalError(tuple(cfg["reward_weights"]), tuple(observation["scales"])),
         "speed": ParkingSpeed(float(observation["scales"][2])),
     }
-    return _wrap(base, horizon, formula, signals, wrapper_kwargs, monitor_scale=10.0)
+    return _wrap(base, horizon, formula, signals, wrapper_kwargs, monitor_scale=10.0, task=make_parking)
 
 
 # --------------------------------------------------------------------------- helpers
@@ -374,8 +375,9 @@ def _wrap(
     signals: Mapping[str, Any],
     wrapper_kwargs: dict[str, Any],
     monitor_scale: float,
+    task: Callable[..., Any],
 ) -> TLTLRewardWrapper:
-    """`StepClock` and `TLTLRewardWrapper` around ``base``.
+    """`StepClock` and `TLTLRewardWrapper` around ``base``; ``task`` is the entry point (its keywords name errors).
 
     ``monitor_scale`` is the task's default for the wrapper keyword of that name (when the wrapper
     has it): the size of the robustness of an early, failing policy, so monitor features are of order one.
@@ -389,9 +391,12 @@ def _wrap(
     unknown = sorted(set(kwargs) - set(params) - {"env", "spec", "signals"})
     if unknown or {"env", "spec", "signals"} & set(kwargs):
         culprit = unknown[0] if unknown else sorted({"env", "spec", "signals"} & set(kwargs))[0]
+        own = [name for name in inspect.signature(task).parameters if name != "wrapper_kwargs"]
+        wrapper = [name for name in params if name not in ("env", "spec", "signals", "horizon")]  # horizon: own
+        close = difflib.get_close_matches(culprit, own + wrapper, n=1)
         raise TypeError(
-            f"unexpected keyword {culprit!r}: a suite task takes its own arguments and TLTLRewardWrapper's "
-            f"({', '.join(p for p in params if p not in ('env', 'spec', 'signals'))})"
+            f"unexpected keyword {culprit!r}{f' (did you mean {close[0]!r}?)' if close else ''}: the task takes its "
+            f"own ({', '.join(own)}) and TLTLRewardWrapper's ({', '.join(wrapper)})"
         )
     return TLTLRewardWrapper(StepClock(base, horizon), formula, signals, **kwargs)
 

@@ -491,5 +491,19 @@ def test_the_cars_defaults_live_in_car_params_alone():
     spread = {"start_std": (15, 15, 0.3), "horizon": 7}
     assert CarNavEnv(**spread).params == CarNavVectorEnv(num_envs=2, **spread).params == CarParams(**spread)
     for make in (CarNavEnv, lambda **kw: CarNavVectorEnv(num_envs=1, **kw)):
-        with pytest.raises(TypeError, match=r"no keyword\(s\) \['start_spread'\].*start_std"):
+        with pytest.raises(TypeError, match=r"no keyword.*'start_spread'.*start_std"):
             make(start_spread=1.0)
+
+
+@pytest.mark.parametrize(("kwargs", "match"), [
+    ({"horizn": 5}, r"TLCarNav-v0 has no keyword 'horizn' \(did you mean 'horizon'\?\); it takes task, no_revisit, "
+                    r"the reward's \[.*'satisfaction_bonus'\] and the car's \[.*'start_std'"),
+    ({"end_on_violation": True}, r"'end_on_violation' \(end_on_violation is a TLTLRewardWrapper keyword the car does "
+                                 r"not take: the car's tasks keep the episode going"),
+    ({"env_reward_weight": 1.0}, "the car pays no reward of its own to weigh"),
+])
+def test_a_keyword_the_car_does_not_take_is_named_with_all_it_takes(kwargs, match):
+    with pytest.raises(TypeError, match=match):
+        gym.make("TLCarNav-v0", **kwargs)
+    with pytest.raises(TypeError, match=match):  # the batched car says the same
+        gym.make_vec("TLCarNav-v0", num_envs=2, vectorization_mode="vector_entry_point", **kwargs)

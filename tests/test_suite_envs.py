@@ -169,8 +169,11 @@ def test_wrapper_keywords_flow_through():
     assert wrapper == ("dense", 2.0, 40)
     steps, rewards, info = run_episode(env, mountain_car_bang_bang, seed=0)
     assert steps == 40 and sum(rewards) == pytest.approx(info["robustness"], abs=1e-12)
-    with pytest.raises(TypeError, match="'rewrad'"):
+    with pytest.raises(TypeError, match="'rewrad' \\(did you mean 'reward'\\?\\)"):
         gym.make("TLPendulum-v0", rewrad="smooth")
+    with pytest.raises(TypeError, match=r"'horizn' \(did you mean 'horizon'\?\): the task takes its own \(horizon, "
+                                        r"up_by, max_angle, max_speed, render_mode\) and TLTLRewardWrapper's \(reward,"):
+        gym.make("TLPendulum-v0", horizn=5)
 
 
 @pytest.mark.parametrize("env_id, scale", [("TLPendulum-v0", 1.0), ("TLMountainCar-v0", 0.5), ("TLParking-v0", 10.0)])
