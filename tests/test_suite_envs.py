@@ -172,7 +172,7 @@ def test_wrapper_keywords_flow_through():
     with pytest.raises(TypeError, match="'rewrad' \\(did you mean 'reward'\\?\\)"):
         gym.make("TLPendulum-v0", rewrad="smooth")
     with pytest.raises(TypeError, match=r"'horizn' \(did you mean 'horizon'\?\): the task takes its own \(horizon, "
-                                        r"up_by, max_angle, max_speed, render_mode\) and TLTLRewardWrapper's \(reward,"):
+                                        r"up_by, max_angle, max_speed, render_mode\) and TLTLRewardWrapper's"):
         gym.make("TLPendulum-v0", horizn=5)
 
 
