@@ -18,6 +18,7 @@ import functools
 import importlib
 import inspect
 import math
+import numbers
 import os
 import re
 from collections.abc import Iterable, Mapping
@@ -354,6 +355,38 @@ class SB3Config:
                 linear_start(key, value)
                 if self.n_timesteps is None:
                     raise ValueError(f"{key}={value!r} decays over n_timesteps, which is not set; give n_timesteps")
+            else:
+                check_algorithm_value(key, value)
+
+
+#: The common algorithm arguments whose values are checked here (SB3 takes any, and fails later or never).
+_FRACTIONS = {"gamma": (False, True), "tau": (False, True), "gae_lambda": (True, True)}  # (0 allowed, 1 allowed)
+_COUNTS = ("batch_size", "buffer_size", "n_steps", "n_epochs")
+
+
+def check_algorithm_value(key: str, value: Any) -> None:
+    """Check the value of a common algorithm argument: a discount or rate in its interval, a positive size.
+
+    SB3 accepts ``gamma=2.0`` (and learns nothing) and meets ``learning_rate="fast"`` with an AssertionError deep
+    in its setup; a schedule (a callable, ``"lin_3e-4"``) is checked elsewhere. Other arguments pass as they are.
+
+    Example:
+        >>> check_algorithm_value("gamma", 2.0)
+        Traceback (most recent call last):
+        ...
+        ValueError: gamma must lie in (0, 1], got 2.0
+    """
+    if callable(value):
+        return
+    if key in _FRACTIONS:
+        zero, one = _FRACTIONS[key]
+        number = isinstance(value, numbers.Real) and not isinstance(value, bool)
+        if not (number and (0 <= value if zero else 0 < value) and (value <= 1 if one else value < 1)):
+            raise ValueError(f"{key} must lie in {'[' if zero else '('}0, 1{']' if one else ')'}, got {value!r}")
+    elif key == "learning_rate":
+        check_positive(key, value)
+    elif key in _COUNTS:
+        check_count(key, value)
 
 
 # The hyperparameter file --------------------------------------------------------------------------

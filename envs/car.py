@@ -274,7 +274,7 @@ def check_car_keywords(car_kwargs: Mapping[str, Any]) -> None:
     hint = (f" ({culprit} is a TLTLRewardWrapper keyword the car does not take: {why})" if why
             else f" (did you mean {close[0]!r}?)" if close else "")
     raise TypeError(f"TLCarNav-v0 has no keyword {culprit!r}{hint}; it takes task, no_revisit, the reward's "
-                    f"{reward} and the car's {known}")
+                    f"({', '.join(reward)}) and the car's ({', '.join(known)})")  # one name quoted: the culprit's
 
 
 def car_reward_settings(kwargs: Mapping[str, Any]) -> tuple[RewardSettings, dict[str, Any]]:

@@ -497,7 +497,7 @@ def test_the_cars_defaults_live_in_car_params_alone():
 
 @pytest.mark.parametrize(("kwargs", "match"), [
     ({"horizn": 5}, r"TLCarNav-v0 has no keyword 'horizn' \(did you mean 'horizon'\?\); it takes task, no_revisit, "
-                    r"the reward's \[.*'satisfaction_bonus'\] and the car's \[.*'start_std'"),
+                    r"the reward's \(reward, .*satisfaction_bonus\) and the car's \(dt, .*start_std"),
     ({"end_on_violation": True}, r"'end_on_violation' \(end_on_violation is a TLTLRewardWrapper keyword the car does "
                                  r"not take: the car's tasks keep the episode going"),
     ({"env_reward_weight": 1.0}, "the car pays no reward of its own to weigh"),

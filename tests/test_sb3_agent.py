@@ -190,6 +190,13 @@ def test_a_misspelt_or_reserved_hyperparameter_is_refused_before_any_env_is_buil
         ({"her_goals": -1}, "her_goals must be an int >= 0, got -1"),
         ({"her_strategy": "any"}, r"her_strategy must be one of \('future', 'satisfied'\), got 'any'"),
         ({"end_is_terminal": "no"}, "end_is_terminal must be true or false, got 'no'"),
+        # the common algorithm arguments SB3 itself takes as they come
+        ({"gamma": 2.0}, r"gamma must lie in \(0, 1\], got 2.0"),
+        ({"gamma": True}, r"gamma must lie in \(0, 1\], got True"),
+        ({"tau": 0.0}, r"tau must lie in \(0, 1\], got 0.0"),
+        ({"learning_rate": "fast"}, "learning_rate must be a finite number > 0, got 'fast'"),
+        ({"batch_size": 0}, "batch_size must be an int >= 1, got 0"),
+        ({"buffer_size": 1.5}, "buffer_size must be an int >= 1, got 1.5"),
     ],
 )
 def test_a_bad_setting_is_refused_naming_it_before_any_env_is_built(kwargs, message, monkeypatch):
