@@ -212,6 +212,17 @@ def test_nan_signal_and_undefined_arithmetic_raise():
         PrefixMonitor(parse("G(1 / a > 0)")).update({"a": 0.0})
 
 
+@pytest.mark.parametrize("text", ["min(0, a * a - a * a) < 1", "G(max(a * a - a * a, 1) > 0)",
+                                  "F(min(1, 2, sqrt(a - 1e300)) < 3)"])
+def test_min_and_max_propagate_a_nan_operand_as_the_offline_evaluators(text):
+    """Python's min and max drop a NaN that is not their first argument; the monitors' must not (engine.md)."""
+    formula = parse(text)
+    with pytest.raises(TraceError):
+        formula.robustness({"a": [1e200]})
+    with pytest.raises(TraceError):
+        PrefixMonitor(formula).update({"a": 1e200})
+
+
 @pytest.mark.parametrize(
     ("value", "shown"), [("3", "str"), (None, "NoneType"), (np.array([3.0]), r"ndarray of shape \(1,\)")]
 )

@@ -95,7 +95,13 @@ def _expression_closure(expr: Expr) -> StateFn:
         args = [_expression_closure(arg) for arg in expr.args]
         if expr.func in ("min", "max"):
             reduce_ = min if expr.func == "min" else max
-            return lambda s: reduce_(f(s) for f in args)
+
+            def extremum(s: State) -> float:  # NaN from any operand, as numpy's and the offline evaluators'
+                values = [f(s) for f in args]  # (Python's min and max drop a NaN that is not the first)
+                result = reduce_(values)
+                return result if all(v == v for v in values) else math.nan
+
+            return extremum
         fn = {"abs": abs, "sqrt": math.sqrt, "exp": math.exp, "log": math.log}[expr.func]
         only = args[0]
         return lambda s: fn(only(s))
