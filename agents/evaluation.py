@@ -17,7 +17,7 @@ import numpy as np
 
 from tl_gym.checks import check_count
 
-from .sampling import Controller, run_episodes
+from .sampling import Controller, check_time_limits, infer_horizon, run_episodes
 
 
 class PolicyPredictor(Protocol):
@@ -63,7 +63,8 @@ def evaluate_policy(
         traces are what `tl_gym.diagnosis.conjunct_breakdown` reads.
 
     Raises:
-        ValueError: ``n_episodes < 1``.
+        ValueError: ``n_episodes < 1``; the env states no episode length (a policy that never ended an episode
+            would run forever), or its time limit sits outside its reward wrapper (`check_time_limits`).
         RuntimeError: the env reports no robustness (not wrapped in `tl_gym.TLTLRewardWrapper`).
     """
     check_count("n_episodes", n_episodes)
@@ -71,6 +72,11 @@ def evaluate_policy(
         env = as_vector_env(env)
     elif not isinstance(env, gym.vector.VectorEnv):
         raise TypeError(f"env must be a gymnasium Env or VectorEnv, got {type(env).__name__}")
+    check_time_limits(env)
+    if infer_horizon(env) is None:
+        raise ValueError("the env states no episode length, so a policy that never ends an episode would be "
+                         "evaluated forever: give it a time limit inside its TLTLRewardWrapper "
+                         "(TLTLRewardWrapper(gym.make(id, max_episode_steps=T), ...))")
     robustness, traces = collect_episodes(predictor, env, n_episodes, seed, deterministic)
     return {
         "mean_robustness": float(np.mean(robustness)),

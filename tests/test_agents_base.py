@@ -307,6 +307,14 @@ def test_evaluate_policy_on_a_single_env():
         evaluate_policy(agent, agent.env, n_episodes=0)
 
 
+def test_evaluate_policy_refuses_an_env_whose_episodes_need_not_end_or_are_cut_outside_the_wrapper():
+    agent = REPS(_walk(time_limit=20), n_episodes=2)
+    with pytest.raises(ValueError, match="the env states no episode length, so a policy that never ends"):
+        evaluate_policy(agent, _walk(), n_episodes=1)  # ran forever when the policy stayed away from the edge
+    with pytest.raises(ValueError, match="a TimeLimit of 5 steps wraps"):
+        evaluate_policy(agent, gym.wrappers.TimeLimit(_walk(time_limit=20), 5), n_episodes=1)
+
+
 def test_rollout_records_traces_and_robustness():
     agent = make_agent()
     k = agent.policy.sample_feedforward(12, np.random.default_rng(0))  # 12 episodes on 8 envs: two chunks
