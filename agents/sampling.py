@@ -93,7 +93,9 @@ def env_copies(env: gym.Env, n: int) -> list[Callable[[], gym.Env]]:
 
     Copies (`copy.deepcopy`), so that what was set after ``gym.make`` stays (``env.unwrapped.configure(...)``
     of highway-env, an attribute changed by hand), as SB3 keeps the env object it is given; the user's env
-    itself is not stepped. An env that cannot be copied (a live render window) is rebuilt from its spec.
+    itself is not stepped. Each copy's random generator is drawn afresh: copies of an env that was seeded would
+    otherwise share its stream, and their unseeded resets (an SB3 agent without seed) would play one episode
+    ``n`` times. An env that cannot be copied (a live render window) is rebuilt from its spec.
 
     Raises:
         TypeError: the env can be neither copied nor rebuilt (naming both reasons).
@@ -111,6 +113,8 @@ def env_copies(env: gym.Env, n: int) -> list[Callable[[], gym.Env]]:
                             f"({make_error!r})") from make_error
         spec = env.spec
         return [lambda: gym.make(spec) for _ in range(n)]
+    for duplicate in copies:
+        duplicate.unwrapped.np_random = np.random.default_rng()  # fresh entropy; a seeded reset still decides
     return [lambda e=e: e for e in copies]
 
 

@@ -545,6 +545,19 @@ def test_an_env_object_is_copied_with_what_was_set_after_make():
     assert not hasattr(base.unwrapped, "state")  # never reset: the agents stepped copies
 
 
+def test_copies_of_a_seeded_env_draw_their_own_episodes():
+    """A seeded env's copies would share its random stream: unseeded resets (SB3 without a seed) would repeat one
+    episode on every copy. Seeded resets still decide."""
+    from tl_gym.agents.sampling import env_copies
+
+    env = gym.make("TLPendulum-v0")
+    env.reset(seed=0)
+    copies = [make() for make in env_copies(env, 3)]
+    starts = [tuple(copy.reset()[0][:2]) for copy in copies]
+    assert len(set(starts)) == 3
+    assert len({tuple(copy.reset(seed=1)[0][:2]) for copy in copies}) == 1
+
+
 def test_sb3_on_a_make_vec_env_keeps_its_wrappers():
     def wrap(env):
         return tl_gym.TLTLRewardWrapper(env, "F(cos_th > 0.9)", signals={"cos_th": 0}, observe_monitor=True,
