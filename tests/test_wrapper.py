@@ -296,6 +296,12 @@ def test_an_error_in_a_signal_callable_names_the_signal():
     with pytest.raises(KeyError) as caught:
         every.reset()
     assert "raised by the signals callable" in caught.value.__notes__[0]
+    later = TLTLRewardWrapper(Scripted(), "F(a > 0)", signals=lambda obs, info: {"a": [1.0, 2.0][info["t"]]})
+    later.reset()
+    later.step(np.zeros(1))
+    with pytest.raises(IndexError) as caught:  # a failure after the first reset carries the note too
+        later.step(np.zeros(1))
+    assert "raised by the signals callable" in caught.value.__notes__[0]
 
 
 def test_key_index_signals_survive_the_specs_json_round_trip():

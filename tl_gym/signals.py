@@ -159,11 +159,7 @@ class SignalReader:
 
     def _check_callables(self, obs: Any, info: dict) -> None:
         if self._all_at_once is not None:
-            try:
-                values = self._all_at_once(obs, info)
-            except Exception as error:
-                error.add_note("raised by the signals callable, called as fn(obs, info)")
-                raise
+            values = self._call_all_at_once(obs, info)
             if not isinstance(values, Mapping):
                 raise TypeError(
                     f"the signals callable must return a mapping name -> number, got {type(values).__name__}"
@@ -180,12 +176,19 @@ class SignalReader:
         for name, getter in zip(self.names, self._getters):
             _check_scalar(name, getter(obs, info))
 
+    def _call_all_at_once(self, obs: Any, info: dict) -> Any:
+        try:
+            return self._all_at_once(obs, info)  # type: ignore[misc]
+        except Exception as error:
+            _add_note(error, "raised by the signals callable, called as fn(obs, info)")
+            raise
+
     def read(self, obs: Any, info: dict, step: int) -> list[float]:
         """The signal values of one observation, as floats; NaN or inf raises `TraceError`."""
         if self._fast_index is not None:
             row = obs[self._fast_index].tolist()
         elif self._all_at_once is not None:
-            values = self._all_at_once(obs, info)
+            values = self._call_all_at_once(obs, info)
             row = [float(values[n]) for n in self.names]
         else:
             row = [float(g(obs, info)) for g in self._getters]
@@ -223,8 +226,14 @@ class _CallableGetter:
             return self.fn(obs, info) if self.with_info else self.fn(obs)
         except Exception as error:
             called = "(obs, info)" if self.with_info else "(obs)"
-            error.add_note(f"raised by the callable of signal {self.name!r}, called as fn{called}")
+            _add_note(error, f"raised by the callable of signal {self.name!r}, called as fn{called}")
             raise
+
+
+def _add_note(error: BaseException, note: str) -> None:
+    """PEP 678's ``add_note`` where Python has it (3.11+); on 3.10 the error goes on without the note."""
+    if hasattr(error, "add_note"):
+        error.add_note(note)
 
 
 def _check_scalar(name: str, value: Any) -> None:
