@@ -63,9 +63,10 @@ def evaluate_policy(
         traces are what `tl_gym.diagnosis.conjunct_breakdown` reads.
 
     Raises:
-        ValueError: ``n_episodes < 1``; the env states no episode length (a policy that never ended an episode
-            would run forever), or its time limit sits outside its reward wrapper (`check_time_limits`).
-        RuntimeError: the env reports no robustness (not wrapped in `tl_gym.TLTLRewardWrapper`).
+        ValueError: ``n_episodes < 1``, or the env's time limit sits outside its reward wrapper
+            (`check_time_limits`).
+        RuntimeError: the env reports no robustness (not wrapped in `tl_gym.TLTLRewardWrapper`), or it states
+            no episode length and an episode ran `UNSTATED_EPISODE_GUARD` steps without ending.
     """
     check_count("n_episodes", n_episodes)
     if isinstance(env, gym.Env):
@@ -73,10 +74,6 @@ def evaluate_policy(
     elif not isinstance(env, gym.vector.VectorEnv):
         raise TypeError(f"env must be a gymnasium Env or VectorEnv, got {type(env).__name__}")
     check_time_limits(env)
-    if infer_horizon(env) is None:
-        raise ValueError("the env states no episode length, so a policy that never ends an episode would be "
-                         "evaluated forever: give it a time limit inside its TLTLRewardWrapper "
-                         "(TLTLRewardWrapper(gym.make(id, max_episode_steps=T), ...))")
     robustness, traces = collect_episodes(predictor, env, n_episodes, seed, deterministic)
     return {
         "mean_robustness": float(np.mean(robustness)),
@@ -98,6 +95,10 @@ def predictor_controller(predictor: PolicyPredictor, deterministic: bool) -> Con
     return act
 
 
+#: Steps after which `collect_episodes` gives up on an episode of an env that states no episode length.
+UNSTATED_EPISODE_GUARD = 100_000
+
+
 def collect_episodes(
     predictor: PolicyPredictor,
     venv: gym.vector.VectorEnv,
@@ -115,12 +116,17 @@ def collect_episodes(
         recorded values ``s_0 … s_T`` of that signal (from the wrapper's terminal ``info["trace"]``).
     """
     n_envs = venv.num_envs
+    # an env that states its episode length ends every episode by it; one that does not (an env that ends its
+    # own episodes, as highway-env's) gets a guard, so that a policy that never ends one cannot run forever
+    guard = None if infer_horizon(venv) is not None else UNSTATED_EPISODE_GUARD
     results: list[np.ndarray] = []
     traces: dict[str, list[np.ndarray]] = {}
     for start in range(0, n_episodes, n_envs):
         wanted = min(n_envs, n_episodes - start)
         batch = run_episodes(venv, predictor_controller(predictor, deterministic),
-                             seed=None if seed is None else seed + start, wanted=wanted)
+                             seed=None if seed is None else seed + start, wanted=wanted, max_steps=guard,
+                             limit_hint="the env states no episode length: give it a time limit inside its "
+                                        "TLTLRewardWrapper, TLTLRewardWrapper(gym.make(id, max_episode_steps=T), ...)")
         results.append(batch.robustness[:wanted])
         for name, rows in batch.traces.items():
             traces.setdefault(name, []).extend(rows[:wanted])

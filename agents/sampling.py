@@ -22,9 +22,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from tl_gym.time_limits import episode_length, limit_outside
+from tl_gym.time_limits import episode_length, is_count
 from tl_gym.tltl.ast import Formula
-from tl_gym.wrapper import TLTLRewardWrapper
 
 
 def registered_spec(env_id: str) -> gym.envs.registration.EnvSpec:
@@ -265,7 +264,7 @@ class EpisodeBatch:
 
 
 def run_episodes(venv: gym.vector.VectorEnv, act: Controller, seed: int | None = None, max_steps: int | None = None,
-                 record: bool = False, wanted: int | None = None) -> EpisodeBatch:
+                 record: bool = False, wanted: int | None = None, limit_hint: str | None = None) -> EpisodeBatch:
     """Run one episode in every env of ``venv`` to its end: the one episode loop of the library.
 
     Every caller (training batches, evaluation, trace plots, the command line's GIF) runs its
@@ -279,6 +278,7 @@ def run_episodes(venv: gym.vector.VectorEnv, act: Controller, seed: int | None =
             envs whose observation starts an episode (all at ``t = 0``), as stable-baselines3's ``predict`` wants.
         seed: reset seed (env ``j`` gets ``seed + j``).
         max_steps: raise if some episode is still running after this many steps.
+        limit_hint: what the error of an episode outliving ``max_steps`` advises (default: the agent's horizon).
         record: keep the flat observations and the actions sent.
         wanted: stop once the first ``wanted`` envs' episodes ended (the others are padding; their
             lengths may stay ``-1``); default all.
@@ -300,8 +300,8 @@ def run_episodes(venv: gym.vector.VectorEnv, act: Controller, seed: int | None =
     while np.any(lengths[:wanted] < 0):
         if max_steps is not None and t >= max_steps:
             raise RuntimeError(
-                f"{int(np.sum(lengths[:wanted] < 0))} episode(s) did not end within the horizon T={max_steps}; "
-                "set the agent's horizon to the env's episode length"
+                f"{int(np.sum(lengths[:wanted] < 0))} episode(s) did not end within {max_steps} steps; "
+                + (limit_hint or f"set the agent's horizon to the env's episode length (it says T={max_steps})")
             )
         action = act(t, obs, start)
         obs, _, terminated, truncated, info = venv.step(np.asarray(action).astype(action_dtype, copy=False))
@@ -416,23 +416,22 @@ def episode_traces(info: Mapping[str, Any], n_envs: int) -> dict[str, list[np.nd
 
 
 def infer_horizon(venv: gym.vector.VectorEnv) -> int | None:
-    """The env's episode length if it states one.
+    """The env's episode length if it states one: the least it states.
 
-    Looks for a ``horizon`` attribute (on the vector env, else on its sub-envs), then for
-    ``params.horizon`` (the car env's parameters), then for the spec's ``max_episode_steps``, then
-    for a `SyncVectorEnv`'s first sub-env's (an id whose entry point returns an env with its own time
-    limit, e.g. a `TLTLRewardWrapper` around ``gym.make(..., max_episode_steps=T)``, registers none itself).
+    What the reward wrapper recorded of the env it wraps (its ``episode_length``: time limits inside it, the
+    spec's ``max_episode_steps``, a ``horizon`` attribute; read from an `AsyncVectorEnv`'s workers too), a
+    ``horizon`` attribute (on the vector env, else on its sub-envs; a batched simulator's), ``params.horizon``
+    (the car's parameters), the vector env's spec's ``max_episode_steps`` and, for a `SyncVectorEnv`, its first
+    sub-env's `episode_length` (an env that reports its robustness itself). A time limit outside the wrapper
+    that cuts its episodes is refused by `check_time_limits` before this is asked.
     """
-    for name in ("horizon", "params"):
-        value = env_attribute(venv, name)
-        if name == "params":
-            value = getattr(value, "horizon", None)
-        if isinstance(value, (int, np.integer)):
-            return int(value)
-    steps = getattr(getattr(venv, "spec", None), "max_episode_steps", None)
-    if steps is None and isinstance(venv, gym.vector.SyncVectorEnv):  # read in this process: no pickling
-        steps = episode_length(venv.envs[0])  # a TimeLimit applied by hand too
-    return None if steps is None else int(steps)
+    params = env_attribute(venv, "params")
+    stated = [env_attribute(venv, "episode_length"), env_attribute(venv, "horizon"),
+              getattr(params, "horizon", None), getattr(getattr(venv, "spec", None), "max_episode_steps", None)]
+    if isinstance(venv, gym.vector.SyncVectorEnv):  # in this process: a sub-env's own time limits, wrapper or not
+        stated.append(episode_length(venv.envs[0]))
+    counts = [int(value) for value in stated if is_count(value)]
+    return min(counts) if counts else None
 
 
 def check_time_limits(venv: gym.vector.VectorEnv) -> None:
@@ -440,23 +439,29 @@ def check_time_limits(venv: gym.vector.VectorEnv) -> None:
 
     Such a limit (``gym.make("TLPendulum-v0", max_episode_steps=50)``: Gymnasium wraps what the id's entry
     point returns) ends episodes before the wrapper sees their end, so no step pays the robustness and an agent
-    would fail at its first update, blaming a missing wrapper. The sub-envs of a `SyncVectorEnv` are checked;
-    an `AsyncVectorEnv`'s live in other processes, and a batched simulator has no wrappers.
+    would fail at its first update, blaming a missing wrapper. The outermost ``TimeLimit`` of a sub-env
+    (``_max_episode_steps`` as Gymnasium's attribute lookup finds it, outside in) is compared with the episode
+    length the wrapper recorded of the env it wraps: shorter, or the only limit there is, is refused. Sub-envs of
+    a `SyncVectorEnv` and an `AsyncVectorEnv` are asked alike; a batched simulator has no wrappers.
 
     Raises:
         ValueError: naming the limit and where the episode length belongs instead.
     """
-    if not isinstance(venv, gym.vector.SyncVectorEnv):
+    if not isinstance(venv, (gym.vector.SyncVectorEnv, gym.vector.AsyncVectorEnv)):
         return
-    limit = limit_outside(venv.envs[0], lambda layer: isinstance(layer, TLTLRewardWrapper))
-    if limit is not None:
-        raise ValueError(
-            f"a TimeLimit of {limit} steps wraps the env's TLTLRewardWrapper from outside (gym.make(tl_id, "
-            f"max_episode_steps={limit}) puts it there): it ends episodes before the wrapper sees their end, so no "
-            f"step pays the robustness. Set the episode length inside the wrapper: the task's own keyword "
-            f"(horizon={limit} on TLCarNav-v0 and the suite's ids), or TLTLRewardWrapper(gym.make(base_id, "
-            f"max_episode_steps={limit}), ...)"
-        )
+    if not venv.call("has_wrapper_attr", "episode_length")[0]:  # no TLTLRewardWrapper: the env's own business
+        return
+    own = venv.get_attr("episode_length")[0]
+    limit = env_attribute(venv, "_max_episode_steps")
+    if limit is None or (own is not None and limit >= own):
+        return
+    raise ValueError(
+        f"a TimeLimit of {limit} steps wraps the env's TLTLRewardWrapper from outside (gym.make(tl_id, "
+        f"max_episode_steps={limit}) puts it there): it ends episodes before the wrapper sees their end, so no "
+        f"step pays the robustness. Set the episode length inside the wrapper: the task's own keyword "
+        f"(horizon={limit} on TLCarNav-v0 and the suite's ids; TLPendulum-v0's up_by must stay below it), or "
+        f"TLTLRewardWrapper(gym.make(base_id, max_episode_steps={limit}), ...)"
+    )
 
 
 def env_attribute(venv: gym.vector.VectorEnv, name: str) -> Any:

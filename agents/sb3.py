@@ -51,7 +51,7 @@ from tl_gym.relabel import EpisodeRecorder, GoalRelabeller, find_wrapper
 
 from .base import Agent, describe_env_source
 from .hindsight import make_hindsight_feeder
-from .sampling import env_attribute, env_copies, infer_horizon, unqualified_id
+from .sampling import env_attribute, env_copies, unqualified_id
 from .sb3_settings import (
     DEFAULT_TL_REWARD,
     HYPERPARAMS_FILE,
@@ -222,12 +222,6 @@ class SB3Agent(Agent):
         from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
         from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-        if infer_horizon(self.env) is None:  # as the episodic agents' resolve_horizon: the formula needs an end
-            raise ValueError(
-                "the env states no episode length: an SB3 agent would evaluate a policy that never ends an episode "
-                "forever, and the TL reward is paid when an episode ends. Give it a time limit inside the "
-                "TLTLRewardWrapper: TLTLRewardWrapper(gym.make(id, max_episode_steps=T), ...)"
-            )
         kwargs = dict(self.config.algo_kwargs)
         self._schedules = {key: LinearSchedule(linear_start(key, value), self.config.n_timesteps)  # type: ignore[arg-type]
                            for key, value in kwargs.items() if is_linear_schedule(value)}

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import re
 import sys
 import zipfile
@@ -307,14 +308,10 @@ def test_evaluate_policy_on_a_single_env():
         evaluate_policy(agent, agent.env, n_episodes=0)
 
 
-def test_evaluate_policy_refuses_an_env_whose_episodes_need_not_end_or_are_cut_outside_the_wrapper():
+def test_evaluate_policy_refuses_an_env_whose_episodes_are_cut_outside_the_wrapper():
     agent = REPS(_walk(time_limit=20), n_episodes=2)
-    with pytest.raises(ValueError, match="the env states no episode length, so a policy that never ends"):
-        evaluate_policy(agent, _walk(), n_episodes=1)  # ran forever when the policy stayed away from the edge
     with pytest.raises(ValueError, match="a TimeLimit of 5 steps wraps"):
         evaluate_policy(agent, gym.wrappers.TimeLimit(_walk(time_limit=20), 5), n_episodes=1)
-
-
 def test_rollout_records_traces_and_robustness():
     agent = make_agent()
     k = agent.policy.sample_feedforward(12, np.random.default_rng(0))  # 12 episodes on 8 envs: two chunks
@@ -344,7 +341,7 @@ def test_rollout_pads_episodes_that_end_early():
 
 def test_rollout_fails_when_episodes_outlast_the_horizon():
     env = gym.make_vec(POINT_ID, num_envs=2, vectorization_mode="sync")
-    with pytest.raises(RuntimeError, match="did not end within the horizon"):
+    with pytest.raises(RuntimeError, match="did not end within 5 steps; set the agent.s horizon"):
         rollout(env, np.zeros((2, 5, 2)), seed=0)
 
 
@@ -498,7 +495,7 @@ def test_an_env_without_a_formula_or_an_episode_length_is_refused_saying_what_to
 def _walk(time_limit: int | None = None):
     """A point env wrapped in the TL reward, ending only where a hand-applied TimeLimit says (or never)."""
     point = PointEnv()
-    del point.horizon
+    point.horizon = math.inf  # never reached, and no episode length a check reads
     inner = point if time_limit is None else gym.wrappers.TimeLimit(point, time_limit)
     return tl_gym.TLTLRewardWrapper(inner, "F(x > 1)", signals={"x": 0, "y": 1})
 
@@ -526,11 +523,37 @@ def test_a_time_limit_outside_the_reward_wrapper_is_refused_at_construction(agen
     assert longer.formula == tl_gym.parse("F(x > 1)")
 
 
-def test_an_sb3_agent_needs_an_episode_length_as_the_episodic_agents_do():
-    with pytest.raises(ValueError, match=r"the env states no episode length: .*max_episode_steps=T"):
-        SB3Agent(_walk(), "ppo", n_envs=1, n_steps=64, batch_size=32, steps_per_iteration=64)
+def test_the_time_limit_checks_reach_into_async_workers():
+    """AsyncVectorEnv's sub-envs live in other processes: the wrapper's recorded episode length and the outermost
+    TimeLimit are asked there, so a cutting limit is refused and one inside the wrapper is the horizon."""
+    cut = gym.make_vec("TLPendulum-v0", num_envs=2, vectorization_mode="async", max_episode_steps=50)
+    with pytest.raises(ValueError, match="a TimeLimit of 50 steps wraps"):
+        REPS(cut, n_episodes=2)
+    cut.close()
+    inside = gym.make_vec("TLPendulum-v0", num_envs=2, vectorization_mode="async", horizon=150)
+    assert REPS(inside, n_episodes=2).horizon == 150
+    inside.close()
 
 
+def test_the_horizon_is_the_least_the_env_states():
+    """The car says 200 (its own horizon), a TimeLimit inside the wrapper 50: episodes last 50."""
+    from tl_gym.envs.car import CarNavEnv
+
+    env = tl_gym.TLTLRewardWrapper(gym.wrappers.TimeLimit(CarNavEnv(task=1), 50), "F(x > 200)",
+                                   signals={"x": 0}, observe_monitor=True, reward_mode="dense")
+    assert env.episode_length == env.monitor_view.horizon == 50
+    assert REPS(env, n_episodes=2).horizon == 50
+
+
+def test_an_sb3_agent_on_an_env_that_states_no_episode_length_is_evaluated_with_a_guard(monkeypatch):
+    """An env that ends its own episodes without stating a length (highway-env's) is an SB3 agent's to train; a
+    policy that never ends one meets the guard, not an endless loop."""
+    import tl_gym.agents.evaluation as evaluation
+
+    monkeypatch.setattr(evaluation, "UNSTATED_EPISODE_GUARD", 30)
+    agent = SB3Agent(_walk(), "ppo", n_envs=1, n_steps=64, batch_size=32, steps_per_iteration=64)
+    with pytest.raises(RuntimeError, match=r"did not end within 30 steps; the env states no episode length"):
+        agent.evaluate(n_episodes=1, seed=0)
 def test_an_env_object_is_copied_with_what_was_set_after_make():
     """An attribute changed after gym.make (highway-env's configure, a physics constant) reaches every agent's
     envs, and the user's env itself is not stepped."""

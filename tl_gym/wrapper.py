@@ -181,8 +181,9 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             monitor_scale: robustness values and remembered signals in the monitor features are
                 divided by it (> 0); the size of a typical robustness keeps them of order one.
             horizon: the episode length ``T`` for the monitor's ``t / T`` feature; None reads it
-                from the env (``spec.max_episode_steps``, else a ``horizon`` attribute) and leaves
-                the feature out when neither exists.
+                from the env (`tl_gym.time_limits.episode_length`: the least of its time limits, its
+                spec's ``max_episode_steps`` and a ``horizon`` attribute) and leaves the feature out when
+                none is stated.
             gamma: the agent's discount γ, in (0, 1]. The dense and potential modes pay
                 ``γ Φ(s') − Φ(s)`` (Φ: the prefix robustness, plus the hierarchical potential),
                 so that with the agent's own γ its optimal policies are the terminal reward's
@@ -218,8 +219,9 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         invariants = InvariantMonitor(formula, settings.rho_max) if end_on_violation else None
         reader = SignalReader(formula.signals, signals, env.observation_space)
         view = None
+        length = episode_length(env)
         if observe_monitor:
-            horizon = episode_length(env) if horizon is None else horizon
+            horizon = length if horizon is None else horizon
             view = MonitorView(PrefixMonitor(formula, rho_max), monitor_scale, clip, horizon,
                                reader.bounds(env.observation_space))
             observation_space = augment_space(env.observation_space, view, MONITOR_KEY)
@@ -236,6 +238,9 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if env.has_wrapper_attr("compute_reward"):  # a goal env's reward of one transition is not this one's
             self.compute_reward = refuse_goal_reward
         self.formula = formula
+        #: the episode length the wrapped env states (`tl_gym.time_limits.episode_length`; None: none), which the
+        #: agents compare with a time limit outside the wrapper (`tl_gym.agents.sampling.check_time_limits`)
+        self.episode_length = length
         self.settings = settings
         self.reward = reward
         self.beta = settings.beta
