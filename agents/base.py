@@ -81,7 +81,8 @@ class Agent(abc.ABC):
         env: an env id (``"TLCarNav-v0"``), a Gymnasium `Env` or a `VectorEnv`, wrapped so that it
             exposes ``formula`` and reports ``info["robustness"]`` at episode end
             (`tl_gym.TLTLRewardWrapper`; the car env is wrapped already). Episodes are sampled
-            batched: from the env's ``vector_entry_point`` when it has one, else `SyncVectorEnv`.
+            batched: an id from its ``vector_entry_point`` when it has one, else a `SyncVectorEnv`; an `Env`
+            object in a `SyncVectorEnv` of copies of it (`agents.sampling.env_copies`).
         seed: seed of every random choice the agent makes; same seed, same results.
         env_kwargs: keyword arguments for the env constructor when ``env`` is an id.
         **hyperparameters: the agent's hyperparameters (see its config class); checked here.

@@ -1,9 +1,9 @@
 """Batched episode sampling on a Gymnasium vector env.
 
 `make_vector_env` turns what a user hands an agent (an env id, an `Env`, a
-`VectorEnv`) into a `VectorEnv`, preferring the env's own batched simulator
-(its ``vector_entry_point``, one numpy call per step for all cars) over
-`SyncVectorEnv`. `rollout` runs ``N`` episodes of horizon ``T`` with a linear
+`VectorEnv`) into a `VectorEnv`: for an id, the env's own batched simulator
+(its ``vector_entry_point``, one numpy call per step for all cars) rather than
+`SyncVectorEnv`; an `Env` object is copied. `rollout` runs ``N`` episodes of horizon ``T`` with a linear
 controller ``a_t = K_t s_t + k_t^i`` (or any feedback term ``f(t, s_t) + k_t^i``,
 such as the policy's ``K_t (s_t ⊖ s̄_t)``) and returns what every agent needs: the
 actions, the observations, the formula's signal traces ``(N, T+1)``, the exact
@@ -73,16 +73,9 @@ def make_vector_env(env: Any, num_envs: int, env_kwargs: Mapping[str, Any] | Non
         spec = registered_spec(env)
         mode = "vector_entry_point" if spec.vector_entry_point is not None else "sync"
         return gym.make_vec(env, num_envs=num_envs, vectorization_mode=mode, **env_kwargs)
-    if isinstance(env, gym.Env):
+    if isinstance(env, gym.Env):  # copied: only an id gets the batched simulator of its vector_entry_point
         if env_kwargs:
             raise TypeError("env_kwargs can only be used with an env id, not with an Env object")
-        spec = env.spec
-        if spec is not None and spec.vector_entry_point is not None and not spec.additional_wrappers:
-            try:  # the env's own batched simulator (the car), made with the env's keywords
-                return gym.make_vec(spec.id, num_envs=num_envs, vectorization_mode="vector_entry_point",
-                                    **spec.kwargs)
-            except Exception:  # noqa: BLE001 - keywords the batched simulator does not take: copy the env
-                pass
         return gym.vector.SyncVectorEnv(env_copies(env, num_envs))
     raise TypeError(f"env must be an env id, a gymnasium Env or a VectorEnv, got {type(env).__name__}")
 

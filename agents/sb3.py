@@ -635,9 +635,10 @@ def _single_env_factories(env: Any, env_kwargs: dict[str, Any], n_envs: int) -> 
     kwargs = {k: v for k, v in spec.kwargs.items()
               if k not in ("num_envs", "vectorization_mode", "vector_kwargs", "wrappers")}
     wrappers = spec.kwargs.get("wrappers") or ()
+    single_spec = dataclasses.replace(spec, kwargs={})  # its max_episode_steps and wrappers, as make_vec keeps them
 
     def make() -> gym.Env:
-        single = gym.make(spec.id, **kwargs)
+        single = gym.make(single_spec, **kwargs)
         for wrapper in wrappers:  # as gym.make_vec applies them to each sub-env
             single = wrapper(single)
         return single

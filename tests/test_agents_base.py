@@ -590,6 +590,12 @@ def test_sb3_on_a_make_vec_env_keeps_its_wrappers():
     agent = SB3Agent(venv, "sac", n_envs=2, steps_per_iteration=40, learning_starts=20, batch_size=16)
     assert agent.model.observation_space == venv.single_observation_space  # the view's, not bare Pendulum's
     assert agent.learn(1).history[0]["env_steps"] == 40
+    import dataclasses
+
+    short = gym.make_vec(dataclasses.replace(gym.spec("Pendulum-v1"), max_episode_steps=20), num_envs=1,
+                         wrappers=[wrap])  # a spec of its own: its time limit is the spec's, not the registry's
+    assert SB3Agent(short, "sac", n_envs=1, steps_per_iteration=40, learning_starts=20,
+                    batch_size=16).sb3_env.envs[0].get_wrapper_attr("episode_length") == 20
     sync = gym.vector.SyncVectorEnv([lambda: wrap(gym.make("Pendulum-v1", max_episode_steps=20))])
     sync.spec = None  # built by hand: no spec to rebuild from, so its env is copied
     copied = SB3Agent(sync, "sac", n_envs=1, steps_per_iteration=40, learning_starts=20, batch_size=16)
