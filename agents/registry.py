@@ -16,10 +16,11 @@ Example:
 
 from __future__ import annotations
 
-import difflib
 import importlib
 from collections.abc import Mapping
 from typing import Any
+
+from tl_gym.checks import did_you_mean
 
 #: The episodic agents by name -> "module:class"; any other plain name is an SB3 algorithm.
 EPISODIC_AGENTS = {"tlps": "tl_gym.agents.tlps:TLPS", "reps": "tl_gym.agents.reps:REPS"}
@@ -77,8 +78,7 @@ def check_sb3_name(name: str) -> None:
         if name.lower() in SB3_CONTRIB_ALGORITHMS:  # known, but sb3-contrib does not import: its message says why
             raise
         known = (*EPISODIC_AGENTS, *SB3_ALGORITHMS, *SB3_CONTRIB_ALGORITHMS)
-        nearest = difflib.get_close_matches(name.lower(), known, n=1)
-        hint = f" (did you mean {nearest[0]!r}?)" if nearest else ""
+        hint = did_you_mean(name.lower(), known)
         raise ValueError(
             f"unknown agent {name!r}{hint}: {', '.join(EPISODIC_AGENTS)}, a stable-baselines3 algorithm "
             f"({', '.join(SB3_ALGORITHMS)}), an sb3-contrib one ({', '.join(SB3_CONTRIB_ALGORITHMS)}) "

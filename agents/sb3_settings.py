@@ -13,12 +13,10 @@ from __future__ import annotations
 
 import ast
 import dataclasses
-import difflib
 import functools
 import importlib
 import inspect
 import math
-import numbers
 import os
 import re
 from collections.abc import Iterable, Mapping
@@ -28,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from tl_gym.checks import check_count, check_positive
+from tl_gym.checks import check_count, check_fraction, check_positive, did_you_mean
 from tl_gym.relabel import RELABEL_STRATEGIES
 
 from .registry import SB3_CONTRIB_ALGORITHMS
@@ -360,7 +358,7 @@ class SB3Config:
 
 
 #: The common algorithm arguments whose values are checked here (SB3 takes any, and fails later or never).
-_FRACTIONS = {"gamma": (False, True), "tau": (False, True), "gae_lambda": (True, True)}  # (0 allowed, 1 allowed)
+_FRACTIONS = {"gamma": False, "tau": False, "gae_lambda": True}  # in (0, 1], or [0, 1] where True
 _COUNTS = ("batch_size", "buffer_size", "n_steps", "n_epochs")
 
 
@@ -379,10 +377,7 @@ def check_algorithm_value(key: str, value: Any) -> None:
     if callable(value):
         return
     if key in _FRACTIONS:
-        zero, one = _FRACTIONS[key]
-        number = isinstance(value, numbers.Real) and not isinstance(value, bool)
-        if not (number and (0 <= value if zero else 0 < value) and (value <= 1 if one else value < 1)):
-            raise ValueError(f"{key} must lie in {'[' if zero else '('}0, 1{']' if one else ')'}, got {value!r}")
+        check_fraction(key, value, allow_zero=_FRACTIONS[key])
     elif key == "learning_rate":
         check_positive(key, value)
     elif key in _COUNTS:
@@ -485,8 +480,7 @@ def check_algorithm_arguments(algo_class: type, names: Iterable[str], settings: 
         if name in _RESERVED_ALGO_ARGS:
             raise ValueError(f"hyperparameter {name!r}: SB3Agent sets {algo_class.__name__}'s {name!r} itself "
                              f"(seed from seed=, verbose=0, device='cpu', the env from env=)")
-        nearest = difflib.get_close_matches(name, sorted(accepted | set(settings)), n=1)
-        hint = f" (did you mean {nearest[0]!r}?)" if nearest else ""
+        hint = did_you_mean(name, sorted(accepted | set(settings)))
         kinds = f"neither one of {list(settings)} nor an argument" if settings else "not an argument"
         raise ValueError(f"unknown hyperparameter {name!r}{hint}: {kinds} of {algo_class.__name__}")
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import math
 from collections.abc import Mapping
 from typing import Any
@@ -15,6 +14,7 @@ from tl_gym.envs.car_model import CarModel
 from tl_gym.envs.dynamics import CarParams, car_step, sample_episode_noise
 from tl_gym.envs.tasks import Layout, make_layout, task_formula
 
+from tl_gym.checks import did_you_mean
 from tl_gym.wrapper import RewardSettings, TLTLRewardWrapper
 
 RENDER_SIZE = (480, 480)
@@ -37,6 +37,27 @@ ACTION_SPACE = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
 LAYOUT_KEYS = ("start", "goals", "obstacle", "arena")
 
 
+#: Keywords TLCarNav-v0 does not take that a user may try, and why (its error says so).
+CAR_REFUSED_KEYWORDS = {
+    "end_on_violation": "a TLTLRewardWrapper keyword the car does not take: the car's tasks keep the episode going "
+                        "after an obstacle is touched, as the paper's do",
+    "env_reward_weight": "a TLTLRewardWrapper keyword the car does not take: the car pays no reward of its own",
+    "max_episode_steps": "the car owns its episode length (a TimeLimit would sit outside the reward wrapper): pass "
+                         "horizon=",
+}
+
+
+def _unknown_keyword_message(culprit: str, fields: list[str]) -> str:
+    """Why ``culprit`` is refused, and every keyword the car (and TLCarNav-v0 around it) takes."""
+    car = [*fields, *LAYOUT_KEYS, "render_mode"]
+    reward = [f.name for f in dataclasses.fields(RewardSettings)]
+    why = CAR_REFUSED_KEYWORDS.get(culprit)
+    hint = f" ({why})" if why else did_you_mean(culprit, [*car, *reward, "task", "no_revisit"])
+    # one name quoted, the culprit's: SB3Agent finds the keyword it added in the message by its quotes
+    return (f"the car has no keyword {culprit!r}{hint}; the car takes ({', '.join(car)}); TLCarNav-v0 also "
+            f"takes task, no_revisit and the reward's ({', '.join(reward)})")
+
+
 def car_setup(task: int, car_kwargs: Mapping[str, Any]) -> tuple[Layout, CarParams, dict[str, Any]]:
     """A car's layout, physical parameters and layout overrides, from its keywords.
 
@@ -44,12 +65,13 @@ def car_setup(task: int, car_kwargs: Mapping[str, Any]) -> tuple[Layout, CarPara
     layout in `make_layout`; `CarNavEnv`, `CarNavVectorEnv` and `make_car_env` all come here.
 
     Raises:
-        TypeError: a keyword that is neither a `CarParams` field nor a layout override (the message lists both).
+        TypeError: a keyword that is neither a `CarParams` field nor a layout override (the message lists every
+            keyword the car and TLCarNav-v0 take, the closest name, and why a wrapper keyword is not the car's).
     """
     fields = [f.name for f in dataclasses.fields(CarParams)]
     unknown = sorted(set(car_kwargs) - set(fields) - set(LAYOUT_KEYS))
     if unknown:
-        raise TypeError(f"the car has no keyword(s) {unknown}; it takes {fields + list(LAYOUT_KEYS)}")
+        raise TypeError(_unknown_keyword_message(unknown[0], fields))
     overrides = {key: car_kwargs[key] for key in LAYOUT_KEYS if car_kwargs.get(key) is not None}
     params = CarParams(**{key: value for key, value in car_kwargs.items() if key in fields})
     return make_layout(task, **overrides), params, overrides
@@ -243,38 +265,9 @@ def make_car_env(task: int = 1, no_revisit: str = "leave", **kwargs: Any) -> TLT
             layout overrides, ``render_mode``).
     """
     settings, car_kwargs = car_reward_settings(kwargs)
-    check_car_keywords(car_kwargs)
     car = CarNavEnv(task=task, **car_kwargs)
     formula = task_formula(task, no_revisit, **car.layout_overrides)
     return TLTLRewardWrapper(car, formula, signals={"x": 0, "y": 1}, **dataclasses.asdict(settings))
-
-
-#: TLTLRewardWrapper keywords TLCarNav-v0 does not take, and why (its error says so).
-CAR_REFUSED_WRAPPER_KEYWORDS = {
-    "end_on_violation": "the car's tasks keep the episode going after an obstacle is touched, as the paper's do",
-    "env_reward_weight": "the car pays no reward of its own to weigh",
-}
-
-
-def check_car_keywords(car_kwargs: Mapping[str, Any]) -> None:
-    """Refuse keywords TLCarNav-v0 does not take, listing every one it does (the task's, the reward's, the car's).
-
-    Raises:
-        TypeError: naming the keyword, the closest one it takes, and why a wrapper keyword is not the car's.
-    """
-    fields = [f.name for f in dataclasses.fields(CarParams)]
-    known = fields + list(LAYOUT_KEYS) + ["render_mode"]
-    unknown = sorted(set(car_kwargs) - set(known))
-    if not unknown:
-        return
-    culprit = unknown[0]
-    reward = [f.name for f in dataclasses.fields(RewardSettings)]
-    why = CAR_REFUSED_WRAPPER_KEYWORDS.get(culprit)
-    close = difflib.get_close_matches(culprit, known + reward + ["task", "no_revisit"], n=1)
-    hint = (f" ({culprit} is a TLTLRewardWrapper keyword the car does not take: {why})" if why
-            else f" (did you mean {close[0]!r}?)" if close else "")
-    raise TypeError(f"TLCarNav-v0 has no keyword {culprit!r}{hint}; it takes task, no_revisit, the reward's "
-                    f"({', '.join(reward)}) and the car's ({', '.join(known)})")  # one name quoted: the culprit's
 
 
 def car_reward_settings(kwargs: Mapping[str, Any]) -> tuple[RewardSettings, dict[str, Any]]:

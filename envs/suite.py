@@ -31,7 +31,6 @@ Example:
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import inspect
 import math
 from collections.abc import Callable, Mapping
@@ -42,7 +41,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.error import DependencyNotInstalled
 
-from tl_gym.checks import check_count, check_finite, check_floats, check_positive
+from tl_gym.checks import check_count, check_finite, check_floats, check_positive, did_you_mean
 from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.parser import parse
 from tl_gym.wrapper import TLTLRewardWrapper
@@ -393,9 +392,8 @@ def _wrap(
         culprit = unknown[0] if unknown else sorted({"env", "spec", "signals"} & set(kwargs))[0]
         own = [name for name in inspect.signature(task).parameters if name != "wrapper_kwargs"]
         wrapper = [name for name in params if name not in ("env", "spec", "signals", "horizon")]  # horizon: own
-        close = difflib.get_close_matches(culprit, own + wrapper, n=1)
         raise TypeError(
-            f"unexpected keyword {culprit!r}{f' (did you mean {close[0]!r}?)' if close else ''}: the task takes its "
+            f"unexpected keyword {culprit!r}{did_you_mean(culprit, own + wrapper)}: the task takes its "
             f"own ({', '.join(own)}) and TLTLRewardWrapper's ({', '.join(wrapper)})"
         )
     return TLTLRewardWrapper(StepClock(base, horizon), formula, signals, **kwargs)

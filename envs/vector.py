@@ -22,7 +22,6 @@ from tl_gym.envs.car import (
     CarProperties,
     car_reward_settings,
     car_setup,
-    check_car_keywords,
     observation_space,
 )
 from tl_gym.envs.dynamics import car_step, sample_episode_noise
@@ -81,7 +80,6 @@ class CarNavVectorEnv(CarProperties, VectorEnv):
         """
         check_count("num_envs", num_envs)
         settings, car_kwargs = car_reward_settings(kwargs)
-        check_car_keywords(car_kwargs)  # the single env's message, not car_setup's shorter one
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
         self.num_envs = int(num_envs)

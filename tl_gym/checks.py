@@ -14,8 +14,10 @@ Example:
 
 from __future__ import annotations
 
+import difflib
 import math
 import numbers
+from collections.abc import Iterable
 from typing import Any, overload
 
 
@@ -86,3 +88,31 @@ def check_floats(name: str, value: Any, size: int, what: str) -> tuple[float, ..
     if len(floats) != size:
         raise ValueError(f"{name} must be {what}, got {value!r}")
     return floats
+
+
+def check_fraction(name: str, value: Any, *, allow_zero: bool = False) -> float:
+    """``value`` as a float if it is a real number in (0, 1] (``[0, 1]`` with ``allow_zero``): a discount, a rate.
+
+    Example:
+        >>> check_fraction("gamma", 0.99), check_fraction("gae_lambda", 0, allow_zero=True)
+        (0.99, 0.0)
+        >>> check_fraction("gamma", 2.0)
+        Traceback (most recent call last):
+          ...
+        ValueError: gamma must lie in (0, 1], got 2.0
+    """
+    number = isinstance(value, numbers.Real) and not isinstance(value, bool)
+    if not (number and (0 <= value if allow_zero else 0 < value) and value <= 1):
+        raise ValueError(f"{name} must lie in {'[' if allow_zero else '('}0, 1], got {value!r}")
+    return float(value)
+
+
+def did_you_mean(name: str, options: Iterable[str]) -> str:
+    """`` (did you mean 'x'?)`` with the closest of ``options`` to a misspelt ``name``; empty when none is close.
+
+    Example:
+        >>> did_you_mean("horizn", ["horizon", "up_by"]), did_you_mean("zzz", ["horizon"])
+        (" (did you mean 'horizon'?)", '')
+    """
+    nearest = difflib.get_close_matches(name, list(options), n=1)
+    return f" (did you mean {nearest[0]!r}?)" if nearest else ""

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import numbers
 from collections.abc import Mapping
 from typing import Any, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
 
-from tl_gym.checks import check_finite, check_positive
+from tl_gym.checks import check_finite, check_fraction, check_positive
 from tl_gym.monitor_view import MonitorView, augment, augment_space, split
 from tl_gym.shaping import HierarchicalPotential, discounted_increment, satisfaction_value
 from tl_gym.signals import SignalMap, SignalReader
@@ -56,7 +55,7 @@ class RewardSettings:
             raise ValueError(f"reward_mode must be one of {REWARD_MODES}, got {self.reward_mode!r}")
         if self.reward_mode != "terminal" and self.reward == "smooth":
             raise ValueError(f"reward_mode={self.reward_mode!r} pays exact robustness increments; use reward='exact'")
-        check_discount(self.gamma)
+        check_fraction("gamma", self.gamma)
         for name in ("beta", "clip", "monitor_scale"):
             object.__setattr__(self, name, check_positive(name, getattr(self, name)))
         bonus = check_positive("satisfaction_bonus", self.satisfaction_bonus, allow_zero=True)
@@ -481,9 +480,3 @@ def refuse_goal_reward(achieved_goal: Any, desired_goal: Any, info: Any) -> floa
         "(achieved_goal, desired_goal, info): SB3's HerReplayBuffer cannot relabel it. Relabel whole episodes "
         "with SB3Agent(..., her_goals=k) (tl_gym.relabel)"
     )
-
-
-def check_discount(gamma: Any) -> None:
-    """Raise a ValueError unless ``gamma`` is a real number in (0, 1] (the potential shaping's discount)."""
-    if isinstance(gamma, bool) or not (isinstance(gamma, numbers.Real) and 0 < gamma <= 1):
-        raise ValueError(f"gamma must lie in (0, 1], got {gamma!r}")

@@ -33,7 +33,9 @@ if TYPE_CHECKING:
     from tl_gym.tltl.trace import Trace
 
 # Words that cannot name a signal (operators, keywords, constants, functions).
-_SIGNAL_NAME = re.compile(r"[^\W\d]\w*")  # the parser's `ident` token
+#: What can name a signal: a letter or underscore, then letters, digits, underscores (the parser's `ident` token)
+SIGNAL_NAME_PATTERN = r"[^\W\d]\w*"
+_SIGNAL_NAME = re.compile(SIGNAL_NAME_PATTERN)
 RESERVED = frozenset(
     "F G X U T true false not and or implies eventually always next until then "
     "abs sqrt exp log min max".split()

@@ -14,7 +14,7 @@ from typing import Any
 
 from tl_gym.errors import SpecError
 from tl_gym.tltl import ast as nodes
-from tl_gym.tltl.ast import COMPARISONS, FUNCTIONS, RESERVED, Expr, Formula
+from tl_gym.tltl.ast import COMPARISONS, FUNCTIONS, RESERVED, SIGNAL_NAME_PATTERN, Expr, Formula
 from tl_gym.tltl.iterative import drive
 
 # Keywords spelled out, mapped to their symbol.
@@ -27,7 +27,7 @@ _DIGITS = r"\d(?:_?\d)*"  # digits, grouped by single underscores as in Python (
 _TOKEN = re.compile(
     r"\s*(?:"
     rf"(?P<num>(?:{_DIGITS}\.?(?:{_DIGITS})?|\.{_DIGITS})(?:[eE][+-]?{_DIGITS})?)"
-    r"|(?P<ident>[^\W\d]\w*)"  # a Python identifier, as `Var` accepts (θ, x_1); checked in _tokenize
+    rf"|(?P<ident>{SIGNAL_NAME_PATTERN})"  # the names `Var` accepts (θ, x_1); checked in _tokenize
     r"|(?P<op>->|=>|<=|>=|&&|\|\||\*\*|[<>&|!()+\-*/^,])"
     r")"
 )
@@ -290,9 +290,7 @@ class _Parser:
             nxt = self.peek(1)
             if self.tok.kind == "num" and not (nxt.kind == "op" and nxt.text == "^"):
                 # A negative literal is one number, so `-3` prints and parses back alike.
-                value = float(self.tok.raw)
-                if value == float("inf"):
-                    raise self.error(f"number -{self.tok.raw} is too large", self.tok)
+                value = self.finite_number(self.tok, "-")
                 self.pos += 1
                 expr: Expr = nodes.Num(-value)
                 break
@@ -309,14 +307,18 @@ class _Parser:
             return nodes.BinOp("^", base, (yield self.factor()))
         return base
 
+    def finite_number(self, token: _Token, sign: str = "") -> float:
+        """The value of a number token; one that overflows to inf (``1e999``) is a SpecError at its column."""
+        value = float(token.raw)
+        if value == float("inf"):
+            raise self.error(f"number {sign}{token.raw} is too large", token)
+        return value
+
     def atom(self) -> _Production:
         token = self.tok
         if token.kind == "num":
             self.pos += 1
-            value = float(token.raw)
-            if value == float("inf"):
-                raise self.error(f"number {token.raw} is too large", token)
-            return nodes.Num(value)
+            return nodes.Num(self.finite_number(token))
         if token.kind == "ident":
             self.pos += 1
             if token.text in FUNCTIONS:
