@@ -223,7 +223,9 @@ def flat_observations(space: gym.Space, obs: Any) -> np.ndarray:
             raise KeyError(f"the observation has no key {missing[0]!r} (the space's keys: {', '.join(space.spaces)})")
         parts = [np.asarray(obs[key], dtype=float) for key in space.spaces]
         single = all(p.shape == sub.shape for p, sub in zip(parts, space.spaces.values()))
-        rows = 1 if single or parts[0].ndim == 0 else parts[0].shape[0]
+        # a batch's size: the first entry that is not one observation's says it
+        batched = [p for p, sub in zip(parts, space.spaces.values()) if p.shape != sub.shape and p.ndim]
+        rows = 1 if single or not batched else batched[0].shape[0]
         for part, (key, sub) in zip(parts, space.spaces.items()):
             if part.shape != sub.shape and part.shape != (rows, *sub.shape):
                 raise ValueError(f"observation[{key!r}] has shape {part.shape}: the space's is {sub.shape}, a batch "

@@ -813,6 +813,8 @@ def test_a_dict_observation_with_a_key_missing_or_a_wrong_shape_is_named():
         agent.predict({"x": np.zeros(2), "y": np.zeros(1)})
     with pytest.raises(ValueError, match=r"observation\['y'\] has shape \(3, 1\).*a batch of 2 is \(2, 1\)"):
         agent.predict({"x": np.zeros((2, 1)), "y": np.zeros((3, 1))})
+    with pytest.raises(ValueError, match=r"observation\['y'\] has shape \(2,\): the space's is \(1,\), a batch of 2"):
+        agent.predict({"x": np.zeros(1), "y": np.zeros(2)})  # x is one observation's: y's own size says the batch
 
 
 def test_a_file_saved_before_fitted_feedback_loads_as_the_open_loop_it_holds(tmp_path):

@@ -159,4 +159,4 @@ def test_errors_name_their_culprit():
         with pytest.raises(TraceError, match=message):
             BatchPrefixMonitor(parse("F(a > 1) & G(b < 2)"), 2).update({"a": np.ones(2), "b": bad})
     one = BatchPrefixMonitor(parse("F(a > 1) & G(b < 2)"), 2)  # one number, a list, ints: every trace alike
-    assert one.update({"a": [0.0, 3], "b": 1}).tolist() == [-1.0, 1.0]
+    assert one.update({"a": [0.0, 3], "b": np.array([1])}).tolist() == [-1.0, 1.0]

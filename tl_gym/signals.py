@@ -36,9 +36,10 @@ def _is_index(value: Any) -> bool:
 def _accepts_info(fn: Callable[..., Any]) -> bool:
     """Whether ``fn`` takes ``(obs, info)`` rather than ``(obs)``.
 
-    It does when it needs a second positional argument, or names its second one ``info``, or takes ``*args``. A
-    second parameter with a default that is not called ``info`` is the function's own (``np.linalg.norm``'s
-    ``ord``, ``def dist(obs, goal=GOAL)``): such a function is called with the observation alone.
+    It does when it needs a second positional argument, or names its second positional one ``info``, or takes
+    ``*args``. A second parameter with a default that is not called ``info`` is the function's own
+    (``np.linalg.norm``'s ``ord``, ``def dist(obs, goal=GOAL)``), and a keyword-only ``info`` cannot be handed
+    positionally: such a function is called with the observation alone.
 
     Example:
         >>> _accepts_info(lambda obs, info: 0.0), _accepts_info(lambda obs, info=None: 0.0)

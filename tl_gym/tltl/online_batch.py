@@ -548,7 +548,7 @@ def _numbers(name: str, value: Any, n: int) -> Any:
     array = np.asarray(value) if not isinstance(value, (str, bytes)) else None
     if array is None or array.dtype.kind not in "biuf":
         raise TraceError(f"signal {name!r} must be numbers, got {type(value).__name__}: {value!r}")
-    if array.shape not in ((), (n,)):
+    if array.shape not in ((), (1,), (n,)):  # one value stands for every trace, as numpy broadcasts it
         raise TraceError(f"signal {name!r} must hold {n} values (one per trace) or one, got shape {array.shape}")
     return array
 
