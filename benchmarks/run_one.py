@@ -107,34 +107,56 @@ def execute_run(spec: RunSpec, run_dir: str | Path, checkpoint_every: int = 0,
     if traces:
         write_atomic(run_dir / TRAJECTORIES, compressed_arrays(traces))
     write_atomic(run_dir / DONE, json.dumps(summary, indent=1).encode())
-    shutil.rmtree(run_dir / CHECKPOINT, ignore_errors=True)
+    for name in (CHECKPOINT, CHECKPOINT_NEW, CHECKPOINT_OLD):
+        shutil.rmtree(run_dir / name, ignore_errors=True)
     return summary
 
 
+#: Where a checkpoint is written before it replaces the last one, and where the last one waits meanwhile.
+CHECKPOINT_NEW, CHECKPOINT_OLD = f"{CHECKPOINT}.new", f"{CHECKPOINT}.old"
+
+
 def save_checkpoint(agent: Any, run_dir: Path, traces: Mapping[str, np.ndarray], state: Mapping[str, Any]) -> None:
-    """Write ``run_dir/checkpoint``: what `load_checkpoint` needs to go on from the agent's last iteration."""
-    folder = run_dir / CHECKPOINT
-    folder.mkdir(exist_ok=True)
-    (folder / AGENT).unlink(missing_ok=True)  # until the new agent is written, the checkpoint is not whole
+    """Write ``run_dir/checkpoint``: what `load_checkpoint` needs to go on from the agent's last iteration.
+
+    The new checkpoint is written whole in ``checkpoint.new`` (the agent last: a folder with ``agent.zip`` is
+    whole), then swapped in by two renames; the last one is removed only after. A run killed at any moment
+    keeps a whole checkpoint, the new one or the last (`_whole_checkpoint` finds it).
+    """
+    new, current, old = run_dir / CHECKPOINT_NEW, run_dir / CHECKPOINT, run_dir / CHECKPOINT_OLD
+    shutil.rmtree(new, ignore_errors=True)
+    new.mkdir()
     if getattr(agent, "off_policy", False):
-        agent.save_replay_buffer(folder / REPLAY_BUFFER)
-    (folder / TRAJECTORIES).unlink(missing_ok=True)
+        agent.save_replay_buffer(new / REPLAY_BUFFER)
     if traces:
-        write_atomic(folder / TRAJECTORIES, compressed_arrays(traces))
-    write_atomic(folder / STATE, json.dumps(dict(state), indent=1).encode())
-    agent.save(folder / AGENT)
+        write_atomic(new / TRAJECTORIES, compressed_arrays(traces))
+    write_atomic(new / STATE, json.dumps(dict(state), indent=1).encode())
+    agent.save(new / AGENT)
+    shutil.rmtree(old, ignore_errors=True)
+    if current.exists():
+        current.rename(old)
+    new.rename(current)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def _whole_checkpoint(run_dir: Path) -> Path | None:
+    """The newest whole checkpoint folder of ``run_dir`` (one holding ``agent.zip``), whatever killed the last save."""
+    for name in (CHECKPOINT_NEW, CHECKPOINT, CHECKPOINT_OLD):  # newest first: .new is whole only once written
+        if (run_dir / name / AGENT).is_file():
+            return run_dir / name
+    return None
 
 
 def load_checkpoint(spec: RunSpec, run_dir: Path) -> tuple[Any, dict[str, np.ndarray], dict[str, Any]] | None:
     """The agent, sampled trajectories and state of ``run_dir``'s checkpoint; ``None`` if it has none for ``spec``."""
     from tl_gym.agents.registry import agent_class
 
-    folder = run_dir / CHECKPOINT
+    folder = _whole_checkpoint(run_dir)
     try:
         same_spec = json.loads((run_dir / SPEC).read_text()) == json.loads(json.dumps(spec.to_json()))
     except (OSError, ValueError):
         return None
-    if not same_spec or not (folder / AGENT).is_file():
+    if not same_spec or folder is None:
         return None
     try:
         agent = agent_class(spec.agent).load(folder / AGENT)

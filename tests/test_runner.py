@@ -449,6 +449,28 @@ def test_a_stopped_run_resumes_from_its_checkpoint(tmp_path):
         "final_mean_robustness"]
 
 
+@pytest.mark.parametrize("killed", ["writing the new checkpoint", "between the two renames"])
+def test_a_run_killed_while_it_checkpoints_resumes_from_a_whole_checkpoint(tmp_path, killed):
+    """The new checkpoint is written aside and swapped in: a kill at any moment leaves a whole one to resume from
+    (a kill after the old agent was deleted used to restart the run from iteration 0)."""
+    import shutil
+
+    from benchmarks.run_one import CHECKPOINT_NEW, CHECKPOINT_OLD
+
+    spec, run_dir, fail = start_failing_run(tmp_path)
+    whole = run_dir / CHECKPOINT
+    if killed == "writing the new checkpoint":  # a partial .new beside the last whole checkpoint
+        (run_dir / CHECKPOINT_NEW).mkdir()
+        (run_dir / CHECKPOINT_NEW / "state.json").write_text("{}")
+    else:  # the last checkpoint moved aside, the new one not yet in place
+        shutil.copytree(whole, run_dir / CHECKPOINT_NEW)
+        whole.rename(run_dir / CHECKPOINT_OLD)
+    fail.unlink()
+    summary = execute_run(spec, run_dir, checkpoint_every=2)
+    assert summary["resumed_at"] == [2] and summary["iterations"] == 4
+    assert not any((run_dir / name).exists() for name in (CHECKPOINT, CHECKPOINT_NEW, CHECKPOINT_OLD))
+
+
 def test_a_checkpoint_of_another_spec_is_not_resumed(tmp_path):
     spec, run_dir, fail = start_failing_run(tmp_path)
     fail.unlink()
