@@ -2,8 +2,8 @@
 
 Runs the configs of ``benchmarks/configs/suite/`` (one per task, evaluated on fresh episodes along the way), then
 writes ``docs/results/suite.md`` (who solves each task, at how many env steps; a table per task) and one figure per
-task: fresh-episode success and mean ρ against env steps, so progress shows where success is still 0 (``--quick``:
-under ``--out``).
+task: fresh-episode success and mean ρ against env steps, so progress shows where success is still 0. With
+``--out`` (or ``--quick``) the records and the report go there instead, and ``docs/results`` is not touched.
 """
 
 from __future__ import annotations
@@ -193,9 +193,10 @@ def write_report(results: dict[str, tuple[str, list[RunResult], list[str]]], com
              "| task | solved by (median final success ≥ 90 %) | at |", "|---|---|---|"]
     sections = []
     for stem, (title, runs, planned) in results.items():
-        if not runs:
+        if not runs:  # its notes stay: a report redrawn from fewer records loses no word
             lines.append(f"| {title} | not run for this report | |")
             sections += ["", f"## {title}", "", f"{NO_RUN}."]
+            sections += [line for note in section_notes.get(title, []) for line in ("", *note)]
             continue
         task_markdown, rows = task_table(runs)
         lines.append(headline(title, rows))
@@ -249,12 +250,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--tasks", nargs="*", default=[], choices=[p.stem for p in config_paths()],
                         help="config stems to run (default: all); the report covers every task from its records")
     parser.add_argument("--out", default=None,
-                        help=f"run records (default: {RECORDS.relative_to(HERE.parent)}, kept in git; --quick: "
-                             "runs/suite-quick, and the report goes there too)")
+                        help=f"run records, and the report when given (default: {RECORDS.relative_to(HERE.parent)}, "
+                             "kept in git, whose report is docs/results/suite.md; --quick: "
+                             "runs/suite-quick)")
     parser.add_argument("--report-only", action="store_true", help="only redraw the report from finished runs")
     add_sweep_options(parser)
     args = parser.parse_args(argv)
     variant = variant_of(parser, args)
+    records_in_git = args.out is None and not args.quick  # only these records' report is docs/results/suite.md
     if args.out is None:
         args.out = "runs/suite-quick" if args.quick else str(RECORDS)
     results: dict[str, tuple[str, list[RunResult], list[str]]] = {}
@@ -271,7 +274,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         planned = list(dict.fromkeys(run.label for run in sweep.runs))
         results[path.stem] = (sweep.description or path.stem, runs, planned)  # a task without runs says so
     command = "python -m benchmarks.suite" + (f" --variant {variant}" if variant and not args.quick else "")
-    target = Path(args.out) if args.quick else RESULTS
+    target = RESULTS if records_in_git else Path(args.out)
     target.mkdir(parents=True, exist_ok=True)
     print(f"wrote {write_report(results, command, target)}")  # every config has its section
     return 1 if failed else 0

@@ -122,6 +122,20 @@ def test_report_covers_every_task_whatever_tasks_run(tmp_path):
     assert all(f"## {title}\n" in text for title in titles) and len(titles) == 7
 
 
+def test_a_report_elsewhere_leaves_docs_results_alone_and_keeps_the_notes_of_tasks_without_runs(tmp_path,
+                                                                                                 monkeypatch):
+    """--out sends the report there (it rewrote docs/results/suite.md); a task with no records keeps its notes."""
+    monkeypatch.setattr(suite, "RESULTS", tmp_path / "docs_results")  # where the records in git report
+    out = tmp_path / "elsewhere"
+    out.mkdir()
+    title = load_config(suite.config_paths()[0]).description
+    (out / "suite.md").write_text(f"# The TL task suite\n\n## {title}\n\nA note written by hand.\n")
+    assert suite.main(["--variant", "session", "--report-only", "--out", str(out)]) == 0
+    assert not (tmp_path / "docs_results").exists()
+    text = (out / "suite.md").read_text()
+    assert "No finished run for this report." in text and "A note written by hand." in text
+
+
 def _evaluated_run(seed: int, steps: list[float], success: list[float], label: str = "agent") -> results.RunResult:
     """A finished run whose every row evaluated, at its own env steps (episodes that end early: uneven steps)."""
     spec = RunSpec(env="TLMountainCar-v0", env_kwargs={}, agent="reps", label=label, hyperparameters={},
