@@ -493,6 +493,24 @@ def _check_entry(settings: dict[str, Any], algo_class: type, where: str) -> dict
         raise ValueError(f"{where}: {error}") from None
 
 
+def check_sb3_hyperparameters(algo: Any, hyperparameters: Mapping[str, Any]) -> None:
+    """Check an SB3 agent's hyperparameters without an env, as `SB3Agent` checks them before building one.
+
+    Names (an `SB3Config` setting or an argument of the algorithm, with the nearest name) and values (the
+    settings', and the common arguments' of `check_algorithm_value`): a run config is checked this way before
+    any run starts (`benchmarks.sweep_config`). The task's hyperparameter file is not read (it needs the env's id).
+
+    Raises:
+        ValueError, TypeError: naming the hyperparameter.
+    """
+    algo_class = resolve_algorithm(algo)
+    settings = canonical_settings(hyperparameters)
+    fields = {f.name for f in dataclasses.fields(SB3Config)} - {"algo", "algo_kwargs"}
+    algo_kwargs = {k: v for k, v in settings.items() if k not in fields}
+    SB3Config(algo=algo_class.__name__, n_timesteps=settings.get("n_timesteps", 1),
+              **{k: v for k, v in settings.items() if k in fields and k != "n_timesteps"}, algo_kwargs=algo_kwargs)
+
+
 def canonical_settings(settings: Mapping[str, Any]) -> dict[str, Any]:
     """Settings in the form the config holds (JSON-able where the value allows)."""
     out = dict(settings)

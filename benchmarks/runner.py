@@ -69,6 +69,10 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, workers: int | None = None, ray
     to run; ``checkpoint_every``: iterations between a local run's checkpoints (`execute_run`). A failed run
     leaves no ``done.json`` and is retried by the next sweep, from its checkpoint if it has one.
     """
+    unmatched = [p for p in only if not any(fnmatch.fnmatchcase(run.label, p) for run in sweep.runs)]
+    if unmatched:  # checked first: a typo ran nothing and said "0 run(s) finished"
+        labels = ", ".join(dict.fromkeys(repr(run.label) for run in sweep.runs))
+        raise ConfigError(f"--only {unmatched[0]!r} matches no label of {sweep.name} (case counts): {labels}")
     out_dir = Path(out_dir)
     (out_dir / "runs").mkdir(parents=True, exist_ok=True)
     manifest = {"name": sweep.name, "description": sweep.description,
@@ -230,7 +234,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as exc:
         parser.error(str(exc))
     out_dir = args.out or default_out_dir(sweep)
-    report = run_with_options(sweep, out_dir, args)
+    if out_dir.exists() and not out_dir.is_dir():
+        parser.error(f"--out {out_dir} is a file: name a folder for the results")
+    try:
+        report = run_with_options(sweep, out_dir, args)
+    except ConfigError as exc:
+        parser.error(str(exc))
+    except KeyboardInterrupt:  # the workers are stopped (`_workers_die_with_the_sweep`); say how to go on
+        print(f"\ninterrupted: finished runs keep their done.json; rerun the same command to resume the others "
+              f"from their last checkpoints (--checkpoint-every {args.checkpoint_every})", file=sys.stderr)
+        return 130
     print(f"{sweep.name}: {len(report.finished)} run(s) finished, {len(report.skipped)} already done, "
           f"{len(report.failed)} failed, {report.wall_time:.1f} s; results in {out_dir}")
     return 1 if report.failed else 0

@@ -111,12 +111,17 @@ def expand_config(data: Mapping[str, Any], variant: str | None = None,
             raise ConfigError(f"'{key}' must be a non-empty string, got {top.get(key)!r}")
     if not isinstance(top.get("agents"), list) or not top["agents"]:
         raise ConfigError("no [[agents]] entries")
+    _check_env(top["env"])
     runs: list[RunSpec] = []
     for index, entry in enumerate(top["agents"]):
         where = f"agents[{index}]"
         entry = _check_keys(entry, AGENT_KEYS, where)
         at = f"{where}.variants.{variant}"
-        changes = _check_keys(_table(entry.get("variants", {}), f"{where}.variants").get(variant, {}), AGENT_KEYS, at)
+        own_variants = _table(entry.get("variants", {}), f"{where}.variants")
+        stray = sorted(set(own_variants) - set(variants))
+        if stray:  # a variant no --variant can select: a misspelling, silently running the agent unchanged
+            raise ConfigError(f"{where}.variants: {stray} is not a variant of the config ({sorted(variants)})")
+        changes = _check_keys(own_variants.get(variant, {}), AGENT_KEYS, at)
         hyper = {**_table(entry.get("hyperparameters", {}), f"{where}.hyperparameters"),
                  **_table(changes.get("hyperparameters", {}), f"{at}.hyperparameters")}
         entry = {**entry, **changes, "hyperparameters": hyper}
@@ -174,6 +179,27 @@ def _check_agent(name: Any, where: str) -> str:
     return name
 
 
+def _check_hyperparameters(agent: str, values: Mapping[str, Any], where: str) -> None:
+    """The agent's own check of its hyperparameters, without an env (`tl_gym.agents.registry.check_hyperparameters`)."""
+    from tl_gym.agents.registry import check_hyperparameters
+
+    try:
+        check_hyperparameters(agent, values)
+    except (ValueError, TypeError) as exc:
+        raise ConfigError(f"{where}.hyperparameters {values}: {exc}") from None
+
+
+def _check_env(env_id: str) -> None:
+    """A registered id (Gymnasium's ``module:EnvId`` form too), checked before any run starts."""
+    import gymnasium as gym
+    from tl_gym.agents.sampling import registered_spec
+
+    try:
+        registered_spec(env_id)
+    except (gym.error.Error, ImportError) as exc:
+        raise ConfigError(f"env {env_id!r}: {exc}") from None
+
+
 def _expand_agent(entry: dict[str, Any], top: Mapping[str, Any], where: str) -> list[RunSpec]:
     settings = {key: entry.get(key, top.get(key)) for key in INHERITED}
     agent = _check_agent(entry.get("agent"), f"{where}.agent")
@@ -192,9 +218,14 @@ def _expand_agent(entry: dict[str, Any], top: Mapping[str, Any], where: str) -> 
     trajectory_iterations = settings["trajectory_iterations"] or []
     if trajectory_iterations:
         _ints(trajectory_iterations, f"{where}.trajectory_iterations", 0)
+    for key, minimum in (("evaluate_episodes", 0), ("evaluate_every", 0), ("trajectory_episodes", 1)):
+        _ints([settings[key]], f"{where}.{key}", minimum)  # before a worker meets them, hours into a sweep
+    if not isinstance(entry.get("note", ""), str):
+        raise ConfigError(f"{where}.note must be a string, got {entry['note']!r}")
     runs = []
     for combo in itertools.product(*grid.values()):
         values = {**entry["hyperparameters"], **dict(zip(grid, combo))}
+        _check_hyperparameters(agent, values, where)
         try:
             run_label = label.format(**values)
         except (KeyError, IndexError, ValueError) as exc:

@@ -24,6 +24,7 @@ from benchmarks import results
 from benchmarks.report import write_per_seed_report
 from benchmarks.run_one import AGENT, CHECKPOINT, DONE, HISTORY, execute_run, install_files, run_files
 from benchmarks.runner import iterations_done, run_sweep
+from benchmarks.runner import main as runner_main
 from benchmarks.sweep_config import ConfigError, RunSpec, expand_config, load_config
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -133,6 +134,18 @@ def test_expansion_grid_labels_and_quick_overrides():
     ({"agents": [{"agent": "tlps", "grid": {"beta": 9}}]}, "grid.beta"),
     ({"agents": [{"agent": "tlps"}, {"agent": "tlps"}]}, "twice"),
     ({"variants": {"quick": {"agents": []}}}, "variants.quick"),
+    # checked before any run starts, not in a worker hours into the sweep
+    ({"agents": [{"agent": "reps", "hyperparameters": {"n_episodez": 4}}]}, "n_episodez"),
+    ({"agents": [{"agent": "reps", "hyperparameters": {"n_episodes": -4}}]}, "n_episodes must be an int >= 2"),
+    ({"agents": [{"agent": "sac", "hyperparameters": {"learning_rat": 1e-3}}]}, "did you mean 'learning_rate'"),
+    ({"agents": [{"agent": "ppo", "grid": {"gamma": [0.99, 2.0]}}]}, r"gamma must lie in \(0, 1\]"),
+    ({"env": "NoSuchEnv-v0"}, "env 'NoSuchEnv-v0'"),
+    ({"evaluate_episodes": "many"}, "evaluate_episodes"),
+    ({"evaluate_every": -1}, "evaluate_every"),
+    ({"trajectory_episodes": 0}, "trajectory_episodes"),
+    ({"agents": [{"agent": "tlps", "note": 5}]}, "note must be a string"),
+    ({"variants": {"tiny": {"seeds": [0]}}, "agents": [{"agent": "tlps", "variants": {"tinyy": {"skip": True}}}]},
+     r"\['tinyy'\] is not a variant of the config \(\['tiny'\]\)"),
 ])
 def test_bad_configs_name_the_culprit(change, culprit):
     with pytest.raises(ConfigError, match=culprit.replace("{", r"\{")):
@@ -173,6 +186,23 @@ def test_paper_config_builds_sb3_agents_without_the_librarys_defaults(algo):
     assert {k: getattr(config, k) for k in PAPER_GRID_SB3} == PAPER_GRID_SB3
     assert agent.sb3_env.observation_space.shape == (6,)  # the car's own observation, no monitor view
     assert not hasattr(agent.model.get_env(), "obs_rms")  # no VecNormalize
+
+
+def test_only_a_pattern_that_matches_no_label_is_an_error_listing_the_labels(tmp_path, capsys):
+    sweep = expand_config(config())
+    with pytest.raises(ConfigError, match=r"--only 'stand-in\*x' matches no label of tiny \(case counts\): "
+                                          r"'stand-in r=0.5', 'stand-in r=0.25'"):
+        run_sweep(sweep, tmp_path / "out", workers=0, only=["stand-in*", "stand-in*x"])
+    assert not (tmp_path / "out").exists()  # refused before anything was written
+    path = tmp_path / "tiny.toml"
+    path.write_text('name = "tiny"\nenv = "TLCarNav-v0"\nseeds = 1\niterations = 1\n[[agents]]\nagent = "reps"\n')
+    with pytest.raises(SystemExit):
+        runner_main([str(path), "--only", "REPS", "--out", str(tmp_path / "cli")])
+    assert "--only 'REPS' matches no label of tiny (case counts): 'reps'" in capsys.readouterr().err
+    (tmp_path / "a_file").write_text("")
+    with pytest.raises(SystemExit):
+        runner_main([str(path), "--out", str(tmp_path / "a_file")])
+    assert "is a file: name a folder" in capsys.readouterr().err
 
 
 def test_tiny_sweep_runs_in_parallel_resumes_and_aggregates(tmp_path, capsys):
