@@ -266,10 +266,12 @@ class SB3Agent(Agent):
         if normalize is not None:
             normalize.setdefault("gamma", kwargs.get("gamma", _default_argument(self.algo_class, "gamma", 0.99)))
             self.vec_normalize = VecNormalize(self.sb3_env, **normalize)
-        policy = self.config.policy or (
-            "MultiInputPolicy" if isinstance(self.observation_space, gym.spaces.Dict) else "MlpPolicy"
-        )
-        self.model = self.algo_class(policy, self._training_env(), seed=self.seed, verbose=0, device="cpu", **kwargs)
+        policy = self.config.policy or _default_policy(self.algo_class, self.observation_space)
+        try:
+            self.model = self.algo_class(policy, self._training_env(), seed=self.seed, verbose=0, device="cpu",
+                                         **kwargs)
+        except AssertionError as error:  # SB3 asserts what it supports (DQN: Discrete actions only, ...)
+            raise ValueError(f"{self.algo_class.__name__} cannot train on this env: {error}") from error
         self._install_schedules()
         self._quiet_logger()
 
@@ -614,6 +616,24 @@ def _make_sync_vec(env_id: str, n_envs: int, env_kwargs: Mapping[str, Any],
         detail = ", ".join(f"{k}={env_kwargs[k]!r} (from {sources[k]})" for k in refused)
         raise TypeError(f"{env_id} does not take the env keyword {detail}: {error}. tl_reward='terminal' "
                         f"adds no view keywords, hyperparams=False no {MARKOV_ENV_KWARGS}") from error
+
+
+def _default_policy(algo_class: type, observation_space: gym.Space) -> str:
+    """``MlpPolicy`` (``MultiInputPolicy`` for Dict observations), or the algorithm's own kind of it.
+
+    sb3-contrib's RecurrentPPO names its policies ``MlpLstmPolicy`` and ``MultiInputLstmPolicy``: the first alias
+    of the algorithm that starts as the plain name would is taken.
+
+    Example:
+        >>> from stable_baselines3 import SAC
+        >>> _default_policy(SAC, gym.spaces.Box(-1, 1, (3,)))
+        'MlpPolicy'
+    """
+    kind = "MultiInput" if isinstance(observation_space, gym.spaces.Dict) else "Mlp"
+    aliases = list(getattr(algo_class, "policy_aliases", {}))
+    if f"{kind}Policy" in aliases or not aliases:
+        return f"{kind}Policy"
+    return next((alias for alias in aliases if alias.startswith(kind)), f"{kind}Policy")
 
 
 def _single_env_factories(env: Any, env_kwargs: dict[str, Any], n_envs: int) -> list[Any]:

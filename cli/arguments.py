@@ -90,6 +90,22 @@ def parse_snapshots(text: str) -> list[int]:
     return picks
 
 
+def parse_seed(text: str) -> int:
+    """``--seed``: an int >= 0, as numpy's seeding takes (it said "expected non-negative integer", naming no flag).
+
+    Example:
+        >>> parse_seed("7")
+        7
+    """
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expects an int >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expects an int >= 0, got {value}")
+    return value
+
+
 def parse_hyperparameters(extra: Sequence[str]) -> dict[str, Any]:
     """Turn ``--name value`` pairs into a dict (dashes in names become underscores).
 
@@ -158,7 +174,7 @@ def build_parser(with_hyperparameters: bool = False) -> argparse.ArgumentParser:
     train.add_argument("--iterations", type=int, default=None,
                        help="policy updates (default: 50; SB3 agents: the task's n_timesteps budget rounded up to "
                             "whole iterations of steps_per_iteration, else 50)")
-    train.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    train.add_argument("--seed", type=parse_seed, default=0, help="random seed, >= 0 (default: 0)")
     train.add_argument("--out", type=Path, required=True, help="run folder to write")
     train.add_argument("--snapshots", type=parse_snapshots, default=None,
                        help="iterations whose sampled trajectories are plotted, e.g. 1,10,30 (default: spread)")
@@ -172,7 +188,7 @@ def build_parser(with_hyperparameters: bool = False) -> argparse.ArgumentParser:
     evaluate = commands.add_parser("eval", help="evaluate a trained run")
     evaluate.add_argument("run", type=Path, help="run folder written by `tl-gym train`")
     evaluate.add_argument("--episodes", type=int, default=100, help="fresh episodes (default: 100)")
-    evaluate.add_argument("--seed", type=int, default=12345, help="seed of the first episode (default: 12345)")
+    evaluate.add_argument("--seed", type=parse_seed, default=12345, help="seed of the first episode (default: 12345)")
     evaluate.add_argument("--stochastic", action="store_true", help="sample actions instead of the mean")
     evaluate.add_argument("--gif", type=Path, default=None, help="also save a GIF of one episode here")
     evaluate.add_argument("--best", action="store_true", help="the run's best_agent.zip (train --eval-every)")

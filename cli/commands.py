@@ -288,9 +288,13 @@ def evaluate(args: argparse.Namespace) -> int:
     env = build_env(run)
     saved = args.run / (BEST_FILE if args.best else AGENT_FILE)
     if not saved.exists():
-        why = ("the run was trained without --eval-every" if args.best
+        runner_run = not (args.run / RUN_FILE).exists()
+        why = ("the experiment runner keeps no best agent, only the final one (drop --best)" if args.best and
+               runner_run else "the run was trained without --eval-every" if args.best
                else "train writes it when training ends (was the run stopped?)")
         raise FileNotFoundError(f"{saved} not found: {why}")
+    if args.gif is not None:  # before the evaluation and the rendering, not after them
+        check_gif_path(args.gif)
     agent = Agent.load(saved, env=None if isinstance(env, str) else env)
     result = agent.evaluate(n_episodes=args.episodes, seed=args.seed, deterministic=not args.stochastic)
     kwargs = f" {run['env_kwargs']}" if run["env_kwargs"] else ""
@@ -324,6 +328,15 @@ def record_episode(agent: Any, env: Any, seed: int, deterministic: bool = True) 
     return frames
 
 
+def check_gif_path(path: Path) -> None:
+    """Refuse a ``--gif`` path that cannot be written: a folder, or a file under something that is not one."""
+    if path.is_dir():
+        raise ValueError(f"--gif {path} is a folder: name a .gif file")
+    parent = next((p for p in path.parents if p.exists()), None)
+    if parent is not None and not parent.is_dir():
+        raise ValueError(f"--gif {path}: {parent} is a file, not a folder")
+
+
 def save_gif(frames: Sequence[Any], path: Path, fps: int = 20) -> None:
     """Write RGB frames as a looping GIF (needs imageio: ``pip install tl_gym[render]``)."""
     try:
@@ -351,3 +364,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (TLGymError, ValueError, TypeError, OSError, ImportError, gym.error.Error) as error:
         print(f"tl-gym {args.command}: error: {error}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C: one line, not a traceback through the callbacks
+        kept = f"; {args.out}/history.csv keeps the iterations done" if args.command == "train" else ""
+        print(f"\ntl-gym {args.command}: interrupted{kept}", file=sys.stderr)
+        return 130

@@ -347,3 +347,38 @@ def test_the_documented_own_formula_example_learns(tmp_path, capsys):
     out = capsys.readouterr().out.strip().splitlines()[-1]
     success = float(re.fullmatch(r".*: 100 episodes, mean robustness \S+, success rate (\S+)%", out).group(1))
     assert success >= 95.0, out  # 100.0 here; the margin is for other BLAS builds
+
+
+def test_a_negative_seed_names_the_flag(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        main(["train", "--agent", "reps", "--seed", "-1", "--out", str(tmp_path / "r")])
+    assert "argument --seed: expects an int >= 0, got -1" in capsys.readouterr().err
+
+
+def test_ctrl_c_is_one_line_saying_what_is_kept(tmp_path, capsys, monkeypatch):
+    from tl_gym.agents import REPS
+
+    def interrupted(self, iteration):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(REPS, "_update", interrupted)
+    out = tmp_path / "r"
+    assert main(["train", "--agent", "reps", "--n-episodes", "2", "--iterations", "2", "--out", str(out),
+                 "--quiet"]) == 130
+    assert capsys.readouterr().err.strip() == f"tl-gym train: interrupted; {out}/history.csv keeps the iterations done"
+
+
+def test_eval_gif_path_is_checked_before_the_evaluation_and_best_of_a_runner_run_says_why(car_run, tmp_path,
+                                                                                          capsys):
+    (tmp_path / "a_file").write_text("")
+    assert main(["eval", str(car_run), "--gif", str(tmp_path / "a_file" / "x.gif")]) == 2
+    err = capsys.readouterr().err
+    assert "a_file is a file, not a folder" in err and "episodes" not in err
+    assert main(["eval", str(car_run), "--gif", str(tmp_path)]) == 2
+    assert "is a folder: name a .gif file" in capsys.readouterr().err
+    runner_run = tmp_path / "runner_run"
+    runner_run.mkdir()
+    (runner_run / "spec.json").write_text(json.dumps({"env": "TLCarNav-v0", "env_kwargs": {"task": 1},
+                                                      "agent": "reps"}))
+    assert main(["eval", str(runner_run), "--best"]) == 2
+    assert "the experiment runner keeps no best agent, only the final one (drop --best)" in capsys.readouterr().err

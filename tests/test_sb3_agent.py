@@ -672,3 +672,13 @@ def test_sb3_records_each_episode_as_with_the_zoos_monitor():
     episodes = list(agent.model.ep_info_buffer)
     assert len(episodes) == agent.history[-1]["episodes"] == 4  # 64 steps of 16-step episodes
     assert all(episode["l"] == 16 and np.isfinite(episode["r"]) for episode in episodes)
+
+
+def test_an_algorithm_that_cannot_take_the_env_says_so_and_recurrent_ppo_gets_its_own_policy():
+    """SB3's AssertionError (DQN on Box actions) is a ValueError naming the algorithm; RecurrentPPO has no
+    MlpPolicy, so its own MlpLstmPolicy is the default (it failed with "Policy MlpPolicy unknown")."""
+    with pytest.raises(ValueError, match=r"DQN cannot train on this env: The algorithm only supports"):
+        SB3Agent("TLCarNav-v0", "dqn")
+    pytest.importorskip("sb3_contrib")
+    agent = SB3Agent("TLPendulum-v0", "recurrentppo", n_envs=1, n_steps=64, batch_size=32, steps_per_iteration=64)
+    assert type(agent.model.policy).__name__ == "RecurrentActorCriticPolicy"
