@@ -37,7 +37,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--per-seed", type=Path, metavar="OUT",
                         help="write tables.md, summary.csv and per-label curves to OUT (the research report)")
     args = parser.parse_args(argv)
-    runs = load_runs(args.out_dir)
+    try:
+        runs = load_runs(args.out_dir)
+    except FileNotFoundError as error:  # a folder that is no sweep's: one line, not a traceback
+        parser.error(str(error))
     if not runs:
         print(f"no finished runs in {args.out_dir}")
         return 1

@@ -84,10 +84,11 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, workers: int | None = None, ray
             (report.skipped.append(run.run_id) if is_done(out_dir / "runs" / run.run_id) else pending.append(run))
     start = time.perf_counter()
     if pending and ray_address is not None:
-        _run_on_ray(pending, out_dir, ray_address, report)
+        _run_on_ray(pending, out_dir, ray_address, report, sweep.name)
     elif pending and workers == 0:
-        for run in pending:
+        for count, run in enumerate(pending, 1):
             report.attempt(run, lambda run=run: execute_run(run, out_dir / "runs" / run.run_id, checkpoint_every))
+            print(f"{sweep.name}: {count}/{len(pending)} runs", file=sys.stderr)  # as the workers' progress says
     elif pending:
         # spawn: a fresh interpreter per worker, no torch/thread state inherited through fork
         with futures.ProcessPoolExecutor(min(workers or os.cpu_count() or 1, len(pending)),
@@ -165,7 +166,7 @@ def _exit_on_sigterm(signum: int, frame: Any) -> None:
     raise SystemExit(128 + signum)
 
 
-def _run_on_ray(pending: Sequence[RunSpec], out_dir: Path, address: str, report: SweepReport) -> None:
+def _run_on_ray(pending: Sequence[RunSpec], out_dir: Path, address: str, report: SweepReport, name: str) -> None:
     try:
         import ray
     except ImportError as exc:
@@ -180,6 +181,7 @@ def _run_on_ray(pending: Sequence[RunSpec], out_dir: Path, address: str, report:
         (ref,), _ = ray.wait(list(refs), num_returns=1)
         run = refs.pop(ref)
         report.attempt(run, lambda ref=ref, run=run: install_files(ray.get(ref), out_dir / "runs" / run.run_id))
+        print(f"{name}: {len(pending) - len(refs)}/{len(pending)} runs", file=sys.stderr)
 
 
 def default_out_dir(sweep: Sweep) -> Path:

@@ -549,3 +549,17 @@ def test_a_real_agent_resumes_with_its_state(tmp_path, monkeypatch, agent, hyper
     if agent == "reps":  # its random state is saved too: the resumed run is the uninterrupted one
         assert execute_run(spec, tmp_path / "uninterrupted")["final_mean_robustness"] == summary[
             "final_mean_robustness"]
+
+
+def test_serial_runs_say_their_progress_and_the_report_of_a_folder_without_a_sweep_is_one_line(tmp_path, capsys):
+    """--workers 0 printed nothing until the end; `benchmarks.report` on a folder that is no sweep's gave a
+    traceback."""
+    from benchmarks.report import main as report_main
+
+    sweep = expand_config(config(tasks=[1], seeds=[0], iterations=1))
+    run_sweep(sweep, tmp_path / "serial", workers=0)
+    err = capsys.readouterr().err
+    assert f"{sweep.name}: 1/2 runs" in err and f"{sweep.name}: 2/2 runs" in err
+    with pytest.raises(SystemExit):
+        report_main([str(tmp_path / "nothing")])
+    assert "holds no sweep.json: run `python -m benchmarks.runner CONFIG` first" in capsys.readouterr().err
