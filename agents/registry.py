@@ -116,19 +116,22 @@ def check_hyperparameters(name: str, hyperparameters: Mapping[str, Any]) -> None
     """Check the hyperparameters of agent ``name`` without building an env (a run config, before any run starts).
 
     TLPS and REPS check their config dataclass; an SB3 algorithm its settings and arguments
-    (`tl_gym.agents.sb3_settings.check_sb3_hyperparameters`); a ``module:Name`` agent its ``_make_config``, when
-    it has one. The messages are the agents' own.
+    (`tl_gym.agents.sb3_settings.check_sb3_hyperparameters`). A ``module:Name`` agent is left to its own
+    constructor (it may take what its base class does not, as an `SB3Agent` subclass fixing its algorithm).
+    The messages are the agents' own.
 
     Raises:
         ValueError, TypeError: a hyperparameter the agent does not take, or a bad value.
+        ImportError: an SB3 name without stable-baselines3 installed.
     """
-    klass = agent_class(name)
-    if ":" not in name and name.lower() not in EPISODIC_AGENTS:
+    if ":" in name:
+        return
+    if is_episodic(name):
+        agent_class(name)._make_config(dict(hyperparameters))
+    else:
         from tl_gym.agents.sb3_settings import check_sb3_hyperparameters
 
         check_sb3_hyperparameters(name, hyperparameters)
-    elif hasattr(klass, "_make_config"):
-        klass._make_config(dict(hyperparameters))
 
 
 def make_agent(name: str, env: Any, *, seed: int | None = None, env_kwargs: Mapping[str, Any] | None = None,

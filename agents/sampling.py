@@ -24,6 +24,7 @@ import numpy as np
 
 from tl_gym.time_limits import episode_length, is_count
 from tl_gym.tltl.ast import Formula
+from tl_gym.wrapper import TLTLRewardWrapper
 
 
 def registered_spec(env_id: str) -> gym.envs.registration.EnvSpec:
@@ -416,17 +417,22 @@ def infer_horizon(venv: gym.vector.VectorEnv) -> int | None:
     What the reward wrapper recorded of the env it wraps (its ``episode_length``: time limits inside it, the
     spec's ``max_episode_steps``, a ``horizon`` attribute; read from an `AsyncVectorEnv`'s workers too), a
     ``horizon`` attribute (on the vector env, else on its sub-envs; a batched simulator's), ``params.horizon``
-    (the car's parameters), the vector env's spec's ``max_episode_steps`` and, for a `SyncVectorEnv`, its first
-    sub-env's `episode_length` (an env that reports its robustness itself). A time limit outside the wrapper
+    (the car's parameters) and, for a `SyncVectorEnv`, its first sub-env's `episode_length` (an env that reports
+    its robustness itself); only when none says anything, the vector env's spec. A time limit outside the wrapper
     that cuts its episodes is refused by `check_time_limits` before this is asked.
     """
     params = env_attribute(venv, "params")
-    stated = [env_attribute(venv, "episode_length"), env_attribute(venv, "horizon"),
-              getattr(params, "horizon", None), getattr(getattr(venv, "spec", None), "max_episode_steps", None)]
+    stated = [env_attribute(venv, "episode_length"), env_attribute(venv, "horizon"), getattr(params, "horizon", None)]
     if isinstance(venv, gym.vector.SyncVectorEnv):  # in this process: a sub-env's own time limits, wrapper or not
         stated.append(episode_length(venv.envs[0]))
     counts = [int(value) for value in stated if is_count(value)]
-    return min(counts) if counts else None
+    if counts:
+        return min(counts)
+    # what the envs say is what they do: gym.make_vec(id, max_episode_steps=T) keeps T in the spec's kwargs and
+    # the registry's value in its max_episode_steps; only an env that says nothing is read from the vector spec
+    spec = getattr(venv, "spec", None)
+    steps = None if spec is None else spec.kwargs.get("max_episode_steps", spec.max_episode_steps)
+    return int(steps) if is_count(steps) else None
 
 
 def check_time_limits(venv: gym.vector.VectorEnv) -> None:
@@ -447,7 +453,16 @@ def check_time_limits(venv: gym.vector.VectorEnv) -> None:
     if not venv.call("has_wrapper_attr", "episode_length")[0]:  # no TLTLRewardWrapper: the env's own business
         return
     own = venv.get_attr("episode_length")[0]
-    limit = env_attribute(venv, "_max_episode_steps")
+    if isinstance(venv, gym.vector.SyncVectorEnv):  # in this process: every TimeLimit outside the wrapper
+        outside = []
+        layer = venv.envs[0]
+        while isinstance(layer, gym.Wrapper) and not isinstance(layer, TLTLRewardWrapper):
+            if isinstance(layer, gym.wrappers.TimeLimit):
+                outside.append(layer._max_episode_steps)
+            layer = layer.env
+        limit = min(outside) if outside else None
+    else:  # another process's env: the outermost TimeLimit, as Gymnasium's attribute lookup finds it
+        limit = env_attribute(venv, "_max_episode_steps")
     if limit is None or (own is not None and limit >= own):
         return
     raise ValueError(

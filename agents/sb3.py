@@ -38,6 +38,7 @@ import inspect
 import io
 import os
 import pickle
+import re
 import warnings
 from collections.abc import Iterator, Mapping
 from pathlib import Path
@@ -270,8 +271,8 @@ class SB3Agent(Agent):
         try:
             self.model = self.algo_class(policy, self._training_env(), seed=self.seed, verbose=0, device="cpu",
                                          **kwargs)
-        except AssertionError as error:  # SB3 asserts what it supports (DQN: Discrete actions only, ...)
-            raise ValueError(f"{self.algo_class.__name__} cannot train on this env: {error}") from error
+        except AssertionError as error:  # SB3 asserts what it supports (DQN: Discrete actions only, batch_size > 1)
+            raise ValueError(f"{self.algo_class.__name__} refused this env or these settings: {error}") from error
         self._install_schedules()
         self._quiet_logger()
 
@@ -610,7 +611,8 @@ def _make_sync_vec(env_id: str, n_envs: int, env_kwargs: Mapping[str, Any],
         return gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="sync", **env_kwargs)
     except TypeError as error:
         own_words = str(error).split(" was raised from the environment creator")[0]  # Gymnasium appends all kwargs
-        refused = [k for k in sources if f"'{k}'" in own_words]
+        culprit = re.search(r"'([^']+)'", own_words)  # the env names its culprit first; a hint may quote another
+        refused = [k for k in sources if culprit is not None and culprit.group(1) == k]
         if not refused:
             raise
         detail = ", ".join(f"{k}={env_kwargs[k]!r} (from {sources[k]})" for k in refused)

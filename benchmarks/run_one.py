@@ -16,6 +16,7 @@ import csv
 import io
 import json
 import os
+import pickle
 import shutil
 import sys
 import tempfile
@@ -29,7 +30,6 @@ from tl_gym.agents.serialization import write_atomic
 
 from benchmarks.provenance import code_version
 from benchmarks.sweep_config import RunSpec
-from tl_gym.errors import IncompatibleSaveError
 
 DONE, SPEC, HISTORY, TRAJECTORIES, AGENT = "done.json", "spec.json", "history.csv", "trajectories.npz", "agent.zip"
 #: A run's latest checkpoint: a folder of the agent (written last: it marks a whole checkpoint), the replay buffer
@@ -108,7 +108,7 @@ def execute_run(spec: RunSpec, run_dir: str | Path, checkpoint_every: int = 0,
         write_atomic(run_dir / TRAJECTORIES, compressed_arrays(traces))
     write_atomic(run_dir / DONE, json.dumps(summary, indent=1).encode())
     for name in (CHECKPOINT, CHECKPOINT_NEW, CHECKPOINT_OLD):
-        shutil.rmtree(run_dir / name, ignore_errors=True)
+        _discard(run_dir / name)
     return summary
 
 
@@ -124,7 +124,7 @@ def save_checkpoint(agent: Any, run_dir: Path, traces: Mapping[str, np.ndarray],
     keeps a whole checkpoint, the new one or the last (`_whole_checkpoint` finds it).
     """
     new, current, old = run_dir / CHECKPOINT_NEW, run_dir / CHECKPOINT, run_dir / CHECKPOINT_OLD
-    shutil.rmtree(new, ignore_errors=True)
+    _discard(new)
     new.mkdir()
     if getattr(agent, "off_policy", False):
         agent.save_replay_buffer(new / REPLAY_BUFFER)
@@ -132,44 +132,60 @@ def save_checkpoint(agent: Any, run_dir: Path, traces: Mapping[str, np.ndarray],
         write_atomic(new / TRAJECTORIES, compressed_arrays(traces))
     write_atomic(new / STATE, json.dumps(dict(state), indent=1).encode())
     agent.save(new / AGENT)
-    shutil.rmtree(old, ignore_errors=True)
+    _discard(old)
     if current.exists():
         current.rename(old)
     new.rename(current)
-    shutil.rmtree(old, ignore_errors=True)
+    _discard(old)
 
 
-def _whole_checkpoint(run_dir: Path) -> Path | None:
-    """The newest whole checkpoint folder of ``run_dir`` (one holding ``agent.zip``), whatever killed the last save."""
-    for name in (CHECKPOINT_NEW, CHECKPOINT, CHECKPOINT_OLD):  # newest first: .new is whole only once written
-        if (run_dir / name / AGENT).is_file():
-            return run_dir / name
-    return None
+def _discard(folder: Path) -> None:
+    """Remove a checkpoint folder, its ``agent.zip`` first.
+
+    A removal cut short never leaves a folder that looks whole (one holding ``agent.zip``) with its other files gone.
+    """
+    (folder / AGENT).unlink(missing_ok=True)
+    shutil.rmtree(folder, ignore_errors=True)
+
+
+def _whole_checkpoints(run_dir: Path) -> list[Path]:
+    """``run_dir``'s whole checkpoint folders (holding ``agent.zip``), newest first, whatever killed the last save."""
+    return [run_dir / name for name in (CHECKPOINT_NEW, CHECKPOINT, CHECKPOINT_OLD)  # .new: whole once written
+            if (run_dir / name / AGENT).is_file()]
 
 
 def load_checkpoint(spec: RunSpec, run_dir: Path) -> tuple[Any, dict[str, np.ndarray], dict[str, Any]] | None:
-    """The agent, sampled trajectories and state of ``run_dir``'s checkpoint; ``None`` if it has none for ``spec``."""
-    from tl_gym.agents.registry import agent_class
+    """The agent, sampled trajectories and state of ``run_dir``'s checkpoint; ``None`` if it has none for ``spec``.
 
-    folder = _whole_checkpoint(run_dir)
+    The newest whole checkpoint that loads; one that does not (a file lost to a kill, code too different) gives
+    way to the one before it.
+    """
     try:
         same_spec = json.loads((run_dir / SPEC).read_text()) == json.loads(json.dumps(spec.to_json()))
     except (OSError, ValueError):
         return None
-    if not same_spec or folder is None:
+    if not same_spec:
         return None
-    try:
-        agent = agent_class(spec.agent).load(folder / AGENT)
-    except IncompatibleSaveError as error:  # saved by code that differs too much: start again
-        print(f"{run_dir}: checkpoint not loadable ({error}); restarting the run", file=sys.stderr)
-        return None
-    if (folder / REPLAY_BUFFER).is_file():
-        agent.load_replay_buffer(folder / REPLAY_BUFFER)
+    for folder in _whole_checkpoints(run_dir):
+        try:
+            return _read_checkpoint(spec, folder)
+        except (OSError, ValueError, EOFError, pickle.UnpicklingError) as error:  # IncompatibleSaveError: ValueError
+            print(f"{folder}: checkpoint not loadable ({error}); trying an earlier one", file=sys.stderr)
+    return None
+
+
+def _read_checkpoint(spec: RunSpec, folder: Path) -> tuple[Any, dict[str, np.ndarray], dict[str, Any]]:
+    from tl_gym.agents.registry import agent_class
+
+    state = json.loads((folder / STATE).read_text())  # read first: a folder without it is not whole
+    agent = agent_class(spec.agent).load(folder / AGENT)
+    if getattr(agent, "off_policy", False):
+        agent.load_replay_buffer(folder / REPLAY_BUFFER)  # an off-policy agent's buffer is part of its state
     traces = {}
     if (folder / TRAJECTORIES).is_file():
         with np.load(folder / TRAJECTORIES) as saved:
             traces = {name: saved[name] for name in saved.files}
-    return agent, traces, json.loads((folder / STATE).read_text())
+    return agent, traces, state
 
 
 def read_history_rows(path: str | Path) -> list[dict[str, str]]:

@@ -69,10 +69,6 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, workers: int | None = None, ray
     to run; ``checkpoint_every``: iterations between a local run's checkpoints (`execute_run`). A failed run
     leaves no ``done.json`` and is retried by the next sweep, from its checkpoint if it has one.
     """
-    unmatched = [p for p in only if not any(fnmatch.fnmatchcase(run.label, p) for run in sweep.runs)]
-    if unmatched:  # checked first: a typo ran nothing and said "0 run(s) finished"
-        labels = ", ".join(dict.fromkeys(repr(run.label) for run in sweep.runs))
-        raise ConfigError(f"--only {unmatched[0]!r} matches no label of {sweep.name} (case counts): {labels}")
     out_dir = Path(out_dir)
     (out_dir / "runs").mkdir(parents=True, exist_ok=True)
     manifest = {"name": sweep.name, "description": sweep.description,
@@ -99,6 +95,23 @@ def run_sweep(sweep: Sweep, out_dir: str | Path, workers: int | None = None, ray
             _wait_with_progress(jobs, report, sweep.name, out_dir)
     report.wall_time = time.perf_counter() - start
     return report
+
+
+def check_only(sweeps: Sequence[Sweep], only: Sequence[str]) -> None:
+    """Refuse an ``--only`` pattern that matches no label of the sweeps (a typo ran nothing and exited 0).
+
+    Commands that run several configs (`benchmarks.suite`, `benchmarks.reproduce_paper`) pass them all: a
+    pattern needs to match in one of them only.
+
+    Raises:
+        ConfigError: naming the pattern and listing the labels.
+    """
+    labels = list(dict.fromkeys(run.label for sweep in sweeps for run in sweep.runs))
+    unmatched = [p for p in only if not any(fnmatch.fnmatchcase(label, p) for label in labels)]
+    if unmatched:
+        names = ", ".join(sweep.name for sweep in sweeps)
+        raise ConfigError(f"--only {unmatched[0]!r} matches no label of {names} (case counts): "
+                          f"{', '.join(map(repr, labels))}")
 
 
 def iterations_done(runs: Sequence[RunSpec], out_dir: str | Path) -> int:
@@ -236,15 +249,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as exc:
         parser.error(str(exc))
     out_dir = args.out or default_out_dir(sweep)
-    if out_dir.exists() and not out_dir.is_dir():
-        parser.error(f"--out {out_dir} is a file: name a folder for the results")
+    blocked = next((p for p in (out_dir, *out_dir.parents) if p.exists() and not p.is_dir()), None)
+    if blocked is not None:
+        parser.error(f"--out {out_dir}: {blocked} is a file: name a folder for the results")
     try:
-        report = run_with_options(sweep, out_dir, args)
+        check_only([sweep], args.only)
     except ConfigError as exc:
         parser.error(str(exc))
+    try:
+        report = run_with_options(sweep, out_dir, args)
     except KeyboardInterrupt:  # the workers are stopped (`_workers_die_with_the_sweep`); say how to go on
-        print(f"\ninterrupted: finished runs keep their done.json; rerun the same command to resume the others "
-              f"from their last checkpoints (--checkpoint-every {args.checkpoint_every})", file=sys.stderr)
+        resume = (f"resume the others from their last checkpoints (--checkpoint-every {args.checkpoint_every})"
+                  if args.checkpoint_every else "run the others again (--checkpoint-every 0 wrote no checkpoint)")
+        print(f"\ninterrupted: finished runs keep their done.json; rerun the same command to {resume}",
+              file=sys.stderr)
         return 130
     print(f"{sweep.name}: {len(report.finished)} run(s) finished, {len(report.skipped)} already done, "
           f"{len(report.failed)} failed, {report.wall_time:.1f} s; results in {out_dir}")

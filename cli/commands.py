@@ -44,9 +44,9 @@ import gymnasium as gym
 import numpy as np
 from tl_gym.agents import Agent
 from tl_gym.agents.callbacks import EvalCallback, HistoryCSV, as_callback
-from tl_gym.agents.evaluation import as_vector_env, collect_episodes, predictor_controller
+from tl_gym.agents.evaluation import UNSTATED_EPISODE_GUARD, as_vector_env, collect_episodes, predictor_controller
 from tl_gym.agents.registry import is_episodic, make_agent
-from tl_gym.agents.sampling import env_attribute, run_episodes
+from tl_gym.agents.sampling import env_attribute, infer_horizon, run_episodes
 
 import tl_gym
 from tl_gym.checks import check_count
@@ -322,7 +322,9 @@ def record_episode(agent: Any, env: Any, seed: int, deterministic: bool = True) 
         frames.append(env.render())
         return policy(t, obs, episode_start)
 
-    run_episodes(as_vector_env(env), act, seed=seed)
+    venv = as_vector_env(env)
+    guard = None if infer_horizon(venv) is not None else UNSTATED_EPISODE_GUARD  # as evaluation's: never forever
+    run_episodes(venv, act, seed=seed, max_steps=guard)
     frames.append(env.render())  # the last state: the next-step autoreset has not reset it
     env.close()
     return frames

@@ -519,6 +519,8 @@ def test_a_time_limit_outside_the_reward_wrapper_is_refused_at_construction(agen
         make(gym.wrappers.TimeLimit(_walk(time_limit=20), 5))
     with pytest.raises(ValueError, match="a TimeLimit of 5 steps wraps"):  # the only limit there is
         make(gym.wrappers.TimeLimit(_walk(), 5))
+    with pytest.raises(ValueError, match="a TimeLimit of 5 steps wraps"):  # the cutting one under a longer one
+        make(gym.wrappers.TimeLimit(gym.wrappers.TimeLimit(_walk(time_limit=20), 5), 500))
     longer = make(gym.wrappers.TimeLimit(_walk(time_limit=20), 30))  # cuts nothing: the wrapper ends first
     assert longer.formula == tl_gym.parse("F(x > 1)")
 
@@ -533,6 +535,16 @@ def test_the_time_limit_checks_reach_into_async_workers():
     inside = gym.make_vec("TLPendulum-v0", num_envs=2, vectorization_mode="async", horizon=150)
     assert REPS(inside, n_episodes=2).horizon == 150
     inside.close()
+
+
+def test_a_make_vec_time_limit_inside_the_wrapper_is_the_horizon_not_the_registrys():
+    """gym.make_vec(id, max_episode_steps=T) keeps the registry's value in its spec's max_episode_steps: what the
+    envs themselves state wins."""
+    def wrap(env):
+        return tl_gym.TLTLRewardWrapper(env, "F(cos_th > 0.9)", signals={"cos_th": 0})
+
+    venv = gym.make_vec("Pendulum-v1", num_envs=2, wrappers=[wrap], max_episode_steps=30)
+    assert REPS(venv, n_episodes=2).learn(1).horizon == 30
 
 
 def test_the_horizon_is_the_least_the_env_states():

@@ -160,3 +160,4 @@ def test_errors_name_their_culprit():
             BatchPrefixMonitor(parse("F(a > 1) & G(b < 2)"), 2).update({"a": np.ones(2), "b": bad})
     one = BatchPrefixMonitor(parse("F(a > 1) & G(b < 2)"), 2)  # one number, a list, ints: every trace alike
     assert one.update({"a": [0.0, 3], "b": np.array([1])}).tolist() == [-1.0, 1.0]
+    assert one.update({"a": np.array([0.0, 3.0]), "b": 1}).tolist() == [-1.0, 1.0]  # a plain number too

@@ -23,7 +23,7 @@ import tomllib
 from benchmarks import results
 from benchmarks.report import write_per_seed_report
 from benchmarks.run_one import AGENT, CHECKPOINT, DONE, HISTORY, execute_run, install_files, run_files
-from benchmarks.runner import iterations_done, run_sweep
+from benchmarks.runner import check_only, iterations_done, run_sweep
 from benchmarks.runner import main as runner_main
 from benchmarks.sweep_config import ConfigError, RunSpec, expand_config, load_config
 
@@ -192,17 +192,19 @@ def test_only_a_pattern_that_matches_no_label_is_an_error_listing_the_labels(tmp
     sweep = expand_config(config())
     with pytest.raises(ConfigError, match=r"--only 'stand-in\*x' matches no label of tiny \(case counts\): "
                                           r"'stand-in r=0.5', 'stand-in r=0.25'"):
-        run_sweep(sweep, tmp_path / "out", workers=0, only=["stand-in*", "stand-in*x"])
-    assert not (tmp_path / "out").exists()  # refused before anything was written
+        check_only([sweep], ["stand-in*", "stand-in*x"])
+    other = expand_config(config(name="other", agents=[{"label": "x", "agent": STAND_IN}]))
+    check_only([sweep, other], ["x", "stand-in*"])  # several configs: a pattern matches in one of them
     path = tmp_path / "tiny.toml"
     path.write_text('name = "tiny"\nenv = "TLCarNav-v0"\nseeds = 1\niterations = 1\n[[agents]]\nagent = "reps"\n')
     with pytest.raises(SystemExit):
         runner_main([str(path), "--only", "REPS", "--out", str(tmp_path / "cli")])
     assert "--only 'REPS' matches no label of tiny (case counts): 'reps'" in capsys.readouterr().err
     (tmp_path / "a_file").write_text("")
-    with pytest.raises(SystemExit):
-        runner_main([str(path), "--out", str(tmp_path / "a_file")])
-    assert "is a file: name a folder" in capsys.readouterr().err
+    for out in (tmp_path / "a_file", tmp_path / "a_file" / "sub"):
+        with pytest.raises(SystemExit):
+            runner_main([str(path), "--out", str(out)])
+        assert "a_file is a file: name a folder" in capsys.readouterr().err
 
 
 def test_tiny_sweep_runs_in_parallel_resumes_and_aggregates(tmp_path, capsys):
@@ -479,7 +481,8 @@ def test_a_stopped_run_resumes_from_its_checkpoint(tmp_path):
         "final_mean_robustness"]
 
 
-@pytest.mark.parametrize("killed", ["writing the new checkpoint", "between the two renames"])
+@pytest.mark.parametrize("killed", ["writing the new checkpoint", "between the two renames",
+                                    "removing a promoted checkpoint.new"])
 def test_a_run_killed_while_it_checkpoints_resumes_from_a_whole_checkpoint(tmp_path, killed):
     """The new checkpoint is written aside and swapped in: a kill at any moment leaves a whole one to resume from
     (a kill after the old agent was deleted used to restart the run from iteration 0)."""
@@ -492,9 +495,12 @@ def test_a_run_killed_while_it_checkpoints_resumes_from_a_whole_checkpoint(tmp_p
     if killed == "writing the new checkpoint":  # a partial .new beside the last whole checkpoint
         (run_dir / CHECKPOINT_NEW).mkdir()
         (run_dir / CHECKPOINT_NEW / "state.json").write_text("{}")
-    else:  # the last checkpoint moved aside, the new one not yet in place
+    elif killed == "between the two renames":  # the last checkpoint moved aside, the new one not yet in place
         shutil.copytree(whole, run_dir / CHECKPOINT_NEW)
         whole.rename(run_dir / CHECKPOINT_OLD)
+    else:  # a removal cut short left a .new that looks whole (agent.zip) but lost its state: the next one is used
+        shutil.copytree(whole, run_dir / CHECKPOINT_NEW)
+        (run_dir / CHECKPOINT_NEW / "state.json").unlink()
     fail.unlink()
     summary = execute_run(spec, run_dir, checkpoint_every=2)
     assert summary["resumed_at"] == [2] and summary["iterations"] == 4

@@ -677,7 +677,7 @@ def test_sb3_records_each_episode_as_with_the_zoos_monitor():
 def test_an_algorithm_that_cannot_take_the_env_says_so_and_recurrent_ppo_gets_its_own_policy():
     """SB3's AssertionError (DQN on Box actions) is a ValueError naming the algorithm; RecurrentPPO has no
     MlpPolicy, so its own MlpLstmPolicy is the default (it failed with "Policy MlpPolicy unknown")."""
-    with pytest.raises(ValueError, match=r"DQN cannot train on this env: The algorithm only supports"):
+    with pytest.raises(ValueError, match=r"DQN refused this env or these settings: The algorithm only supports"):
         SB3Agent("TLCarNav-v0", "dqn")
     pytest.importorskip("sb3_contrib")
     agent = SB3Agent("TLPendulum-v0", "recurrentppo", n_envs=1, n_steps=64, batch_size=32, steps_per_iteration=64)

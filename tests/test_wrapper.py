@@ -2,6 +2,7 @@
 
 import math
 import pickle
+import sys
 import warnings
 
 import gymnasium as gym
@@ -284,6 +285,7 @@ def test_a_callable_with_its_own_defaulted_parameter_gets_the_observation_alone(
     np.testing.assert_array_equal(info["trace"]["i"], np.arange(6.0))  # the parameter named `info` was handed it
 
 
+@pytest.mark.skipif(sys.version_info < (3, 11), reason="PEP 678 notes (add_note) are Python 3.11's")
 def test_an_error_in_a_signal_callable_names_the_signal():
     def broken(obs):
         return obs["missing"]
