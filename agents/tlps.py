@@ -43,7 +43,7 @@ from typing import Any
 import numpy as np
 from scipy.stats import spearmanr
 
-from tl_gym.checks import check_positive
+from tl_gym.checks import check_fraction, check_positive
 
 from .episodic import AbstractEpisodicSearch, EpisodicSearchConfig
 from .model_repair import find_model, repair_feedforward
@@ -119,8 +119,7 @@ class TLPSConfig(EpisodicSearchConfig):
             raise ValueError(f"smoothing must be one of {SMOOTHING_FORMS}, got {self.smoothing!r}")
         if self.weights not in WEIGHTINGS:
             raise ValueError(f"weights must be one of {WEIGHTINGS}, got {self.weights!r}")
-        if not 0 <= self.hybrid_mix <= 1:
-            raise ValueError(f"hybrid_mix must lie in [0, 1], got {self.hybrid_mix!r}")
+        check_fraction("hybrid_mix", self.hybrid_mix, allow_zero=True)
         check_positive("kl_bound", self.kl_bound)
         if self.action_repair not in ACTION_REPAIRS:
             raise ValueError(f"action_repair must be one of {ACTION_REPAIRS}, got {self.action_repair!r}")

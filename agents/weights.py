@@ -44,7 +44,7 @@ from typing import Literal
 
 import numpy as np
 
-from tl_gym.checks import check_positive
+from tl_gym.checks import check_fraction, check_positive
 
 Weighting = Literal["importance", "hybrid", "paper"]
 WEIGHTINGS = ("importance", "hybrid", "paper")
@@ -135,8 +135,7 @@ def sample_logits(
         return importance
     if updated_smooth is None:
         raise ValueError("the hybrid weighting needs updated_smooth, the smoothed robustness of τ̄")
-    if not 0 <= mix <= 1:
-        raise ValueError(f"mix must lie in [0, 1], got {mix!r}")
+    check_fraction("mix", mix, allow_zero=True)
     return mix * standardise(updated_smooth) + (1.0 - mix) * standardise(importance)
 
 
