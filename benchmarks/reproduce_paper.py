@@ -18,8 +18,8 @@ from typing import Any
 
 from benchmarks import figures, results
 from benchmarks.provenance import git
-from benchmarks.runner import add_sweep_options, default_out_dir, run_with_options, variant_of
-from benchmarks.sweep_config import Sweep, load_config
+from benchmarks.runner import add_sweep_options, check_only, default_out_dir, run_with_options, variant_of
+from benchmarks.sweep_config import ConfigError, Sweep, load_config
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "benchmarks" / "configs"
@@ -45,8 +45,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     docs = Path("runs/results-quick") if args.quick else Path("docs/results")
     command = "python -m benchmarks.reproduce_paper " + " ".join(sys.argv[1:] if argv is None else argv)
     failed = 0
+    sweeps = {config: load_config(config, variant=variant, overrides=overrides) for config in (PAPER, ABLATIONS)}
+    try:
+        check_only(list(sweeps.values()), args.only)  # a pattern must match in one of the two configs
+    except ConfigError as exc:
+        parser.error(str(exc))
     for config, write in ((PAPER, write_paper), (ABLATIONS, write_ablations)):
-        sweep = load_config(config, variant=variant, overrides=overrides)
+        sweep = sweeps[config]
         out_dir = default_out_dir(sweep)
         if not args.no_run:
             failed += len(run_with_options(sweep, out_dir, args).failed)

@@ -21,8 +21,8 @@ from matplotlib.ticker import EngFormatter
 
 from benchmarks.figures import plot_seeds, saved
 from benchmarks.results import RunResult, first_text, group_runs, load_runs, median_first, notes, table
-from benchmarks.runner import add_sweep_options, run_with_options, variant_of
-from benchmarks.sweep_config import RunSpec, load_config
+from benchmarks.runner import add_sweep_options, check_only, run_with_options, variant_of
+from benchmarks.sweep_config import ConfigError, RunSpec, load_config
 
 HERE = Path(__file__).resolve().parent
 CONFIGS = HERE / "configs" / "suite"
@@ -263,8 +263,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     results: dict[str, tuple[str, list[RunResult], list[str]]] = {}
     failed = 0
     chosen = set(config_paths(args.tasks))
+    sweeps = {path: load_config(path, variant=variant) for path in config_paths()}
+    if not args.report_only:
+        try:
+            check_only([sweeps[path] for path in sorted(chosen)], args.only)  # matching in one task is enough
+        except ConfigError as exc:
+            parser.error(str(exc))
     for path in config_paths():  # the report covers every task, from its records; --tasks chooses what runs
-        sweep = load_config(path, variant=variant)
+        sweep = sweeps[path]
         out_dir = Path(args.out) / sweep.name
         if not args.report_only and path in chosen:
             failed += len(run_with_options(sweep, out_dir, args).failed)

@@ -160,3 +160,10 @@ def test_steps_to_solve_and_final_success_are_each_seeds_own_on_uneven_env_steps
     assert "| 50% (0%–100%) | 400 (1/2) |" in table, table  # seed 0's last evaluation, at 400
     success_ax = suite.plot_task("uneven", runs, None).axes[0]
     assert [line.get_xdata().tolist() for line in success_ax.lines[:2]] == [[100, 200, 300], [50, 60, 70]]
+
+
+def test_only_must_match_a_label_of_some_task(capsys):
+    """Checked across every task the command runs: matching in one is enough, matching in none is an error."""
+    with pytest.raises(SystemExit):
+        suite.main(["--quick", "--only", "NOPE"])
+    assert "--only 'NOPE' matches no label of suite-car1-quick" in capsys.readouterr().err
