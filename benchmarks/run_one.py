@@ -121,7 +121,7 @@ def save_checkpoint(agent: Any, run_dir: Path, traces: Mapping[str, np.ndarray],
 
     The new checkpoint is written whole in ``checkpoint.new`` (the agent last: a folder with ``agent.zip`` is
     whole), then swapped in by two renames; the last one is removed only after. A run killed at any moment
-    keeps a whole checkpoint, the new one or the last (`_whole_checkpoint` finds it).
+    keeps a whole checkpoint, the new one or the last (`_whole_checkpoints` finds them).
     """
     new, current, old = run_dir / CHECKPOINT_NEW, run_dir / CHECKPOINT, run_dir / CHECKPOINT_OLD
     _discard(new)
