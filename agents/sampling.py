@@ -22,7 +22,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from tl_gym.time_limits import episode_length, is_count
+from tl_gym.time_limits import episode_length, is_count, time_limits
 from tl_gym.tltl.ast import Formula
 from tl_gym.wrapper import TLTLRewardWrapper
 
@@ -454,12 +454,7 @@ def check_time_limits(venv: gym.vector.VectorEnv) -> None:
         return
     own = venv.get_attr("episode_length")[0]
     if isinstance(venv, gym.vector.SyncVectorEnv):  # in this process: every TimeLimit outside the wrapper
-        outside = []
-        layer = venv.envs[0]
-        while isinstance(layer, gym.Wrapper) and not isinstance(layer, TLTLRewardWrapper):
-            if isinstance(layer, gym.wrappers.TimeLimit):
-                outside.append(layer._max_episode_steps)
-            layer = layer.env
+        outside = time_limits(venv.envs[0], until=lambda layer: isinstance(layer, TLTLRewardWrapper))
         limit = min(outside) if outside else None
     else:  # another process's env: the outermost TimeLimit, as Gymnasium's attribute lookup finds it
         limit = env_attribute(venv, "_max_episode_steps")

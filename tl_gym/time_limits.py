@@ -11,6 +11,8 @@ in an `AsyncVectorEnv`'s workers.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import gymnasium as gym
 import numpy as np
 
@@ -20,15 +22,20 @@ def is_count(value: object) -> bool:
     return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value > 0
 
 
-def _time_limits(env: gym.Env) -> list[int]:
-    """The ``max_episode_steps`` of every ``TimeLimit`` in ``env``'s wrapper chain."""
+def time_limits(env: gym.Env, until: Callable[[gym.Env], bool] | None = None) -> list[int]:
+    """The ``max_episode_steps`` of every ``TimeLimit`` in ``env``'s wrapper chain, outermost first.
+
+    With ``until``, only those outside the first layer it accepts (the reward wrapper: the limits that cut its
+    episodes).
+    """
     limits, layer = [], env
-    while True:
+    while until is None or not until(layer):
         if isinstance(layer, gym.wrappers.TimeLimit):
             limits.append(int(layer._max_episode_steps))
         if not isinstance(layer, gym.Wrapper):
-            return limits
+            break
         layer = layer.env
+    return limits
 
 
 def episode_length(env: gym.Env) -> int | None:
@@ -44,7 +51,7 @@ def episode_length(env: gym.Env) -> int | None:
         >>> episode_length(gym.make("Pendulum-v1")), episode_length(gym.make("Pendulum-v1").unwrapped)
         (200, None)
     """
-    stated = _time_limits(env)
+    stated = time_limits(env)
     steps = getattr(env.spec, "max_episode_steps", None) if env.spec is not None else None
     if is_count(steps):
         stated.append(int(steps))
