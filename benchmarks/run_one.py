@@ -1,18 +1,21 @@
 """One run of the experiment runner: train a `RunSpec`'s agent into its folder, checkpoint it, resume it.
 
-The folder holds ``spec.json``, ``history.csv`` (a row per iteration), ``trajectories.npz`` (the episodes sampled
-at the spec's ``trajectory_iterations``), ``agent.zip`` (the final agent) and ``done.json``, written last and
+The folder holds ``spec.json``, ``history.csv`` (a row per iteration), ``trajectories.npz`` (the episodes sampled at
+the spec's ``trajectory_iterations``), ``agent.zip`` (the final agent) and ``done.json``, written last and
 atomically: it alone marks the run finished (`is_done`). Until then ``checkpoint/`` holds the latest checkpoint,
-from which `execute_run` resumes. Kept apart from the sweep (`benchmarks.runner`), which only decides where each
-run executes (a worker process, this process, or a Ray task through `run_files` and `install_files`), so that the
-trials that run one spec of their own (`benchmarks.parking_demos`, `benchmarks.parking_nstep`) call it alone; the
-reports (`benchmarks.results`) read the folders through the file names here. Run files: ``docs/benchmarks.md``.
+from which `execute_run` resumes. A run being trained holds the lock ``<run folder>.lock`` beside its folder
+(`run_lock`), so that two runners on one results folder never train, or wipe, the same run. Kept apart from the
+sweep (`benchmarks.runner`), which only decides where each run executes (a worker process, this process, or a Ray
+task through `run_files` and `install_files`), so that the trials that run one spec of their own
+(`benchmarks.parking_demos`, `benchmarks.parking_nstep`) call it alone; the reports (`benchmarks.results`) read the
+folders through the file names here. Run files: ``docs/benchmarks.md``.
 """
 
 from __future__ import annotations
 
 import contextlib
 import csv
+import errno
 import io
 import json
 import os
@@ -21,7 +24,7 @@ import shutil
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +38,42 @@ DONE, SPEC, HISTORY, TRAJECTORIES, AGENT = "done.json", "spec.json", "history.cs
 #: A run's latest checkpoint: a folder of the agent (written last: it marks a whole checkpoint), the replay buffer
 #: of an off-policy agent, the trajectories sampled so far and STATE; removed once the run is done.
 CHECKPOINT, REPLAY_BUFFER, STATE = "checkpoint", "replay_buffer.pkl", "state.json"
+
+
+class RunInProgress(RuntimeError):
+    """Another process holds the run's lock: it is training that run now (`run_lock`)."""
+
+
+@contextlib.contextmanager
+def run_lock(run_dir: str | Path) -> Iterator[None]:
+    """Hold ``<run_dir>.lock`` (an advisory ``flock``) while a process trains or installs the run in ``run_dir``.
+
+    The lock sits beside the folder, not in it: a run that starts afresh wipes its folder. The file stays after
+    the run (removing it would race with a process about to take it); the kernel frees the lock when its
+    holder exits, however it exits. Where ``fcntl`` is missing (Windows) runs are not locked.
+
+    Raises:
+        RunInProgress: another process holds the lock.
+    """
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows
+        yield
+        return
+    path = Path(str(Path(run_dir)) + ".lock")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as error:
+            if error.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                raise
+            raise RunInProgress(f"{Path(run_dir).name}: another process is training this run (it holds {path}); "
+                                "this one leaves it alone") from None
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
 
 
 def is_done(run_dir: str | Path) -> bool:
@@ -53,8 +92,13 @@ def execute_run(spec: RunSpec, run_dir: str | Path, checkpoint_every: int = 0,
     ``prepare``: called with a new agent before its first iteration (a trial's extra set-up, such as
     demonstrations in a replay buffer); not on a resumed run, whose checkpoint holds what it did.
     """
-    run_dir = Path(run_dir)
-    if is_done(run_dir):
+    with run_lock(run_dir):
+        return _execute_locked(spec, Path(run_dir), checkpoint_every, prepare)
+
+
+def _execute_locked(spec: RunSpec, run_dir: Path, checkpoint_every: int,
+                    prepare: Callable[[Any], None] | None) -> dict[str, Any]:
+    if is_done(run_dir):  # perhaps by the process that held the lock before
         return json.loads((run_dir / DONE).read_text())
     for name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS"):  # runs are parallel processes: one thread each
         os.environ.setdefault(name, "1")
@@ -246,12 +290,16 @@ def run_files(spec: RunSpec) -> dict[str, bytes]:
 
 
 def install_files(files: Mapping[str, bytes], run_dir: str | Path) -> None:
-    """Write a finished run's files (from `run_files`) into ``run_dir``, ``done.json`` last (ValueError if none)."""
+    """Write a finished run's files (from `run_files`) into ``run_dir``, ``done.json`` last (ValueError if none).
+
+    Raises `RunInProgress` when a local process is training the same run there.
+    """
     if DONE not in files:
         raise ValueError(f"not a finished run: no {DONE} among {sorted(files)}")
     run_dir = Path(run_dir)
-    if not is_done(run_dir):
-        shutil.rmtree(run_dir, ignore_errors=True)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    for name in sorted(files, key=lambda n: n == DONE):
-        write_atomic(run_dir / name, files[name])
+    with run_lock(run_dir):
+        if not is_done(run_dir):
+            shutil.rmtree(run_dir, ignore_errors=True)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        for name in sorted(files, key=lambda n: n == DONE):
+            write_atomic(run_dir / name, files[name])

@@ -2,8 +2,8 @@
 
 Every run gets a folder ``OUT/runs/<run_id>`` whose ``done.json``, written last and atomically, alone marks it
 finished: a rerun skips it, resumes an unfinished run from its last checkpoint (``--checkpoint-every``) and restarts
-the others from scratch. ``OUT/sweep.json`` lists the config's runs for `benchmarks.results`. Command line, config
-keys and run files: ``docs/benchmarks.md``.
+the others from scratch. A run another runner is training (on the same ``OUT``) is left to it. ``OUT/sweep.json``
+lists the config's runs for `benchmarks.results`. Command line, config keys and run files: ``docs/benchmarks.md``.
 
 This module is the sweep and its command line: it lists the runs in ``sweep.json``, skips the finished ones and
 hands the others to worker processes, to this process or to Ray. The config is read by `benchmarks.sweep_config`,
@@ -32,7 +32,15 @@ from typing import Any
 
 from tl_gym.agents.serialization import write_atomic
 
-from benchmarks.run_one import HISTORY, execute_run, install_files, is_done, read_history_rows, run_files
+from benchmarks.run_one import (
+    HISTORY,
+    RunInProgress,
+    execute_run,
+    install_files,
+    is_done,
+    read_history_rows,
+    run_files,
+)
 from benchmarks.sweep_config import ConfigError, RunSpec, Sweep, load_config
 
 #: Iterations between checkpoints on the command line (0: none).
@@ -42,10 +50,14 @@ DEFAULT_CHECKPOINT_EVERY = 5
 # A sweep ----------------------------------------------------------------------------------------------------------
 @dataclasses.dataclass
 class SweepReport:
-    """What a sweep did: run ids finished now, skipped as done already, and failed (run id -> traceback)."""
+    """What a sweep did: run ids finished, skipped, left to another runner, failed (run id -> traceback).
+
+    Skipped: done already; left to another runner: one training them now (`RunInProgress`).
+    """
 
     finished: list[str] = dataclasses.field(default_factory=list)
     skipped: list[str] = dataclasses.field(default_factory=list)
+    busy: list[str] = dataclasses.field(default_factory=list)
     failed: dict[str, str] = dataclasses.field(default_factory=dict)
     wall_time: float = 0.0
 
@@ -53,6 +65,9 @@ class SweepReport:
         """Call ``work`` and count ``run`` as finished, or as failed with the traceback of what it raised."""
         try:
             work()
+        except RunInProgress as error:
+            self.busy.append(run.run_id)
+            print(f"run {error}", file=sys.stderr)
         except Exception as error:  # noqa: BLE001 - one failed run must not stop the sweep
             self.failed[run.run_id] = "".join(traceback.format_exception(type(error), error, error.__traceback__))
             print(f"run {run.run_id} failed: {type(error).__name__}: {error}", file=sys.stderr)
@@ -264,7 +279,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"\ninterrupted: finished runs keep their done.json; rerun the same command to {resume}",
               file=sys.stderr)
         return 130
-    print(f"{sweep.name}: {len(report.finished)} run(s) finished, {len(report.skipped)} already done, "
+    busy = f"{len(report.busy)} left to another runner training them, " if report.busy else ""
+    print(f"{sweep.name}: {len(report.finished)} run(s) finished, {len(report.skipped)} already done, {busy}"
           f"{len(report.failed)} failed, {report.wall_time:.1f} s; results in {out_dir}")
     return 1 if report.failed else 0
 

@@ -22,7 +22,16 @@ import tomllib
 
 from benchmarks import results
 from benchmarks.report import write_per_seed_report
-from benchmarks.run_one import AGENT, CHECKPOINT, DONE, HISTORY, execute_run, install_files, run_files
+from benchmarks.run_one import (
+    AGENT,
+    CHECKPOINT,
+    DONE,
+    HISTORY,
+    RunInProgress,
+    execute_run,
+    install_files,
+    run_files,
+)
 from benchmarks.runner import check_only, iterations_done, run_sweep
 from benchmarks.runner import main as runner_main
 from benchmarks.sweep_config import ConfigError, RunSpec, expand_config, load_config
@@ -313,6 +322,26 @@ def test_killed_sweep_leaves_no_half_result_and_rerun_completes(tmp_path):
     assert report.finished == [run.run_id]
     history = results.read_history(run_dir / HISTORY)
     assert history["iteration"].tolist() == [1, 2, 3]  # restarted from scratch, no duplicated rows
+
+
+def test_a_second_runner_on_one_folder_leaves_the_run_being_trained_alone(tmp_path, capsys):
+    process, path, out, _ = start_hanging_sweep(tmp_path)
+    (run,) = load_config(path).runs
+    run_dir = out / "runs" / run.run_id
+    try:
+        before = (run_dir / HISTORY).read_text()
+        report = run_sweep(load_config(path), out, workers=0)  # the first runner's worker holds the run
+        assert report.busy == [run.run_id] and not report.finished and not report.failed
+        assert "another process is training this run" in capsys.readouterr().err
+        assert (run_dir / HISTORY).read_text() == before  # not wiped, not restarted
+        with pytest.raises(RunInProgress, match=run.run_id):
+            install_files({DONE: b"{}"}, run_dir)
+    finally:
+        os.killpg(process.pid, signal.SIGKILL)
+        process.wait()
+    (tmp_path / "markers" / "hang").unlink()
+    report = run_sweep(load_config(path), out, workers=0)  # the kill freed the lock
+    assert report.finished == [run.run_id] and not report.busy
 
 
 def test_a_terminated_sweep_stops_its_workers(tmp_path):
