@@ -72,6 +72,7 @@ from .sb3_settings import (
     merge_hyperparameters,
     parse_normalize,
     resolve_algorithm,
+    split_settings,
     tl_reward_of_env_kwargs,
     tl_reward_of_view,
 )
@@ -185,10 +186,9 @@ class SB3Agent(Agent):
             # potential shaping keeps the optimal policies only with the agent's own discount
             env_kwargs = {**env_kwargs, "gamma": settings.get("gamma", _default_argument(self.algo_class, "gamma",
                                                                                            0.99))}
-        fields = {f.name for f in dataclasses.fields(SB3Config)} - {"algo_kwargs"}
-        hyperparameters = {k: v for k, v in settings.items() if k in fields}
+        hyperparameters, algo_kwargs = split_settings(settings)
         hyperparameters.update(algo=self.algo_class.__name__, tl_reward=tl_reward, hyperparams=hyperparams,
-                               algo_kwargs={k: v for k, v in settings.items() if k not in fields})
+                               algo_kwargs=algo_kwargs)
         config = self._make_config(hyperparameters)  # checked before any env is built
         self._env_argument = env
         self._train_env_kwargs = dict(env_kwargs or {})  # read by _setup, which runs inside Agent.__init__

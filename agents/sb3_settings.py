@@ -343,8 +343,7 @@ class SB3Config:
             raise ValueError(f"noise_type must be None or one of {NOISE_TYPES}, got {self.noise_type!r}")
         check_positive("noise_std", self.noise_std, allow_zero=True)
         algo_class = resolve_algorithm(self.algo)
-        settings = [f.name for f in dataclasses.fields(self) if f.name not in ("algo", "algo_kwargs")]
-        check_algorithm_arguments(algo_class, self.algo_kwargs, settings)
+        check_algorithm_arguments(algo_class, self.algo_kwargs, setting_names())
         if self.noise_type is not None and "action_noise" not in algorithm_parameters(algo_class):
             raise ValueError(f"noise_type={self.noise_type!r}: {algo_class.__name__} takes no action noise (it "
                              f"explores through its own policy); noise_type is for off-policy algorithms such as TD3")
@@ -355,6 +354,22 @@ class SB3Config:
                     raise ValueError(f"{key}={value!r} decays over n_timesteps, which is not set; give n_timesteps")
             else:
                 check_algorithm_value(key, value)
+
+
+def setting_names() -> tuple[str, ...]:
+    """`SB3Config`'s own settings, in its order; every other hyperparameter is an algorithm argument."""
+    return tuple(f.name for f in dataclasses.fields(SB3Config) if f.name not in ("algo", "algo_kwargs"))
+
+
+def split_settings(settings: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``settings`` as ``(SB3Config's own, the algorithm's arguments)``: the one rule that tells them apart.
+
+    Example:
+        >>> split_settings({"n_envs": 4, "learning_rate": 3e-4})
+        ({'n_envs': 4}, {'learning_rate': 0.0003})
+    """
+    own = setting_names()
+    return ({k: v for k, v in settings.items() if k in own}, {k: v for k, v in settings.items() if k not in own})
 
 
 #: The common algorithm arguments whose values are checked here (SB3 takes any, and fails later or never).
@@ -504,11 +519,8 @@ def check_sb3_hyperparameters(algo: Any, hyperparameters: Mapping[str, Any]) -> 
         ValueError, TypeError: naming the hyperparameter.
     """
     algo_class = resolve_algorithm(algo)
-    settings = canonical_settings(hyperparameters)
-    fields = {f.name for f in dataclasses.fields(SB3Config)} - {"algo", "algo_kwargs"}
-    algo_kwargs = {k: v for k, v in settings.items() if k not in fields}
-    SB3Config(algo=algo_class.__name__, n_timesteps=settings.get("n_timesteps", 1),
-              **{k: v for k, v in settings.items() if k in fields and k != "n_timesteps"}, algo_kwargs=algo_kwargs)
+    own, algo_kwargs = split_settings(canonical_settings(hyperparameters))
+    SB3Config(algo=algo_class.__name__, **{"n_timesteps": 1, **own}, algo_kwargs=algo_kwargs)
 
 
 def canonical_settings(settings: Mapping[str, Any]) -> dict[str, Any]:
