@@ -43,21 +43,6 @@ def _connectives(leaves: st.SearchStrategy[Formula], max_leaves: int) -> st.Sear
     )
 
 
-state_formulas = _connectives(predicates | st.sampled_from([Constant(True), Constant(False)]), max_leaves=3)
-# Bounded lookahead: Boolean combinations of X^d over temporal-free formulas.
-windowed = st.recursive(
-    state_formulas,
-    lambda inner: st.one_of(
-        inner.map(X),
-        inner.map(lambda f: ~f),
-        st.tuples(inner, inner).map(lambda p: p[0] & p[1]),
-        st.tuples(inner, inner).map(lambda p: p[0] | p[1]),
-        st.tuples(inner, inner).map(lambda p: p[0] >> p[1]),
-    ),
-    max_leaves=4,
-)
-
-
 def _chain(fs):
     out = fs[-1]
     for f in reversed(fs[:-1]):
@@ -65,20 +50,42 @@ def _chain(fs):
     return out
 
 
-then_chains = st.lists(state_formulas, min_size=2, max_size=4).map(_chain)
-never_again = st.one_of(
-    st.tuples(windowed, state_formulas).map(lambda p: G(p[0] >> X(G(p[1])))),
-    st.tuples(windowed, state_formulas).map(lambda p: G(p[0] | X(G(p[1])))),
-)
-temporal_atoms = st.one_of(
-    windowed, windowed.map(F), windowed.map(G), then_chains, never_again,
-    windowed.map(lambda f: F(G(f))), windowed.map(lambda f: G(F(f))), then_chains.map(lambda f: F(G(f))),
-    # F G / G F over any temporal φ: φ at the last state, φ's signals any of the formula's
-    st.one_of(never_again, windowed.map(F), windowed.map(G)).map(lambda f: F(G(f))),
-    st.one_of(then_chains, windowed.map(G)).map(lambda f: G(F(f))),
-    st.tuples(state_formulas, state_formulas).map(lambda p: U(p[0], p[1])),
-)
-fragment = _connectives(temporal_atoms | state_formulas, max_leaves=4)
+def fragment_strategies(predicates: st.SearchStrategy[Formula]) -> dict[str, st.SearchStrategy[Formula]]:
+    """The incremental fragment's formulas built on ``predicates``, and the pieces the tests draw from."""
+    state_formulas = _connectives(predicates | st.sampled_from([Constant(True), Constant(False)]), max_leaves=3)
+    # Bounded lookahead: Boolean combinations of X^d over temporal-free formulas.
+    windowed = st.recursive(
+        state_formulas,
+        lambda inner: st.one_of(
+            inner.map(X),
+            inner.map(lambda f: ~f),
+            st.tuples(inner, inner).map(lambda p: p[0] & p[1]),
+            st.tuples(inner, inner).map(lambda p: p[0] | p[1]),
+            st.tuples(inner, inner).map(lambda p: p[0] >> p[1]),
+        ),
+        max_leaves=4,
+    )
+    then_chains = st.lists(state_formulas, min_size=2, max_size=4).map(_chain)
+    never_again = st.one_of(
+        st.tuples(windowed, state_formulas).map(lambda p: G(p[0] >> X(G(p[1])))),
+        st.tuples(windowed, state_formulas).map(lambda p: G(p[0] | X(G(p[1])))),
+    )
+    temporal_atoms = st.one_of(
+        windowed, windowed.map(F), windowed.map(G), then_chains, never_again,
+        windowed.map(lambda f: F(G(f))), windowed.map(lambda f: G(F(f))), then_chains.map(lambda f: F(G(f))),
+        # F G / G F over any temporal φ: φ at the last state, φ's signals any of the formula's
+        st.one_of(never_again, windowed.map(F), windowed.map(G)).map(lambda f: F(G(f))),
+        st.one_of(then_chains, windowed.map(G)).map(lambda f: G(F(f))),
+        st.tuples(state_formulas, state_formulas).map(lambda p: U(p[0], p[1])),
+    )
+    fragment = _connectives(temporal_atoms | state_formulas, max_leaves=4)
+    return {"state_formulas": state_formulas, "windowed": windowed, "then_chains": then_chains,
+            "never_again": never_again, "fragment": fragment}
+
+
+_built = fragment_strategies(predicates)
+state_formulas, windowed, then_chains, never_again, fragment = (
+    _built[name] for name in ("state_formulas", "windowed", "then_chains", "never_again", "fragment"))
 # Outside the fragment: a temporal operator over a temporal operand.
 unbounded = st.one_of(then_chains, never_again, windowed.map(F), windowed.map(G))
 nested = st.one_of(

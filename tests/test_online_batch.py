@@ -18,7 +18,7 @@ from tl_gym.monitor_view import MonitorView
 from tl_gym.tltl.online import PrefixMonitor
 from tl_gym.tltl.online_batch import BatchPrefixMonitor
 
-from .test_online import fragment
+from .test_online import fragment, fragment_strategies, predicates
 
 values = st.floats(-3, 3, allow_nan=False, width=32)
 
@@ -46,6 +46,44 @@ def test_batch_reports_the_values_and_states_of_n_monitors(formula, n, length, d
             _same(got, [m.update({"a": float(a[i]), "b": float(b[i])}) for i, m in enumerate(scalars)])
             _same(batch.state(), [m.state() for m in scalars])
         assert batch.length == length
+
+
+# Predicates whose arithmetic is undefined at some states of the traces drawn (a < 0, b <= 0).
+partial_fragment = fragment_strategies(predicates | st.sampled_from([parse("sqrt(a) > 1"), parse("log(b) < 0.5")]))[
+    "fragment"]
+
+
+@settings(max_examples=200, deadline=None)
+@given(partial_fragment, st.integers(1, 3), st.integers(1, 8), st.data())
+def test_undefined_arithmetic_raises_where_the_monitors_read_it_and_nowhere_else(formula, n, length, data):
+    """A predicate undefined at a state raises in the batch exactly when one of the n monitors reads it there.
+
+    ``log(b) > 0`` alone is judged on s_0: a later state with b <= 0 is never read, and raises in neither.
+    """
+    traces = data.draw(st.lists(st.lists(st.tuples(values, values), min_size=length, max_size=length),
+                                min_size=n, max_size=n))
+    batch = BatchPrefixMonitor(formula, n)
+    scalars = [PrefixMonitor(formula) for _ in range(n)]
+    for t in range(length):
+        a, b = (np.array([trace[t][k] for trace in traces]) for k in (0, 1))
+        expected, raised = [], []
+        for i, monitor in enumerate(scalars):
+            try:
+                expected.append(monitor.update({"a": float(a[i]), "b": float(b[i])}))
+            except TraceError:
+                raised.append(i)
+        if raised:
+            with pytest.raises(TraceError, match="is NaN or infinite at"):
+                batch.update({"a": a, "b": b})
+            return
+        _same(batch.update({"a": a, "b": b}), expected)
+
+
+def test_a_state_no_part_reads_is_not_evaluated():
+    batch, scalar = BatchPrefixMonitor(parse("X(log(b) > 0) & F(a > 1)"), 1), PrefixMonitor(parse(
+        "X(log(b) > 0) & F(a > 1)"))
+    for a, b in [(0.0, -1.0), (2.0, 3.0), (0.0, -1.0), (0.0, 0.0)]:  # log(b) is read at s_1 alone
+        _same(batch.update({"a": np.array([a]), "b": np.array([b])}), [scalar.update({"a": a, "b": b})])
 
 
 @pytest.mark.parametrize("text", [

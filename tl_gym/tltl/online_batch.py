@@ -38,7 +38,7 @@ Example:
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 import numpy as np
@@ -46,7 +46,7 @@ import numpy as np
 from tl_gym.checks import check_count
 from tl_gym.errors import TraceError, UnknownSignalError
 from tl_gym.tltl import online_nodes, operators
-from tl_gym.tltl.ast import And, Constant, Formula, Num, Or, Predicate, Var
+from tl_gym.tltl.ast import And, Constant, Formula, Next, Num, Or, Predicate, Var
 from tl_gym.tltl.expressions import can_be_non_finite, evaluate_expression
 from tl_gym.tltl.online import PrefixMonitor
 from tl_gym.tltl.online_nodes import Slot
@@ -68,10 +68,15 @@ class _Parts:
         self.alg = alg
         self.index: dict[Formula, int] = {}
         self.steps: list[Callable[[_Window, list], np.ndarray]] = []
+        self.inputs_of: list[tuple[int, ...]] = []  # the steps each step reads
+        self.reads: dict[Formula, _Reads] = {}  # the states at which each predicate is read
         self.values: list[Any] = []
 
-    def add(self, formula: Formula) -> int:
-        """Register ``formula`` (bounded lookahead) and its sub-formulas; return its step."""
+    def add(self, formula: Formula, judged: str = "every") -> int:
+        """Register ``formula`` (bounded lookahead) and its sub-formulas; return its step.
+
+        ``judged``: the positions its node judges it at, "every" one, s_0 alone ("start") or the last ("end").
+        """
         stack: list[tuple[Formula, bool]] = [(formula, False)]
         while stack:  # post-order on an explicit stack: any depth
             node, expanded = stack.pop()
@@ -82,8 +87,16 @@ class _Parts:
                 stack.extend((child, False) for child in reversed(node.children) if child not in self.index)
                 continue
             self.index[node] = len(self.steps)
-            self.steps.append(self._compile(node, self._inputs(node)))
+            inputs = self._inputs(node)
+            self.inputs_of.append(inputs)
+            self.steps.append(self._compile(node, inputs))
         self.values = [None] * len(self.steps)
+        depths: list[tuple[Formula, int]] = [(formula, 0)]
+        while depths:  # each predicate under how many X's
+            node, depth = depths.pop()
+            if isinstance(node, Predicate):
+                self.reads[node].add(depth, judged)
+            depths.extend((child, depth + isinstance(node, Next)) for child in node.children)
         return self.index[formula]
 
     def _inputs(self, node: Formula) -> tuple[int, ...]:
@@ -109,7 +122,7 @@ class _Parts:
         """The step computing ``node`` from the window and the values of its operands' steps."""
         alg = self.alg
         if isinstance(node, Predicate):
-            return _predicate(node)
+            return _predicate(node, self.reads.setdefault(node, _Reads()))
         if isinstance(node, Constant):
             value = alg.top if node.value else alg.bottom
             return lambda window, values: np.full(window.shape, value)
@@ -122,12 +135,22 @@ class _Parts:
             return lambda window, values: rule(alg, values[i], values[j])
         return lambda window, values: rule(alg, *(values[k] for k in inputs))
 
-    def run(self, window: _Window) -> None:
-        """Evaluate every step on the window."""
-        values = self.values
+    def closure(self, steps: Iterable[int]) -> list[int]:
+        """``steps`` and every step they read, in the order they run (operands first)."""
+        needed, stack = set(), list(steps)
+        while stack:
+            i = stack.pop()
+            if i not in needed:
+                needed.add(i)
+                stack.extend(self.inputs_of[i])
+        return sorted(needed)
+
+    def run(self, window: _Window, only: list[int] | None = None) -> None:
+        """Evaluate every step on the window, or the steps ``only`` lists (a `closure`)."""
+        values, steps = self.values, self.steps
         with np.errstate(all="ignore"):
-            for i, step in enumerate(self.steps):
-                values[i] = step(window, values)
+            for i in range(len(steps)) if only is None else only:
+                values[i] = steps[i](window, values)
 
 
 class _Window:
@@ -137,8 +160,31 @@ class _Window:
         self.signals, self.shape, self.position = signals, shape, position
 
 
-def _predicate(node: Predicate) -> Callable[[_Window, list], np.ndarray]:
-    """A predicate's margin on the window; a NaN or infinite one at the new state raises `TraceError`."""
+class _Reads:
+    """The states at which the formula reads a predicate: from ``since`` on, and at the positions ``at``.
+
+    A part judged at every position reads a predicate under k ``X``'s at every state from k on; one judged on
+    s_0 alone (`_AtStart`) reads it at state k alone; one judged at the last state (`_AtEnd`) only where k = 0.
+    Undefined arithmetic raises only at a state read, as in `PrefixMonitor`, whose nodes evaluate no other.
+    """
+
+    def __init__(self) -> None:
+        self.since: float = math.inf
+        self.at: set[int] = set()
+
+    def __call__(self, t: int) -> bool:
+        return t >= self.since or t in self.at
+
+    def add(self, depth: int, judged: str) -> None:
+        """A part judged at ``judged`` ("every", "start" or "end") reads the predicate under ``depth`` X's."""
+        if judged == "every" or (judged == "end" and depth == 0):
+            self.since = min(self.since, depth)
+        elif judged == "start":
+            self.at.add(depth)
+
+
+def _predicate(node: Predicate, reads: _Reads) -> Callable[[_Window, list], np.ndarray]:
+    """A predicate's margin on the window; a NaN or infinite one at the new state, if it ``reads``, raises."""
     op, lhs, rhs = node.op, node.lhs, node.rhs
     if isinstance(lhs, Var) and isinstance(rhs, Num):  # the common ``x > 5``: one subtraction
         name, number = lhs.name, np.float64(rhs.value)
@@ -152,7 +198,8 @@ def _predicate(node: Predicate) -> Callable[[_Window, list], np.ndarray]:
         out = operators.margin(op, evaluate_expression(lhs, window.signals), evaluate_expression(rhs, window.signals))
         if np.shape(out) != window.shape:  # a predicate of numbers alone
             out = np.broadcast_to(out, window.shape)
-        if checked and not math.isfinite(out[:, -1].sum()) and not np.isfinite(out[:, -1]).all():
+        if (checked and not math.isfinite(out[:, -1].sum()) and not np.isfinite(out[:, -1]).all()
+                and reads(window.position)):
             trace = int(np.argwhere(~np.isfinite(out[:, -1]))[0, 0])
             raise TraceError(f"predicate {str(node)!r} is NaN or infinite at trace {trace}, position {window.position}")
         return out
@@ -442,10 +489,16 @@ class BatchPrefixMonitor:
                 self._order[leaf_start[leaf] : leaf_start[leaf] + group.size] = start + np.arange(group.size) * k + j
             start += group.size * k
         self._leaf_values: list[Any] = [None] * (len(leaves) + len(combine))
+        # A formula judged on s_0 … s_d reads its parts until t = d only: later states are not evaluated for it, as
+        # its scalar node does not (``log(x) > 0`` must not raise at a state x <= 0 it never reads).
+        starts = [group for group in self._groups if isinstance(group, _AtStart)]
+        self._start_depth = max((group.depth for group in starts), default=-1)
+        self._late_parts = self._parts.closure(
+            i for group in self._groups if not isinstance(group, _AtStart) for parts in group.parts for i in parts)
 
-    def _part(self, formula: Formula) -> int:
+    def _part(self, formula: Formula, judged: str = "every") -> int:
         self._lookahead = max(self._lookahead, lookahead(formula) or 0)
-        return self._parts.add(formula)
+        return self._parts.add(formula, judged)
 
     def _leaf(
         self, formula: Formula, node: online_nodes.MonitorNode
@@ -453,13 +506,13 @@ class BatchPrefixMonitor:
         """``(group key, parts, φ judged by the engine or None, number of slots)`` of a leaf of the scalar tree."""
         width, slots = len(self.names), len(node.slots)
         if isinstance(node, online_nodes.AtStartNode):
-            return (_AtStart, node.depth, width), (self._part(formula),), None, slots
+            return (_AtStart, node.depth, width), (self._part(formula, "start"),), None, slots
         if isinstance(node, online_nodes.ExtremumNode):
             return (_Extremum, node.depth, node.is_max, width), (self._part(formula.child),), None, slots  # type: ignore[attr-defined]
         if isinstance(node, online_nodes.AtEndNode):
             phi = formula.child.child  # type: ignore[attr-defined]
             if lookahead(phi) is not None:
-                return (_AtEnd, True), (self._part(phi),), None, slots
+                return (_AtEnd, True), (self._part(phi, "end"),), None, slots
             return (_AtEnd, False), (), phi, slots
         if isinstance(node, online_nodes.NeverAgainNode):
             a, b = online_nodes.never_again_parts(formula.child)  # type: ignore[attr-defined, misc]
@@ -506,7 +559,7 @@ class BatchPrefixMonitor:
         width = min(t + 1, len(self._windows))
         window = self._windows[width - 1]
         window.position = t
-        self._parts.run(window)
+        self._parts.run(window, None if t <= self._start_depth else self._late_parts)
         step = self._step
         self._t = step.t = t
         step.width, step.new = width, self._window[width - 1]
