@@ -3,14 +3,18 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
+# where pip gets torch: its own configuration by default (here: the CPU wheel on disk); elsewhere, for the CPU build,
+# `make test TORCH_INDEX=https://download.pytorch.org/whl/cpu`
+TORCH_INDEX ?=
+TORCH := torch==2.13.0 $(if $(TORCH_INDEX),--index-url $(TORCH_INDEX))
 
 .PHONY: setup demo test lint bench bench-quick bench-peers clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	# the CPU wheel on disk; a plain `torch` requirement would pull a multi-GB CUDA build
-	$(PY) -m pip install --quiet torch==2.13.0
+	# torch first: a plain `torch` requirement of the project could pull another (multi-GB CUDA) build
+	$(PY) -m pip install --quiet $(TORCH)
 	$(PY) -m pip install --quiet -e ".[dev]"
 	touch $(STAMP)
 
@@ -40,7 +44,7 @@ bench-quick: $(STAMP)
 # (STLRom builds from source: apt-get install bison flex).
 .venv-bench/.installed: pyproject.toml benchmarks/requirements-peers.txt
 	$(PYTHON) -m venv .venv-bench
-	.venv-bench/bin/python -m pip install --quiet torch==2.13.0
+	.venv-bench/bin/python -m pip install --quiet $(TORCH)
 	.venv-bench/bin/python -m pip install --quiet -e . -r benchmarks/requirements-peers.txt
 	touch .venv-bench/.installed
 

@@ -33,7 +33,7 @@ from tl_gym.errors import IncompatibleSaveError
 
 from .callbacks import CallbackLike, as_callback
 from .evaluation import evaluate_policy
-from .sampling import check_time_limits, find_formula, make_vector_env, registered_spec
+from .sampling import check_time_limits, env_keyword_hint, find_formula, make_vector_env, registered_spec
 from .serialization import (
     FORMAT_VERSION,
     check_arrays,
@@ -99,7 +99,7 @@ class Agent(abc.ABC):
                  **hyperparameters: Any):
         if seed is not None and not isinstance(seed, (int, np.integer)):
             raise TypeError(f"seed must be an int or None, got {seed!r}")
-        self.config = self._make_config(dict(hyperparameters))
+        self.config = self._config_for(env, dict(hyperparameters))
         self.seed = None if seed is None else int(seed)
         self.env_kwargs = dict(env_kwargs or {})
         self._env_source = describe_env_source(env, self.env_kwargs)
@@ -118,6 +118,22 @@ class Agent(abc.ABC):
     # Hooks -------------------------------------------------------------------------
     #: The agent's hyperparameter dataclass; it validates the values in ``__post_init__``.
     config_class: type
+
+    @classmethod
+    def _config_for(cls, env: Any, hyperparameters: dict[str, Any], given: Mapping[str, Any] | None = None) -> Any:
+        """`_make_config`, its error saying which hyperparameters are ``env``'s keywords (`env_keyword_hint`).
+
+        ``given``: the hyperparameters as the user named them, if ``hyperparameters`` regroups them.
+        """
+        try:
+            return cls._make_config(hyperparameters)
+        except (TypeError, ValueError) as error:
+            given = hyperparameters if given is None else given
+            named = [name for name in given if repr(name) in str(error)]
+            hint = env_keyword_hint(env, named, given)
+            if not hint:
+                raise
+            raise type(error)(f"{error}{hint}") from None
 
     @classmethod
     def _make_config(cls, hyperparameters: dict[str, Any]) -> Any:

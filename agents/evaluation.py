@@ -17,7 +17,7 @@ import numpy as np
 
 from tl_gym.checks import check_count
 
-from .sampling import Controller, check_time_limits, infer_horizon, run_episodes
+from .sampling import NO_EPISODE_LENGTH, Controller, check_time_limits, infer_horizon, run_episodes
 
 
 class PolicyPredictor(Protocol):
@@ -125,8 +125,7 @@ def collect_episodes(
         wanted = min(n_envs, n_episodes - start)
         batch = run_episodes(venv, predictor_controller(predictor, deterministic),
                              seed=None if seed is None else seed + start, wanted=wanted, max_steps=guard,
-                             limit_hint="the env states no episode length: give it a time limit inside its "
-                                        "TLTLRewardWrapper, TLTLRewardWrapper(gym.make(id, max_episode_steps=T), ...)")
+                             limit_hint=NO_EPISODE_LENGTH)
         results.append(batch.robustness[:wanted])
         for name, rows in batch.traces.items():
             traces.setdefault(name, []).extend(rows[:wanted])

@@ -15,12 +15,14 @@ from __future__ import annotations
 
 import copy
 import importlib
-from collections.abc import Callable, Mapping
+import inspect
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from gymnasium.envs.registration import load_env_creator
 
 from tl_gym.time_limits import episode_length, is_count, time_limits
 from tl_gym.tltl.ast import Formula
@@ -41,6 +43,43 @@ def registered_spec(env_id: str) -> gym.envs.registration.EnvSpec:
     if module:
         importlib.import_module(module)
     return gym.spec(name)
+
+
+def env_keywords(env_id: str) -> frozenset[str]:
+    """The keywords ``gym.make(env_id, ...)`` takes by name; empty when the id is unknown or they cannot be read.
+
+    The entry point's named parameters, and for one that takes ``**kwargs`` the names its ``env_keywords()``
+    attribute lists (tl_gym's ids declare theirs). For the messages that tell an env keyword given to an agent.
+
+    Example:
+        >>> sorted(env_keywords("Pendulum-v1"))
+        ['g', 'render_mode']
+    """
+    try:
+        spec = registered_spec(env_id)
+        creator = load_env_creator(spec.entry_point) if isinstance(spec.entry_point, str) else spec.entry_point
+        parameters = inspect.signature(creator).parameters
+    except (gym.error.Error, ImportError, AttributeError, TypeError, ValueError):
+        return frozenset()
+    named = {name for name, p in parameters.items() if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+    return frozenset(named | set(getattr(creator, "env_keywords", tuple)()))
+
+
+def env_keyword_hint(env: Any, names: Iterable[str], hyperparameters: Mapping[str, Any]) -> str:
+    """``"; 'task' is a keyword of the env TLCarNav-v0: pass env_kwargs={'task': 2}"`` for ``names`` the env takes.
+
+    ``""`` when ``env`` is not an id or takes none of them. Agents add it to the error of a hyperparameter they do
+    not have, the usual slip being an env keyword given to the agent.
+    """
+    if not isinstance(env, str):
+        return ""
+    taken = [name for name in names if name in env_keywords(env)]
+    if not taken:
+        return ""
+    which = ", ".join(map(repr, taken))
+    kwargs = "{" + ", ".join(f"{name!r}: {hyperparameters[name]!r}" for name in taken) + "}"
+    return (f"; {which} {'is a keyword' if len(taken) == 1 else 'are keywords'} of the env {env}, not of the agent: "
+            f"pass env_kwargs={kwargs}")
 
 
 def unqualified_id(env_id: str) -> str:
@@ -479,6 +518,11 @@ def env_attribute(venv: gym.vector.VectorEnv, name: str) -> Any:
     return value
 
 
+#: What to do about an env whose episodes have no stated length (agents, evaluation): one message for both.
+NO_EPISODE_LENGTH = ("the env states no episode length: give it a time limit inside its TLTLRewardWrapper, "
+                     "TLTLRewardWrapper(gym.make(id, max_episode_steps=T), ...)")
+
+
 def resolve_horizon(horizon: int | None, env: Any) -> int:
     """The agent's horizon: the configured one, checked against the env's, or the env's own.
 
@@ -488,7 +532,8 @@ def resolve_horizon(horizon: int | None, env: Any) -> int:
     stated = infer_horizon(env)
     if horizon is None:
         if stated is None:
-            raise ValueError("the env states no episode length: pass horizon=T (the number of actions per episode)")
+            raise ValueError(f"{NO_EPISODE_LENGTH}; or, if its episodes end on their own after T steps, pass "
+                             "horizon=T (the number of actions per episode)")
         return stated
     if stated is not None and stated != horizon:
         raise ValueError(f"horizon={horizon} but the env's episodes last {stated} steps; pass horizon={stated}")

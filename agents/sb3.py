@@ -112,7 +112,8 @@ class SB3Agent(Agent):
             (and, with ``"markov"``, over the task's ``markov_env_kwargs`` in the hyperparameter file: its
             measured best shaping, e.g. ``satisfaction_bonus`` on ``TLParking-v0`` for SAC).
         steps_per_iteration, n_envs, policy, normalize, n_timesteps, noise_type, noise_std: see
-            `SB3Config`; ``None`` takes the task's value from the hyperparameter file, else the default.
+            `SB3Config`; ``None`` takes the task's value from the hyperparameter file (all but
+            ``steps_per_iteration``, which no entry sets), else the default.
         tl_reward: ``"markov"`` or ``"terminal"``. With an env id it adds the env keywords of
             `TL_REWARD_ENV_KWARGS` (default ``"markov"``) under ``env_kwargs``; the label follows the
             ``observe_monitor`` they leave, and an explicit value they contradict is an error. An `Env`
@@ -189,7 +190,7 @@ class SB3Agent(Agent):
         hyperparameters, algo_kwargs = split_settings(settings)
         hyperparameters.update(algo=self.algo_class.__name__, tl_reward=tl_reward, hyperparams=hyperparams,
                                algo_kwargs=algo_kwargs)
-        config = self._make_config(hyperparameters)  # checked before any env is built
+        config = self._config_for(env, hyperparameters, given=settings)  # checked before any env is built
         self._env_argument = env
         self._train_env_kwargs = dict(env_kwargs or {})  # read by _setup, which runs inside Agent.__init__
         if isinstance(env, str):

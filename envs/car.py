@@ -270,6 +270,15 @@ def make_car_env(task: int = 1, no_revisit: str = "leave", **kwargs: Any) -> TLT
     return TLTLRewardWrapper(car, formula, signals={"x": 0, "y": 1}, **dataclasses.asdict(settings))
 
 
+def car_keywords() -> tuple[str, ...]:
+    """Every keyword ``gym.make("TLCarNav-v0", ...)`` takes: the task's, the car's and the reward's."""
+    return ("task", "no_revisit", *(f.name for f in dataclasses.fields(CarParams)), *LAYOUT_KEYS, "render_mode",
+            *(f.name for f in dataclasses.fields(RewardSettings)))
+
+
+make_car_env.env_keywords = car_keywords  # type: ignore[attr-defined]  # its **kwargs, for agents' messages
+
+
 def car_reward_settings(kwargs: Mapping[str, Any]) -> tuple[RewardSettings, dict[str, Any]]:
     """The car's reward settings (``monitor_scale`` defaults to `CAR_MONITOR_SCALE`) and its other keywords."""
     return RewardSettings.split(kwargs, monitor_scale=CAR_MONITOR_SCALE)

@@ -367,6 +367,16 @@ def make_parking(
 # --------------------------------------------------------------------------- helpers
 
 
+def _wrapper_keywords() -> tuple[str, ...]:
+    """The `TLTLRewardWrapper` keywords every suite id takes besides its own (its ``**wrapper_kwargs``)."""
+    return tuple(name for name in inspect.signature(TLTLRewardWrapper).parameters if name not in ("env", "spec",
+                                                                                                    "signals"))
+
+
+for _maker in (make_pendulum, make_mountain_car, make_parking):  # their **wrapper_kwargs, for agents' messages
+    _maker.env_keywords = _wrapper_keywords  # type: ignore[attr-defined]
+
+
 def _wrap(
     base: gym.Env,
     horizon: int,

@@ -488,7 +488,9 @@ def test_an_env_without_a_formula_or_an_episode_length_is_refused_saying_what_to
         REPS(gym.make("Pendulum-v1", max_episode_steps=20), n_episodes=2)
     endless = PointEnv()
     del endless.horizon
-    with pytest.raises(ValueError, match=r"the env states no episode length: pass horizon=T"):
+    with pytest.raises(ValueError, match=r"the env states no episode length: give it a time limit inside its "
+                                         r"TLTLRewardWrapper.*; or, if its episodes end on their own after T steps, "
+                                         r"pass horizon=T"):
         REPS(endless, n_episodes=2)
 
 
@@ -915,3 +917,25 @@ def test_eval_callback_keeps_the_best_evaluated_policy(tmp_path):
         EvalCallback(every=0)
     with pytest.raises(ValueError, match="n_episodes"):
         EvalCallback(every=1, n_episodes=0)
+
+
+@pytest.mark.parametrize(("make", "hint"), [
+    (lambda: REPS("TLCarNav-v0", task=2), r"'task' is a keyword of the env TLCarNav-v0, not of the agent: pass "
+                                          r"env_kwargs=\{'task': 2\}"),
+    (lambda: REPS("TLPendulum-v0", observe_monitor=True, start_std=1), r"'observe_monitor' is a keyword of the env "
+                                                                        r"TLPendulum-v0"),
+    (lambda: REPS("Pendulum-v1", g=9.0), r"'g' is a keyword of the env Pendulum-v1.*env_kwargs=\{'g': 9.0\}"),
+])
+def test_an_env_keyword_given_to_an_agent_is_named_as_the_envs(make, hint):
+    with pytest.raises(TypeError, match=r"has no hyperparameter\(s\).*" + hint):
+        make()
+
+
+def test_env_keywords_lists_what_each_id_takes_by_name():
+    from tl_gym.agents.sampling import env_keywords
+
+    assert {"task", "no_revisit", "start_std", "horizon", "observe_monitor", "goals"} <= env_keywords("TLCarNav-v0")
+    assert {"horizon", "up_by", "observe_monitor", "satisfaction_bonus"} <= env_keywords("TLPendulum-v0")
+    assert "tsk" not in env_keywords("TLCarNav-v0") and env_keywords("NoSuchEnv-v0") == frozenset()
+    with pytest.raises(TypeError, match=r"\['tsk'\]; valid ones: \[[^]]*\]$"):  # a typo gets no env hint
+        REPS("TLCarNav-v0", tsk=2)

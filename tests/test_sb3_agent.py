@@ -166,6 +166,9 @@ def test_unknown_tl_reward_is_refused_at_construction():
         ({"steps_per_iteraton": 64}, r"'steps_per_iteraton' \(did you mean 'steps_per_iteration'\?\)"),
         ({"n_epochs": 3}, r"unknown hyperparameter 'n_epochs'.*nor an argument of SAC"),
         ({"verbose": 1}, r"hyperparameter 'verbose': SB3Agent sets SAC's 'verbose' itself"),
+        ({"observe_monitor": False}, r"unknown hyperparameter 'observe_monitor'.*; 'observe_monitor' is a keyword of "
+                                     r"the env TLCarNav-v0, not of the agent: pass env_kwargs=\{'observe_monitor': "
+                                     r"False\}"),
     ],
 )
 def test_a_misspelt_or_reserved_hyperparameter_is_refused_before_any_env_is_built(kwargs, message, monkeypatch):

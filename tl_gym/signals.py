@@ -122,7 +122,8 @@ class SignalReader:
                     f"signal {name!r}: key {key!r} needs a Dict observation space, got {type(space).__name__}"
                 )
             if key not in space.spaces:
-                raise KeyError(f"signal {name!r}: the observation has no key {key!r} (keys: {', '.join(space.spaces)})")
+                raise ValueError(
+                    f"signal {name!r}: the observation has no key {key!r} (keys: {', '.join(space.spaces)})")
             sub = space.spaces[key]
             if not rest:
                 if not isinstance(sub, spaces.Box):  # no index reaches into it: only a callable can read it
