@@ -35,6 +35,7 @@ from tl_gym.checks import check_positive
 
 from .episodic import AbstractEpisodicSearch, EpisodicSearchConfig
 from .sampling import rollout
+from .weights import is_flat, kl_bound_for
 
 #: Lower bound on the temperature ``η`` of standardised returns: below it the
 #: weights are one-hot to machine precision and the dual's gradient is noise.
@@ -46,7 +47,8 @@ class REPSConfig(EpisodicSearchConfig):
     """Hyperparameters of `REPS`: the KL bound, and the fields shared with TLPS (`EpisodicSearchConfig`)."""
 
     epsilon: float = 2.0
-    """KL bound between the reweighted and the current sample distribution (> 0)."""
+    """KL bound between the reweighted and the current sample distribution (> 0); an update applies at most
+    log(n_episodes / 2), so that two episodes or more share the weight (`weights.kl_bound_for`)."""
     def __post_init__(self) -> None:
         super().__post_init__()
         check_positive("epsilon (the KL bound)", self.epsilon)
@@ -62,7 +64,7 @@ def reps_weights(returns: np.ndarray, epsilon: float) -> tuple[np.ndarray, float
 
     Args:
         returns: the episodes' returns ``R^i``, shape ``(N,)``.
-        epsilon: KL bound ``ε > 0``.
+        epsilon: KL bound ``ε ≥ 0`` (0: uniform weights; REPS passes `kl_bound_for` of its ``epsilon``).
 
     Returns:
         ``(weights, eta, kl)``: normalised weights ``(N,)``, the temperature in the units of
@@ -89,9 +91,9 @@ def reps_weights(returns: np.ndarray, epsilon: float) -> tuple[np.ndarray, float
         raise ValueError(f"REPS got a NaN return (robustness) for episode(s) {missing.tolist()}")
     if not np.isfinite(returns).all():
         return _weights_with_infinite_returns(returns, epsilon)
-    spread = float(np.std(returns))
-    if spread == 0.0 or n < 2:
+    if n < 2 or epsilon <= 0 or is_flat(returns):  # equal returns, up to rounding, carry no preference
         return np.full(n, 1.0 / n), float("inf"), 0.0
+    spread = float(np.std(returns))
     r = (returns - returns.max()) / spread  # <= 0, unit spread
 
     def dual(x: np.ndarray) -> tuple[float, np.ndarray]:
@@ -170,7 +172,7 @@ class REPS(AbstractEpisodicSearch):
         seed = int(self.rng.integers(2**31 - 1))
         feedforward = self.policy.sample_feedforward(self.config.n_episodes, self.rng)
         batch = rollout(self.env, feedforward, self.policy.feedback, seed=seed)
-        weights, eta, kl = reps_weights(batch.robustness, self.config.epsilon)
+        weights, eta, kl = reps_weights(batch.robustness, kl_bound_for(self.config.epsilon, self.config.n_episodes))
         floor = self.config.std_floor(iteration)
         refit = self._refit(batch, feedforward, weights, floor)
         return {

@@ -16,7 +16,10 @@ by `tl_gym.TLTLRewardWrapper`. One update (Algorithm 1, lines 4–18):
 2. move every τ^i to the τ̄^i that maximises the smoothed robustness ρ̂ within
    ``‖τ̄^i − τ^i‖² ≤ ε`` (l.8, `tl_gym.agents.trust_region`);
 3. fit a Gaussian to the *updated* trajectories (Eq. 12; line 9's "τ" is a typo:
-   a fit to the sampled ones carries no robustness information and does not learn);
+   a fit to the sampled ones carries no robustness information and does not learn). With the
+   default weights (``"hybrid"``, ``hybrid_mix=1.0``, the measured best) the fit does not enter
+   them and is skipped: samples are ranked by ρ̂(τ̄^i) alone, and ``regularization`` has no effect;
+   it matters for ``"importance"``, ``"paper"`` and a mix below 1 (docs/tlps.md);
 4. weight the samples from log-space logits (l.10–13, `tl_gym.agents.weights`) with a
    temperature α fixed or adapted to a KL bound;
 5. refit ``k_t`` and ``C_t`` by weighted maximum likelihood (l.14–17), with a
@@ -50,7 +53,7 @@ from .model_repair import find_model, repair_feedforward
 from .sampling import rollout
 from .trust_radius import AdaptiveRadius
 from .trust_region import check_trust_region, improve_trajectories
-from .weights import WEIGHTINGS, adapt_alpha, kl_to_uniform, sample_logits, softmax_weights
+from .weights import WEIGHTINGS, adapt_alpha, kl_bound_for, kl_to_uniform, sample_logits, softmax_weights
 
 SMOOTHING_FORMS = ("nested", "linear")
 ACTION_REPAIRS = ("none", "model")
@@ -80,11 +83,13 @@ class TLPSConfig(EpisodicSearchConfig):
     standardised importance logit. 1.0 (the measured best) ranks samples by the smoothed
     robustness of their updated trajectories alone."""
     kl_bound: float = 2.0
-    """α is adapted so that KL(w ‖ uniform) equals this bound (> 0), unless ``alpha`` is set."""
+    """α is adapted so that KL(w ‖ uniform) equals this bound (> 0), unless ``alpha`` is set; an update applies
+    at most log(n_episodes / 2), so that two episodes or more share the weight (`weights.kl_bound_for`)."""
     alpha: float | None = None
     """A fixed temperature α (> 0) instead of the adapted one."""
     regularization: float = 900.0
-    """Ridge added to every per-step covariance of both trajectory fits, squared signal units (> 0)."""
+    """Ridge added to every per-step covariance of both trajectory fits, squared signal units (> 0); unused
+    by the default weights (``"hybrid"`` with ``hybrid_mix=1.0`` fit no Gaussian)."""
     solver: str = "projected"
     """Trust-region solver: ``"projected"`` (batched) or ``"slsqp"`` (scipy, per trajectory, as the paper)."""
     solver_steps: int = 20
@@ -229,7 +234,11 @@ class TLPS(AbstractEpisodicSearch):
         # importance / hybrid corrections (see weights.py); l.12: w^i ∝ exp(α logit^i)
         logits = sample_logits(cfg.weights, tau, updated, cfg.regularization,
                                updated_smooth=smooth_after, mix=cfg.hybrid_mix)
-        alpha = adapt_alpha(logits, cfg.kl_bound) if cfg.alpha is None else cfg.alpha
+        if cfg.alpha is not None:
+            alpha = cfg.alpha
+        else:
+            bound = kl_bound_for(cfg.kl_bound, len(logits))
+            alpha = adapt_alpha(logits, bound) if bound > 0 else 0.0  # 0: two episodes, uniform weights
         weights = softmax_weights(logits, alpha)
 
         floor = cfg.std_floor(iteration)  # exploration schedule (paper, section VI: covariance damping)

@@ -92,13 +92,37 @@ def fit_gaussian(trajectories: np.ndarray, regularization: float) -> GaussianFit
     return GaussianFit(mean, cov)
 
 
-def standardise(values: np.ndarray) -> np.ndarray:
-    """Zero mean and unit standard deviation over the batch (zeros when all values are equal)."""
+def is_flat(values: np.ndarray) -> bool:
+    """Whether the batch's values are all equal, up to rounding (a spread of 1e-12 of their magnitude).
+
+    Weights computed from rounding noise would pick an episode at random; both agents give uniform weights.
+    """
     values = np.asarray(values, dtype=np.float64)
-    spread = values.std()
-    if not spread > 1e-12 * max(1.0, float(np.abs(values).max())):
+    return not values.std() > 1e-12 * max(1.0, float(np.abs(values).max()))
+
+
+def standardise(values: np.ndarray) -> np.ndarray:
+    """Zero mean and unit standard deviation over the batch (zeros when all values are equal, `is_flat`)."""
+    values = np.asarray(values, dtype=np.float64)
+    if is_flat(values):
         return np.zeros_like(values)
-    return (values - values.mean()) / spread
+    return (values - values.mean()) / values.std()
+
+
+def kl_bound_for(bound: float, n: int) -> float:
+    """The KL bound an update of ``n`` samples applies: ``min(bound, log(n / 2))``.
+
+    KL(w ‖ uniform) is at most log n, reached by one-hot weights, so a bound near log n or above cannot
+    bind: every update would put all the weight on one episode, and the covariance fit collapse to its
+    floor (the default 2.0 with n ≤ 7). The cap keeps the weights' effective sample size, about
+    ``n · exp(−bound)``, at 2 or more; with n = 2 it is 0, uniform weights. TLPS's ``kl_bound`` and REPS's
+    ``epsilon`` both go through it.
+
+    Example:
+        >>> kl_bound_for(2.0, 40), round(kl_bound_for(2.0, 5), 4), kl_bound_for(2.0, 2)
+        (2.0, 0.9163, 0.0)
+    """
+    return min(float(bound), math.log(n / 2.0))
 
 
 def sample_logits(

@@ -97,3 +97,23 @@ def test_both_episodic_agents_refuse_the_same_bad_numbers(agent, name, value):
 
     with pytest.raises(ValueError, match=f"{name}.*must be a finite number > 0"):
         agent_class(agent)._make_config({name: value})
+
+
+def test_returns_equal_up_to_rounding_give_uniform_weights():
+    returns = np.full(8, 0.5)
+    returns[3] += 1.1e-16  # rounding noise must not pick an episode
+    weights, _, kl = reps_weights(returns, epsilon=2.0)
+    np.testing.assert_allclose(weights, 1 / 8)
+    assert kl == 0.0
+
+
+@pytest.mark.parametrize(("agent", "bound"), [("reps", "epsilon"), ("tlps", "kl_bound")])
+@pytest.mark.parametrize("n", [2, 5])
+def test_a_kl_bound_that_could_not_bind_is_capped_so_two_episodes_share_the_weight(agent, bound, n):
+    """KL(w ‖ uniform) <= log n: the default 2.0 with n <= 7 episodes put all the weight on one."""
+    from tl_gym.agents import TLPS
+
+    cls = REPS if agent == "reps" else TLPS
+    model = cls("TLCarNav-v0", seed=0, n_episodes=n, horizon=20, env_kwargs={"task": 1, "horizon": 20},
+                **{bound: 2.0}).learn(1)
+    assert model.history[-1]["kl"] <= np.log(n / 2) + 1e-9  # one-hot weights have KL log n
