@@ -272,6 +272,7 @@ class Agent(abc.ABC):
             "env_steps": self.env_steps,
             "history": to_json(self.history),
             "rng_state": to_json(self.rng.bit_generator.state),
+            "predict_rng_state": to_json(self._predict_rng.bit_generator.state),  # stochastic predict's draws
         }
         return write_archive(path, meta, self._state_arrays(), self._extra_files())
 
@@ -319,6 +320,8 @@ class Agent(abc.ABC):
         agent.num_iterations = int(meta["num_iterations"])
         agent.env_steps = int(meta["env_steps"])
         agent.rng.bit_generator.state = meta["rng_state"]
+        if "predict_rng_state" in meta:  # saved since 2026-12-06
+            agent._predict_rng.bit_generator.state = meta["predict_rng_state"]
         return agent
 
     @classmethod

@@ -196,7 +196,8 @@ class AbstractEpisodicSearch(Agent):
             rows = flat_observations(self.observation_space, obs)
             obs = rows[0] if np.ndim(obs[key]) == len(space.shape) else rows
         action, state = self.policy.predict(obs, state, episode_start, deterministic, self._predict_rng)
-        return np.clip(action, self.action_space.low, self.action_space.high), state
+        # in the space's dtype, as SB3 returns actions (float32 for most Box spaces)
+        return np.clip(action, self.action_space.low, self.action_space.high).astype(self.action_space.dtype), state
 
     def _config(self) -> dict[str, Any]:
         return dataclasses.asdict(self.config)

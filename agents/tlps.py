@@ -52,7 +52,7 @@ from .episodic import AbstractEpisodicSearch, EpisodicSearchConfig
 from .model_repair import find_model, repair_feedforward
 from .sampling import rollout
 from .trust_radius import AdaptiveRadius
-from .trust_region import check_trust_region, improve_trajectories
+from .trust_region import check_trust_region, improve_trajectories, smooth_by_length
 from .weights import WEIGHTINGS, adapt_alpha, kl_bound_for, kl_to_uniform, sample_logits, softmax_weights
 
 SMOOTHING_FORMS = ("nested", "linear")
@@ -203,7 +203,8 @@ class TLPS(AbstractEpisodicSearch):
         sampled_at = time.perf_counter()
         scale = 1.0
         if cfg.trust_adapt:  # the last update's promise against this batch, sampled from its refit
-            sampled = self.formula.smooth_robustness(batch.traces, cfg.beta, math.inf, cfg.smoothing)
+            sampled = smooth_by_length(self.formula, self.signal_names, tau, cfg.beta, batch.lengths,
+                                       form=cfg.smoothing)
             scale = self._radius.adapt(float(np.mean(sampled)))
         first_step = self._moved if cfg.solver_warm_start and self._moved > 0 else None
 
@@ -211,6 +212,7 @@ class TLPS(AbstractEpisodicSearch):
             result = improve_trajectories(  # l.8: τ̄^i = argmax ρ̂ s.t. ‖τ̄^i − τ^i‖² ≤ ε
                 self.formula, self.signal_names, tau, cfg.beta, cfg.epsilon * scale, solver=cfg.solver,
                 steps=cfg.solver_steps, decay=cfg.solver_decay, form=cfg.smoothing, first_step=first_step,
+                lengths=batch.lengths,  # episodes that ended early: judged and moved on their own states
             )
             updated, smooth_before, smooth_after = result.updated, result.smooth_before, result.smooth_after
             moved = np.sqrt(np.sum((updated - tau) ** 2, axis=(1, 2)))

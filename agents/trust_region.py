@@ -115,6 +115,7 @@ def improve_trajectories(
     rho_max: float = math.inf,
     form: str = "nested",
     first_step: float | None = None,
+    lengths: np.ndarray | None = None,
 ) -> TrustRegionResult:
     """Solve the trust-region problem for every trajectory (Algorithm 1, line 8).
 
@@ -131,6 +132,10 @@ def improve_trajectories(
         rho_max: the value of ``true`` passed to the engine.
         form: the engine's smoothing form, ``"nested"`` (the paper's) or ``"linear"``.
         first_step: the projected solver's first step length (at most √ε, which is the default).
+        lengths: actions each episode took, ``(N,)``, when some ended early: their trajectories hold
+            ``lengths[i] + 1`` states, padded with the last one up to ``T`` (`rollout`). Each is then judged
+            and moved on its own states alone (`episodes_by_length`), and its padding follows its last state:
+            the smoothed robustness of a padded trace would count the last state once per copy.
 
     Returns:
         A `TrustRegionResult`.
@@ -142,6 +147,14 @@ def improve_trajectories(
     if trajectories.ndim != 3 or trajectories.shape[2] != len(names):
         raise ValueError(f"trajectories must have shape (N, T, {len(names)}), got {trajectories.shape}")
     check_trust_region(epsilon, beta, solver, steps, decay)
+    if lengths is not None and np.min(lengths) < trajectories.shape[1] - 1:
+        updated, before, after = trajectories.copy(), np.empty(len(trajectories)), np.empty(len(trajectories))
+        for rows, states in episodes_by_length(lengths, trajectories.shape[1]):
+            part = improve_trajectories(formula, names, trajectories[rows, :states], beta, epsilon, solver, steps,
+                                        decay, rho_max, form, first_step)
+            updated[rows, :states], updated[rows, states:] = part.updated, part.updated[:, -1:]
+            before[rows], after[rows] = part.smooth_before, part.smooth_after
+        return TrustRegionResult(updated, before, after)
 
     def evaluate(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return smooth_value_and_grad(formula, names, x, beta, rho_max, form)
@@ -153,6 +166,29 @@ def improve_trajectories(
 
         return projected_ascent(evaluate_rows, trajectories, epsilon, steps, decay, first_step)
     return _slsqp(evaluate, trajectories, epsilon, 5 * steps)
+
+
+def episodes_by_length(lengths: np.ndarray, states: int) -> list[tuple[np.ndarray, int]]:
+    """``(rows, states)`` of the episodes of each length: ``lengths[i] + 1`` states of the ``states`` recorded.
+
+    Example:
+        >>> [(rows.tolist(), n) for rows, n in episodes_by_length(np.array([4, 2, 4]), 5)]
+        [([1], 3), ([0, 2], 5)]
+    """
+    lengths = np.minimum(np.asarray(lengths), states - 1)
+    return [(np.flatnonzero(lengths == length), int(length) + 1) for length in np.unique(lengths)]
+
+
+def smooth_by_length(formula: Formula, names: Sequence[str], trajectories: np.ndarray, beta: float,
+                     lengths: np.ndarray | None, rho_max: float = math.inf, form: str = "nested") -> np.ndarray:
+    """ρ̂ of each trajectory ``(N, T, S)`` on its own ``lengths[i] + 1`` states (`episodes_by_length`)."""
+    if lengths is None:
+        lengths = np.full(len(trajectories), trajectories.shape[1] - 1)
+    values = np.empty(len(trajectories))
+    for rows, states in episodes_by_length(lengths, trajectories.shape[1]):
+        trace = {name: trajectories[rows, :states, j] for j, name in enumerate(names)}
+        values[rows] = formula.smooth_robustness(trace, beta, rho_max, form)
+    return values
 
 
 def check_trust_region(epsilon: float, beta: float, solver: str, steps: int, decay: float, prefix: str = "") -> None:

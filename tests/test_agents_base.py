@@ -361,6 +361,17 @@ def test_saved_agent_acts_evaluates_and_continues_like_the_original(tmp_path):
     np.testing.assert_array_equal(loaded.policy.cov, uninterrupted.policy.cov)
 
 
+def test_stochastic_actions_go_on_alike_after_a_save_and_load_and_come_in_the_spaces_dtype(tmp_path):
+    agent = make_agent(seed=5).learn(1)
+    obs = np.random.default_rng(0).normal(size=(4, 2))
+    agent.predict(obs, state=np.arange(4), deterministic=False)  # the draws have moved on since the seed
+    loaded = Agent.load(agent.save(tmp_path / "agent.zip"))
+    for _ in range(2):
+        action, _ = agent.predict(obs, state=np.arange(4), deterministic=False)
+        np.testing.assert_array_equal(loaded.predict(obs, state=np.arange(4), deterministic=False)[0], action)
+    assert action.dtype == agent.action_space.dtype and agent.action_space.contains(action[0])
+
+
 def test_load_rebuilds_a_wrapped_or_time_limited_env_or_asks_for_it(tmp_path):
     # a wrapper with a callable cannot be written down: load must ask for env=, not rebuild the bare env
     shifted = gym.wrappers.TransformObservation(gym.make(POINT_ID), lambda obs: obs + 0.5,

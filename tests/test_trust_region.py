@@ -120,3 +120,27 @@ def test_bad_settings_raise_naming_the_culprit(kwargs, culprit):
 def test_bad_shape_raises():
     with pytest.raises(ValueError, match="shape"):
         improve_trajectories(parse("x > 0"), ("x",), np.zeros((3, 1)), beta=9.0, epsilon=1.0)
+
+
+@pytest.mark.parametrize("solver", ["projected", "slsqp"])
+def test_episodes_that_ended_early_are_judged_and_moved_on_their_own_states(solver):
+    """A padded trace repeats its last state: ρ̂ would count it once per copy, and the step would move copies."""
+    from tl_gym.agents.trust_region import smooth_by_length
+
+    phi = parse("F(x > 1) & G(y < 2)")
+    rng = np.random.default_rng(0)
+    lengths = np.array([6, 2, 6, 4])  # actions: 7, 3, 7 and 5 states of the 7 recorded
+    tau = rng.normal(size=(4, 7, 2))
+    for i, length in enumerate(lengths):
+        tau[i, length + 1:] = tau[i, length]  # as rollout pads them
+    result = improve_trajectories(phi, ("x", "y"), tau, beta=5.0, epsilon=0.5, solver=solver, lengths=lengths)
+    for i, length in enumerate(lengths):
+        alone = improve_trajectories(phi, ("x", "y"), tau[i : i + 1, : length + 1], beta=5.0, epsilon=0.5,
+                                     solver=solver)
+        np.testing.assert_allclose(result.updated[i, : length + 1], alone.updated[0], atol=1e-12)
+        np.testing.assert_allclose(result.updated[i, length + 1 :], alone.updated[0, -1:].repeat(6 - length, 0))
+        assert result.smooth_before[i] == pytest.approx(alone.smooth_before[0], abs=1e-12)
+        assert result.smooth_after[i] == pytest.approx(alone.smooth_after[0], abs=1e-12)
+    padded = phi.smooth_robustness({"x": tau[1:2, :, 0], "y": tau[1:2, :, 1]}, 5.0)[0]
+    assert result.smooth_before[1] != pytest.approx(padded)  # what the padding would have said
+    np.testing.assert_allclose(smooth_by_length(phi, ("x", "y"), tau, 5.0, lengths), result.smooth_before)
