@@ -211,6 +211,9 @@ class CarNavEnv(CarProperties, gym.Env):
         action = np.asarray(action, dtype=np.float64)
         if action.shape != (2,):
             raise ValueError(f"action must have shape (2,) (speed, steering in [-1, 1]), got {action.shape}")
+        if not (math.isfinite(action[0]) and math.isfinite(action[1])):  # two scalar tests: 0.1 µs, a numpy call 1.7
+            raise ValueError(f"action {action.tolist()} is not finite: the car would move to NaN, and the episode's "
+                             "robustness fail at its end")
         physical = self.params.physical_action(action)
         p = self.params
         self.state = car_step(self.state, physical, p.dt, p.wheelbase, self._noise[self._t])

@@ -8,6 +8,7 @@ one batched call of the engine.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -73,15 +74,22 @@ class CarNavVectorEnv(CarProperties, VectorEnv):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10, "autoreset_mode": AutoresetMode.NEXT_STEP}
 
     def __init__(self, num_envs: int = 40, task: int = 1, no_revisit: str = "leave",
-                 render_mode: str | None = None, **kwargs: Any):
+                 render_mode: str | None = None, autoreset_mode: AutoresetMode | str | None = None, **kwargs: Any):
         """Check the arguments (as `make_car_env` does) and allocate the batch; see `CarNavEnv` for each one.
 
         ``kwargs`` are the reward settings (`tl_gym.wrapper.RewardSettings`) and the car's keywords.
+        ``autoreset_mode`` (what ``gym.make_vec`` passes on): the batched car resets on the next step only.
         """
         check_count("num_envs", num_envs)
         settings, car_kwargs = car_reward_settings(kwargs)
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
+            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']} for the batched car, "
+                             f"got {render_mode!r}; vectorization_mode='sync' gives each car its own window")
+        if autoreset_mode is not None and autoreset_mode not in list(AutoresetMode) + [m.value for m in AutoresetMode]:
+            raise ValueError(f"autoreset_mode must be an AutoresetMode, got {autoreset_mode!r}")
+        if autoreset_mode is not None and AutoresetMode(autoreset_mode) is not AutoresetMode.NEXT_STEP:
+            raise ValueError(f"autoreset_mode={autoreset_mode!r}: the batched car resets a finished car on the next "
+                             "step (AutoresetMode.NEXT_STEP) only; vectorization_mode='sync' offers the other modes")
         self.num_envs = int(num_envs)
         self.task = task
         self.layout, self.params, overrides = car_setup(task, car_kwargs)
@@ -185,6 +193,10 @@ class CarNavVectorEnv(CarProperties, VectorEnv):
         actions = np.asarray(actions, dtype=np.float64)
         if actions.shape != (self.num_envs, 2):
             raise ValueError(f"actions must have shape ({self.num_envs}, 2), got {actions.shape}")
+        if not math.isfinite(actions.sum()) and not np.isfinite(actions).all():  # one sum clears almost every call
+            cars = np.flatnonzero(~np.isfinite(actions).all(axis=1)).tolist()
+            raise ValueError(f"the actions of car(s) {cars} are not finite ({actions[cars[0]].tolist()} for car "
+                             f"{cars[0]}): they would move to NaN, and every car's episode fail at its end")
         n = self.num_envs
         rewards = np.zeros(n)
         done = np.zeros(n, dtype=bool)

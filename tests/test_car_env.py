@@ -511,3 +511,39 @@ def test_a_keyword_the_car_does_not_take_is_named_with_all_it_takes(kwargs, matc
             gym.make("TLCarNav-v0", **kwargs)
     with pytest.raises(TypeError, match=match):  # the batched car says the same
         gym.make_vec("TLCarNav-v0", num_envs=2, vectorization_mode="vector_entry_point", **kwargs)
+
+
+def test_a_non_finite_action_is_refused_naming_the_car_before_it_moves():
+    env = gym.make("TLCarNav-v0")
+    obs, _ = env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"action \[nan, 0.0\] is not finite"):
+        env.step(np.array([np.nan, 0.0], dtype=np.float32))
+    assert env.step(np.zeros(2, dtype=np.float32))[0][:2].tolist() != [np.nan] * 2  # the episode goes on
+    batched = gym.make_vec("TLCarNav-v0", num_envs=3, vectorization_mode="vector_entry_point")
+    batched.reset(seed=0)
+    actions = np.zeros((3, 2))
+    actions[2, 1] = -np.inf
+    with pytest.raises(ValueError, match=r"the actions of car\(s\) \[2\] are not finite \(\[0.0, -inf\] for car 2\)"):
+        batched.step(actions)
+    assert np.isfinite(batched.step(np.zeros((3, 2)))[0]).all()
+
+
+def test_the_observation_space_widens_with_the_noise_and_keeps_the_defaults_bound():
+    assert gym.make("TLCarNav-v0").observation_space.high[0] == 6400.0
+    assert gym.make("TLCarNav-v0", start_std=(15, 15, 0.3)).observation_space.high[0] == 6400.0
+    env = gym.make("TLCarNav-v0", start=(30, 30, 0), noise_std=(50, 50, 0.0))
+    for seed in range(5):  # full speed ahead: the noise's 200-step sum has a std of about 700 units
+        obs, _ = env.reset(seed=seed)
+        for _ in range(200):
+            obs, *_ = env.step(np.array([1.0, 0.0], dtype=np.float32))
+            assert env.observation_space.contains(obs)
+
+
+@pytest.mark.parametrize("mode", ["SameStep", "Disabled", "bad"])
+def test_the_batched_car_names_the_autoreset_mode_it_offers(mode):
+    from gymnasium.vector import AutoresetMode
+
+    assert gym.make_vec("TLCarNav-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                        autoreset_mode=AutoresetMode.NEXT_STEP).metadata["autoreset_mode"] is AutoresetMode.NEXT_STEP
+    with pytest.raises(ValueError, match="autoreset_mode"):
+        gym.make_vec("TLCarNav-v0", num_envs=2, vectorization_mode="vector_entry_point", autoreset_mode=mode)

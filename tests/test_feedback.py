@@ -112,7 +112,8 @@ def test_predict_equals_the_sampled_actions():
     batch = rollout(agent.env, feedforward, policy.feedback, seed=7)
     for t in (0, 1, 37, 199):
         action, state = agent.predict(batch.observations[:, t], state=np.full(5, t))
-        np.testing.assert_allclose(action, batch.actions[:, t], rtol=0, atol=1e-12)
+        assert action.dtype == agent.action_space.dtype  # as sent to the env (the sampler records float64)
+        np.testing.assert_allclose(action, batch.actions[:, t].astype(action.dtype), rtol=0, atol=1e-7)
         assert state.tolist() == [t + 1] * 5
     # stochastic: the drawn k_t^i with the policy's own act()
     feedforward = policy.sample_feedforward(5, np.random.default_rng(0))

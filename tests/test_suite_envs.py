@@ -364,3 +364,12 @@ def test_agents_read_the_horizon(env_id):
         agent = agent_class(env_id, seed=0, n_episodes=4, env_kwargs=env_kwargs).learn(1)
         assert agent.horizon == 30
         assert agent.history[-1]["env_steps"] <= 4 * 30
+
+
+@pytest.mark.parametrize("env_id", ALL)
+def test_the_env_spec_is_the_ids_and_remakes_the_task(env_id):
+    """Reading the inner env's length while the wrapper was built cached the inner id (Pendulum-v1) on env.spec."""
+    env = gym.make(env_id)
+    assert env.spec.id == env_id
+    again = gym.make(env.spec)
+    assert str(again.get_wrapper_attr("formula")) == str(env.get_wrapper_attr("formula"))

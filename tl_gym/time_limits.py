@@ -42,7 +42,8 @@ def episode_length(env: gym.Env) -> int | None:
     """The steps after which ``env`` ends every episode at the latest, if it states them; else None.
 
     The least of what it states: every ``TimeLimit`` among its wrappers (one applied by hand has no spec to say
-    so), its spec's ``max_episode_steps`` and a ``horizon`` attribute (envs that own their horizon, as the car).
+    so), its unwrapped spec's ``max_episode_steps`` and a ``horizon`` attribute (envs that own their horizon, as
+    the car).
 
     Example:
         >>> import gymnasium as gym
@@ -52,7 +53,10 @@ def episode_length(env: gym.Env) -> int | None:
         (200, None)
     """
     stated = time_limits(env)
-    steps = getattr(env.spec, "max_episode_steps", None) if env.spec is not None else None
+    # the unwrapped env's spec: a wrapper's `spec` caches itself on every layer, and read while a reward wrapper is
+    # built (inside an entry point) it would keep the inner id (Pendulum-v1) once gym.make sets the outer one
+    spec = env.unwrapped.spec
+    steps = getattr(spec, "max_episode_steps", None) if spec is not None else None
     if is_count(steps):
         stated.append(int(steps))
     try:
