@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import math
 from typing import Any
 
 import gymnasium as gym
@@ -147,10 +148,19 @@ class AbstractEpisodicSearch(Agent):
                 self._feedback.check_fittable(cfg.n_episodes, int(self.feedback_features.sum()),
                                               f"feedback_features={cfg.feedback_features!r}")
 
+    #: The config field of the weights' KL bound (TLPS's ``kl_bound``, REPS's ``epsilon``).
+    kl_field: str = "kl_bound"
+
     @classmethod
     def _saved_config(cls, config: dict[str, Any]) -> dict[str, Any]:
         # files saved before fitted feedback existed hold open-loop policies
-        return {"feedback": "open", **config}
+        config = {"feedback": "open", **config}
+        # saved before 2026-12-06, a bound that cannot bind (the old fixed default 2.0 with n <= 7) was taken as
+        # given, one-hot weights; it loads as today's default, which `check_kl_bound` would otherwise refuse
+        bound, n = config.get(cls.kl_field), config.get("n_episodes")
+        if isinstance(bound, (int, float)) and isinstance(n, int) and n >= 2 and bound >= math.log(n):
+            config[cls.kl_field] = None
+        return config
 
     @abc.abstractmethod
     def _update(self, iteration: int) -> dict[str, Any]:
@@ -196,8 +206,10 @@ class AbstractEpisodicSearch(Agent):
             rows = flat_observations(self.observation_space, obs)
             obs = rows[0] if np.ndim(obs[key]) == len(space.shape) else rows
         action, state = self.policy.predict(obs, state, episode_start, deterministic, self._predict_rng)
-        # in the space's dtype, as SB3 returns actions (float32 for most Box spaces)
-        return np.clip(action, self.action_space.low, self.action_space.high).astype(self.action_space.dtype), state
+        action = np.clip(action, self.action_space.low, self.action_space.high)
+        if np.issubdtype(self.action_space.dtype, np.floating):  # the space's float type, as SB3 returns actions
+            action = action.astype(self.action_space.dtype)
+        return action, state
 
     def _config(self) -> dict[str, Any]:
         return dataclasses.asdict(self.config)

@@ -31,11 +31,9 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.special import logsumexp
 
-from tl_gym.checks import check_positive
-
 from .episodic import AbstractEpisodicSearch, EpisodicSearchConfig
 from .sampling import rollout
-from .weights import is_flat, kl_bound_for
+from .weights import check_kl_bound, is_flat, kl_bound_for
 
 #: Lower bound on the temperature ``η`` of standardised returns: below it the
 #: weights are one-hot to machine precision and the dual's gradient is noise.
@@ -46,12 +44,15 @@ ETA_MIN = 1e-6
 class REPSConfig(EpisodicSearchConfig):
     """Hyperparameters of `REPS`: the KL bound, and the fields shared with TLPS (`EpisodicSearchConfig`)."""
 
-    epsilon: float = 2.0
-    """KL bound between the reweighted and the current sample distribution (> 0); an update applies at most
-    log(n_episodes / 2), so that two episodes or more share the weight (`weights.kl_bound_for`)."""
+    epsilon: float | None = None
+    """KL bound between the reweighted and the current sample distribution. ``None``: 2.0, at most
+    log(n_episodes / 2), so that two episodes or more share the weight (`weights.kl_bound_for`; episodes at a
+    robustness of +inf take all the weight whatever the bound); a bound given must be > 0 and below
+    log(n_episodes), where it could not bind."""
+
     def __post_init__(self) -> None:
         super().__post_init__()
-        check_positive("epsilon (the KL bound)", self.epsilon)
+        check_kl_bound("epsilon", self.epsilon, self.n_episodes)
 
 
 def reps_weights(returns: np.ndarray, epsilon: float) -> tuple[np.ndarray, float, float]:
@@ -166,6 +167,7 @@ class REPS(AbstractEpisodicSearch):
 
     config: REPSConfig
     config_class = REPSConfig
+    kl_field = "epsilon"
 
 
     def _update(self, iteration: int) -> dict[str, Any]:

@@ -53,7 +53,15 @@ from .model_repair import find_model, repair_feedforward
 from .sampling import rollout
 from .trust_radius import AdaptiveRadius
 from .trust_region import check_trust_region, improve_trajectories, smooth_by_length
-from .weights import WEIGHTINGS, adapt_alpha, kl_bound_for, kl_to_uniform, sample_logits, softmax_weights
+from .weights import (
+    WEIGHTINGS,
+    adapt_alpha,
+    check_kl_bound,
+    kl_bound_for,
+    kl_to_uniform,
+    sample_logits,
+    softmax_weights,
+)
 
 SMOOTHING_FORMS = ("nested", "linear")
 ACTION_REPAIRS = ("none", "model")
@@ -82,9 +90,10 @@ class TLPSConfig(EpisodicSearchConfig):
     """Share of the standardised ρ̂(τ̄^i) in the hybrid logits, in [0, 1]; the rest is the
     standardised importance logit. 1.0 (the measured best) ranks samples by the smoothed
     robustness of their updated trajectories alone."""
-    kl_bound: float = 2.0
-    """α is adapted so that KL(w ‖ uniform) equals this bound (> 0), unless ``alpha`` is set; an update applies
-    at most log(n_episodes / 2), so that two episodes or more share the weight (`weights.kl_bound_for`)."""
+    kl_bound: float | None = None
+    """α is adapted so that KL(w ‖ uniform) equals this bound, unless ``alpha`` is set. ``None``: 2.0, at most
+    log(n_episodes / 2), so that two episodes or more share the weight (`weights.kl_bound_for`); a bound given
+    must be > 0 and below log(n_episodes), where it could not bind."""
     alpha: float | None = None
     """A fixed temperature α (> 0) instead of the adapted one."""
     regularization: float = 900.0
@@ -125,7 +134,7 @@ class TLPSConfig(EpisodicSearchConfig):
         if self.weights not in WEIGHTINGS:
             raise ValueError(f"weights must be one of {WEIGHTINGS}, got {self.weights!r}")
         check_fraction("hybrid_mix", self.hybrid_mix, allow_zero=True)
-        check_positive("kl_bound", self.kl_bound)
+        check_kl_bound("kl_bound", self.kl_bound, self.n_episodes)
         if self.action_repair not in ACTION_REPAIRS:
             raise ValueError(f"action_repair must be one of {ACTION_REPAIRS}, got {self.action_repair!r}")
         check_positive("action_epsilon", self.action_epsilon)
@@ -215,7 +224,8 @@ class TLPS(AbstractEpisodicSearch):
                 lengths=batch.lengths,  # episodes that ended early: judged and moved on their own states
             )
             updated, smooth_before, smooth_after = result.updated, result.smooth_before, result.smooth_after
-            moved = np.sqrt(np.sum((updated - tau) ** 2, axis=(1, 2)))
+            alive = np.arange(tau.shape[1]) <= batch.lengths[:, None]  # not the copies padding an early end
+            moved = np.sqrt(np.sum((updated - tau) ** 2 * alive[:, :, None], axis=(1, 2)))
         else:  # l.8 through the model: k̄^i = argmax ρ̂(τ(k)) s.t. ‖k − k^i‖² ≤ ε_a; refit to the repaired episodes
             repair = repair_feedforward(self._model, self.policy, batch, feedforward, self.formula,
                                         cfg.action_epsilon * scale, cfg.beta, cfg.solver_steps, cfg.solver_decay,

@@ -147,6 +147,11 @@ def improve_trajectories(
     if trajectories.ndim != 3 or trajectories.shape[2] != len(names):
         raise ValueError(f"trajectories must have shape (N, T, {len(names)}), got {trajectories.shape}")
     check_trust_region(epsilon, beta, solver, steps, decay)
+    if lengths is not None:
+        lengths = np.asarray(lengths)
+        if lengths.shape != (len(trajectories),) or lengths.dtype.kind not in "iu" or np.any(lengths < 0):
+            raise ValueError(f"lengths must be {len(trajectories)} ints >= 0 (the actions of each episode), got "
+                             f"{lengths!r}")
     if lengths is not None and np.min(lengths) < trajectories.shape[1] - 1:
         updated, before, after = trajectories.copy(), np.empty(len(trajectories)), np.empty(len(trajectories))
         for rows, states in episodes_by_length(lengths, trajectories.shape[1]):

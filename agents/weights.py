@@ -109,20 +109,40 @@ def standardise(values: np.ndarray) -> np.ndarray:
     return (values - values.mean()) / values.std()
 
 
-def kl_bound_for(bound: float, n: int) -> float:
-    """The KL bound an update of ``n`` samples applies: ``min(bound, log(n / 2))``.
+#: The KL bound of TLPS (``kl_bound``) and REPS (``epsilon``) when none is given: at most log(n / 2) (`kl_bound_for`).
+DEFAULT_KL_BOUND = 2.0
 
-    KL(w ‖ uniform) is at most log n, reached by one-hot weights, so a bound near log n or above cannot
-    bind: every update would put all the weight on one episode, and the covariance fit collapse to its
-    floor (the default 2.0 with n ≤ 7). The cap keeps the weights' effective sample size, about
-    ``n · exp(−bound)``, at 2 or more; with n = 2 it is 0, uniform weights. TLPS's ``kl_bound`` and REPS's
-    ``epsilon`` both go through it.
+
+def kl_bound_for(bound: float | None, n: int) -> float:
+    """The KL bound an update of ``n`` samples applies: ``bound`` as given, or by default ``min(2.0, log(n / 2))``.
+
+    KL(w ‖ uniform) is at most log n, reached by one-hot weights, so a bound near log n cannot bind: every
+    update would put all the weight on one episode, and the covariance fit collapse to its floor (the old
+    fixed default 2.0 with n ≤ 7). The default keeps the weights' effective sample size, about
+    ``n · exp(−bound)``, at 2 or more; with n = 2 it is 0: uniform weights, no learning. A bound given
+    explicitly is applied as it is, once `check_kl_bound` has let it through.
 
     Example:
-        >>> kl_bound_for(2.0, 40), round(kl_bound_for(2.0, 5), 4), kl_bound_for(2.0, 2)
-        (2.0, 0.9163, 0.0)
+        >>> kl_bound_for(None, 40), round(kl_bound_for(None, 5), 4), kl_bound_for(None, 2), kl_bound_for(3.5, 40)
+        (2.0, 0.9163, 0.0, 3.5)
     """
-    return min(float(bound), math.log(n / 2.0))
+    return min(DEFAULT_KL_BOUND, math.log(n / 2.0)) if bound is None else float(bound)
+
+
+def check_kl_bound(name: str, bound: float | None, n: int) -> None:
+    """Refuse a KL bound that is not a number > 0, or that cannot bind with ``n`` samples (>= log n).
+
+    Raises:
+        ValueError: naming the setting, the bound and log n.
+    """
+    if bound is None:
+        return
+    check_positive(name, bound)
+    if bound >= math.log(n):
+        raise ValueError(
+            f"{name}={bound} cannot bind with n_episodes={n}: KL(w ‖ uniform) is at most log {n} = {math.log(n):.3f}, "
+            f"reached by one-hot weights, so every update would put all the weight on one episode; give {name} below "
+            f"{math.log(n):.3f}, or leave it out (the default: {DEFAULT_KL_BOUND}, at most log(n_episodes / 2))")
 
 
 def sample_logits(

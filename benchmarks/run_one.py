@@ -4,9 +4,10 @@ The folder holds ``spec.json``, ``history.csv`` (a row per iteration), ``traject
 the spec's ``trajectory_iterations``), ``agent.zip`` (the final agent) and ``done.json``, written last and
 atomically: it alone marks the run finished (`is_done`). Until then ``checkpoint/`` holds the latest checkpoint,
 from which `execute_run` resumes. A run being trained holds the lock ``<run folder>.lock`` beside its folder
-(`run_lock`), so that two runners on one results folder never train, or wipe, the same run. Kept apart from the
-sweep (`benchmarks.runner`), which only decides where each run executes (a worker process, this process, or a Ray
-task through `run_files` and `install_files`), so that the trials that run one spec of their own
+(`run_lock`), so that two local runners on one results folder never train, or wipe, the same run (a Ray task trains
+in a scratch folder without it; its files are installed under the lock, never over a finished run). Kept apart from
+the sweep (`benchmarks.runner`), which only decides where each run executes (a worker process, this process, or a
+Ray task through `run_files` and `install_files`), so that the trials that run one spec of their own
 (`benchmarks.parking_demos`, `benchmarks.parking_nstep`) call it alone; the reports (`benchmarks.results`) read the
 folders through the file names here. Run files: ``docs/benchmarks.md``.
 """
@@ -68,8 +69,8 @@ def run_lock(run_dir: str | Path) -> Iterator[None]:
         except OSError as error:
             if error.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
                 raise
-            raise RunInProgress(f"{Path(run_dir).name}: another process is training this run (it holds {path}); "
-                                "this one leaves it alone") from None
+            raise RunInProgress(f"{Path(run_dir).name}: its lock {path} is held, by a runner training it; this one "
+                                "leaves it alone") from None
         try:
             yield
         finally:
@@ -292,14 +293,16 @@ def run_files(spec: RunSpec) -> dict[str, bytes]:
 def install_files(files: Mapping[str, bytes], run_dir: str | Path) -> None:
     """Write a finished run's files (from `run_files`) into ``run_dir``, ``done.json`` last (ValueError if none).
 
-    Raises `RunInProgress` when a local process is training the same run there.
+    A run finished there meanwhile (a local runner on the same folder: Ray tasks train without its lock) is kept,
+    and these files are dropped. Raises `RunInProgress` when a local process is training the same run there.
     """
     if DONE not in files:
         raise ValueError(f"not a finished run: no {DONE} among {sorted(files)}")
     run_dir = Path(run_dir)
     with run_lock(run_dir):
-        if not is_done(run_dir):
-            shutil.rmtree(run_dir, ignore_errors=True)
+        if is_done(run_dir):
+            return
+        shutil.rmtree(run_dir, ignore_errors=True)
         run_dir.mkdir(parents=True, exist_ok=True)
         for name in sorted(files, key=lambda n: n == DONE):
             write_atomic(run_dir / name, files[name])

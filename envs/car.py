@@ -52,7 +52,7 @@ def _unknown_keyword_message(culprit: str, fields: list[str]) -> str:
     car = [*fields, *LAYOUT_KEYS, "render_mode"]
     reward = [f.name for f in dataclasses.fields(RewardSettings)]
     why = CAR_REFUSED_KEYWORDS.get(culprit)
-    hint = f" ({why})" if why else did_you_mean(culprit, [*car, *reward, "task", "no_revisit"])
+    hint = f" ({why})" if why else did_you_mean(culprit, list(car_keywords()))
     # one name quoted, the culprit's: SB3Agent finds the keyword it added in the message by its quotes
     return (f"the car has no keyword {culprit!r}{hint}; the car takes ({', '.join(car)}); TLCarNav-v0 also "
             f"takes task, no_revisit and the reward's ({', '.join(reward)})")

@@ -74,7 +74,8 @@ class CarParams:
         ``horizon · max_speed · dt`` (6000); the noise's margin is 5 standard deviations of the start's and
         of the horizon's summed step noise, at least 100 (about 47 standard deviations of the defaults'
         200-step sum; the start spread (15, 15, 0.3) keeps 100 as well). A larger ``noise_std`` or
-        ``start_std`` widens the space, so that every observation stays in it.
+        ``start_std`` widens the space, so that the observations stay in it but with a probability of about 1e-6
+        an episode (5 standard deviations of Gaussian noise).
         """
         far = max(abs(float(start[0])), abs(float(start[1])), *map(float, arena))
         spread = max(self.start_std[:2]) + max(self.noise_std[:2]) * math.sqrt(self.horizon)

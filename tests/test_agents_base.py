@@ -950,3 +950,14 @@ def test_env_keywords_lists_what_each_id_takes_by_name():
     assert "tsk" not in env_keywords("TLCarNav-v0") and env_keywords("NoSuchEnv-v0") == frozenset()
     with pytest.raises(TypeError, match=r"\['tsk'\]; valid ones: \[[^]]*\]$"):  # a typo gets no env hint
         REPS("TLCarNav-v0", tsk=2)
+
+
+def test_an_integer_action_box_gets_its_actions_unrounded_as_the_sampler_sends_them():
+    class IntegerActions(PointEnv):
+        def __init__(self):
+            super().__init__()
+            self.action_space = gym.spaces.Box(-3, 3, (2,), np.int64)
+
+    agent = REPS(IntegerActions(), n_episodes=2, init_mean=0.7, init_std=0.1)
+    action, _ = agent.predict(np.zeros(2))
+    np.testing.assert_allclose(action, [0.7, 0.7])

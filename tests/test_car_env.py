@@ -518,7 +518,7 @@ def test_a_non_finite_action_is_refused_naming_the_car_before_it_moves():
     obs, _ = env.reset(seed=0)
     with pytest.raises(ValueError, match=r"action \[nan, 0.0\] is not finite"):
         env.step(np.array([np.nan, 0.0], dtype=np.float32))
-    assert env.step(np.zeros(2, dtype=np.float32))[0][:2].tolist() != [np.nan] * 2  # the episode goes on
+    assert np.isfinite(env.step(np.zeros(2, dtype=np.float32))[0]).all()  # the episode goes on, unharmed
     batched = gym.make_vec("TLCarNav-v0", num_envs=3, vectorization_mode="vector_entry_point")
     batched.reset(seed=0)
     actions = np.zeros((3, 2))

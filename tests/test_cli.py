@@ -207,7 +207,7 @@ def test_help_lists_the_hyperparameters(capsys):
         main(["train", "--help"])
     assert exit_info.value.code == 0
     out = capsys.readouterr().out
-    assert "reps: n_episodes=40" in out and "epsilon=2.0" in out and "--spec" in out
+    assert "reps: n_episodes=40" in out and "epsilon=None" in out and "--spec" in out
 
 
 SB3_TINY = ["--steps-per-iteration", "64", "--n-envs", "2", "--batch-size", "32", "--n-epochs", "1", "--snapshots", "9"]

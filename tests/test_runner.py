@@ -306,11 +306,20 @@ def start_hanging_sweep(tmp_path: Path) -> tuple[subprocess.Popen, Path, Path, i
     return process, path, out, int((markers / "started").read_text())
 
 
+def _wait_until_gone(pid: int, seconds: float = 10.0) -> None:
+    """Wait for a killed worker to exit: until it has, it holds its run's lock."""
+    deadline = time.monotonic() + seconds
+    while _alive(pid):
+        assert time.monotonic() < deadline, f"process {pid} outlived its kill"
+        time.sleep(0.05)
+
+
 def test_killed_sweep_leaves_no_half_result_and_rerun_completes(tmp_path):
-    process, path, out, _ = start_hanging_sweep(tmp_path)
+    process, path, out, worker = start_hanging_sweep(tmp_path)
     markers = tmp_path / "markers"
     os.killpg(process.pid, signal.SIGKILL)
     process.wait()
+    _wait_until_gone(worker)
     (run,) = load_config(path).runs
     run_dir = out / "runs" / run.run_id
     assert (run_dir / HISTORY).read_text().count("\n") == 2  # header and iteration 1, then killed
@@ -325,20 +334,21 @@ def test_killed_sweep_leaves_no_half_result_and_rerun_completes(tmp_path):
 
 
 def test_a_second_runner_on_one_folder_leaves_the_run_being_trained_alone(tmp_path, capsys):
-    process, path, out, _ = start_hanging_sweep(tmp_path)
+    process, path, out, worker = start_hanging_sweep(tmp_path)
     (run,) = load_config(path).runs
     run_dir = out / "runs" / run.run_id
     try:
         before = (run_dir / HISTORY).read_text()
         report = run_sweep(load_config(path), out, workers=0)  # the first runner's worker holds the run
         assert report.busy == [run.run_id] and not report.finished and not report.failed
-        assert "another process is training this run" in capsys.readouterr().err
+        assert "lock" in (err := capsys.readouterr().err) and "is held, by a runner training it" in err
         assert (run_dir / HISTORY).read_text() == before  # not wiped, not restarted
         with pytest.raises(RunInProgress, match=run.run_id):
             install_files({DONE: b"{}"}, run_dir)
     finally:
         os.killpg(process.pid, signal.SIGKILL)
         process.wait()
+    _wait_until_gone(worker)
     (tmp_path / "markers" / "hang").unlink()
     report = run_sweep(load_config(path), out, workers=0)  # the kill freed the lock
     assert report.finished == [run.run_id] and not report.busy

@@ -42,8 +42,8 @@ def episode_length(env: gym.Env) -> int | None:
     """The steps after which ``env`` ends every episode at the latest, if it states them; else None.
 
     The least of what it states: every ``TimeLimit`` among its wrappers (one applied by hand has no spec to say
-    so), its unwrapped spec's ``max_episode_steps`` and a ``horizon`` attribute (envs that own their horizon, as
-    the car).
+    so), its unwrapped spec's ``max_episode_steps`` (set by hand: ``gym.make`` states the length by its
+    ``TimeLimit``) and a ``horizon`` attribute (envs that own their horizon, as the car).
 
     Example:
         >>> import gymnasium as gym
