@@ -14,11 +14,12 @@ Each iteration:
 2. minimise the dual ``g(η) = η ε + η log(1/N Σ_i exp(R^i / η))`` over ``η > 0``
    (L-BFGS-B, log-sum-exp form, returns standardised, ``η`` bounded below);
 3. weight episode ``i`` by ``w^i ∝ exp(R^i / η)``: the reweighted sample
-   distribution stays within ``KL(w ‖ uniform) ≤ ε`` of the current one;
+   distribution stays within ``KL(w ‖ uniform) ≤ ε`` of the current one (episodes at a robustness of
+   ±inf excepted: those at +inf take all the weight, those at −inf none, whatever ε);
 4. refit ``k_t`` and ``C_t`` by weighted maximum likelihood.
 
-The default ``ε = 2`` was tuned on the car's task 1, where the sampled episodes' mean
-robustness first rose above 0 at update 5–8 (seeds 0–2; ``ε = 1``: 9–16), docs/agents.md;
+The default ``ε = 2`` (at most log(N/2), `weights.kl_bound_for`) was tuned on the car's task 1, where the
+sampled episodes' mean robustness first rose above 0 at update 5–8 (seeds 0–2; ``ε = 1``: 9–16), docs/agents.md;
 docs/tlps.md compares the agents.
 """
 

@@ -134,7 +134,8 @@ class TLPSConfig(EpisodicSearchConfig):
         if self.weights not in WEIGHTINGS:
             raise ValueError(f"weights must be one of {WEIGHTINGS}, got {self.weights!r}")
         check_fraction("hybrid_mix", self.hybrid_mix, allow_zero=True)
-        check_kl_bound("kl_bound", self.kl_bound, self.n_episodes)
+        if self.alpha is None:  # a fixed α leaves the bound unused
+            check_kl_bound("kl_bound", self.kl_bound, self.n_episodes)
         if self.action_repair not in ACTION_REPAIRS:
             raise ValueError(f"action_repair must be one of {ACTION_REPAIRS}, got {self.action_repair!r}")
         check_positive("action_epsilon", self.action_epsilon)

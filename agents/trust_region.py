@@ -149,9 +149,11 @@ def improve_trajectories(
     check_trust_region(epsilon, beta, solver, steps, decay)
     if lengths is not None:
         lengths = np.asarray(lengths)
-        if lengths.shape != (len(trajectories),) or lengths.dtype.kind not in "iu" or np.any(lengths < 0):
-            raise ValueError(f"lengths must be {len(trajectories)} ints >= 0 (the actions of each episode), got "
-                             f"{lengths!r}")
+        horizon = trajectories.shape[1] - 1
+        if (lengths.shape != (len(trajectories),) or lengths.dtype.kind not in "iu" or np.any(lengths < 0)
+                or np.any(lengths > horizon)):
+            raise ValueError(f"lengths must be {len(trajectories)} ints in [0, {horizon}] (the actions of each "
+                             f"episode), got {lengths!r}")
     if lengths is not None and np.min(lengths) < trajectories.shape[1] - 1:
         updated, before, after = trajectories.copy(), np.empty(len(trajectories)), np.empty(len(trajectories))
         for rows, states in episodes_by_length(lengths, trajectories.shape[1]):

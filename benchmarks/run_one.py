@@ -290,19 +290,21 @@ def run_files(spec: RunSpec) -> dict[str, bytes]:
         return {p.name: p.read_bytes() for p in (Path(scratch) / "run").iterdir() if p.is_file()}
 
 
-def install_files(files: Mapping[str, bytes], run_dir: str | Path) -> None:
+def install_files(files: Mapping[str, bytes], run_dir: str | Path) -> bool:
     """Write a finished run's files (from `run_files`) into ``run_dir``, ``done.json`` last (ValueError if none).
 
     A run finished there meanwhile (a local runner on the same folder: Ray tasks train without its lock) is kept,
-    and these files are dropped. Raises `RunInProgress` when a local process is training the same run there.
+    and these files are dropped: the return value says whether they were installed. Raises `RunInProgress` when
+    a local process is training the same run there.
     """
     if DONE not in files:
         raise ValueError(f"not a finished run: no {DONE} among {sorted(files)}")
     run_dir = Path(run_dir)
     with run_lock(run_dir):
         if is_done(run_dir):
-            return
+            return False
         shutil.rmtree(run_dir, ignore_errors=True)
         run_dir.mkdir(parents=True, exist_ok=True)
         for name in sorted(files, key=lambda n: n == DONE):
             write_atomic(run_dir / name, files[name])
+    return True

@@ -62,9 +62,13 @@ class SweepReport:
     wall_time: float = 0.0
 
     def attempt(self, run: RunSpec, work: Callable[[], Any]) -> None:
-        """Call ``work`` and count ``run`` as finished, or as failed with the traceback of what it raised."""
+        """Call ``work`` and count ``run`` as finished, or as failed with the traceback of what it raised.
+
+        ``work`` returning ``False`` (`install_files` dropping a Ray result: the run was finished meanwhile) counts
+        it as skipped.
+        """
         try:
-            work()
+            done = work()
         except RunInProgress as error:
             self.busy.append(run.run_id)
             print(f"run {error}", file=sys.stderr)
@@ -72,7 +76,10 @@ class SweepReport:
             self.failed[run.run_id] = "".join(traceback.format_exception(type(error), error, error.__traceback__))
             print(f"run {run.run_id} failed: {type(error).__name__}: {error}", file=sys.stderr)
         else:
-            self.finished.append(run.run_id)
+            if done is False:
+                print(f"run {run.run_id}: finished meanwhile by another runner; this result was dropped",
+                      file=sys.stderr)
+            (self.skipped if done is False else self.finished).append(run.run_id)
 
 
 def run_sweep(sweep: Sweep, out_dir: str | Path, workers: int | None = None, ray_address: str | None = None,

@@ -193,16 +193,16 @@ class CarNavVectorEnv(CarProperties, VectorEnv):
         actions = np.asarray(actions, dtype=np.float64)
         if actions.shape != (self.num_envs, 2):
             raise ValueError(f"actions must have shape ({self.num_envs}, 2), got {actions.shape}")
+        n = self.num_envs
+        rewards = np.zeros(n)
+        done = np.zeros(n, dtype=bool)
+        if self._autoreset:  # NEXT_STEP autoreset: every car restarts and ignores its action (a NaN one too)
+            self._start_episodes()
+            return self._observe(), rewards, done, done.copy(), {}
         if not math.isfinite(actions.sum()) and not np.isfinite(actions).all():  # one sum clears almost every call
             cars = np.flatnonzero(~np.isfinite(actions).all(axis=1)).tolist()
             raise ValueError(f"the actions of car(s) {cars} are not finite ({actions[cars[0]].tolist()} for car "
                              f"{cars[0]}): they would move to NaN, and every car's episode fail at its end")
-        n = self.num_envs
-        rewards = np.zeros(n)
-        done = np.zeros(n, dtype=bool)
-        if self._autoreset:  # NEXT_STEP autoreset: every car restarts and ignores its action
-            self._start_episodes()
-            return self._observe(), rewards, done, done.copy(), {}
         p = self.params
         t = self._t
         self._state = car_step(

@@ -32,7 +32,7 @@ from benchmarks.run_one import (
     install_files,
     run_files,
 )
-from benchmarks.runner import check_only, iterations_done, run_sweep
+from benchmarks.runner import SweepReport, check_only, iterations_done, run_sweep
 from benchmarks.runner import main as runner_main
 from benchmarks.sweep_config import ConfigError, RunSpec, expand_config, load_config
 
@@ -384,8 +384,14 @@ def test_run_files_round_trip_installs_done_last(tmp_path):
                    seed=0, iterations=2)
     files = run_files(spec)
     assert set(files) == {DONE, HISTORY, AGENT, "spec.json"}
-    install_files(files, tmp_path / "run")
+    assert install_files(files, tmp_path / "run") is True
     assert json.loads((tmp_path / "run" / DONE).read_text())["iterations"] == 2
+    other = {**files, DONE: json.dumps({"iterations": 99}).encode()}  # a second result of the same run
+    assert install_files(other, tmp_path / "run") is False  # the finished run stays as it is
+    assert json.loads((tmp_path / "run" / DONE).read_text())["iterations"] == 2
+    report = SweepReport()
+    report.attempt(spec, lambda: install_files(other, tmp_path / "run"))
+    assert report.skipped == [spec.run_id] and not report.finished
     with pytest.raises(ValueError, match="no done.json"):
         install_files({HISTORY: b""}, tmp_path / "other")
     assert execute_run(spec, tmp_path / "run")["iterations"] == 2  # finished: returned, not rerun

@@ -171,3 +171,9 @@ def test_the_warm_started_solver_starts_where_the_last_update_stopped_and_is_sav
     cold = TLPS("TLCarNav-v0", **kwargs).learn(2)
     assert cold.history[0]["smooth_updated"] == pytest.approx(agent.history[0]["smooth_updated"], rel=1e-9)
     assert cold.history[1]["smooth_updated"] != pytest.approx(agent.history[1]["smooth_updated"], rel=1e-6)
+
+
+def test_a_fixed_alpha_leaves_the_kl_bound_unchecked_and_unused():
+    assert TLPS("TLCarNav-v0", n_episodes=4, alpha=3.0, kl_bound=1.5).config.kl_bound == 1.5
+    with pytest.raises(ValueError, match="kl_bound=1.5 cannot bind with n_episodes=4"):
+        TLPS("TLCarNav-v0", n_episodes=4, kl_bound=1.5)

@@ -15,7 +15,7 @@ import torch
 
 from tl_gym.agents import TLPS
 from tl_gym.agents.sampling import Rollouts, rollout
-from tl_gym.agents.weights import adapt_alpha, softmax_weights
+from tl_gym.agents.weights import adapt_alpha, kl_bound_for, softmax_weights
 from tl_gym.envs.dynamics import CarParams
 
 P = CarParams()
@@ -104,7 +104,7 @@ class ModelTLPS(TLPS):
             _, new_states = self._value(best_k, s0, noise, pol)
         new_obs = new_states.numpy()
         logits = best_v.numpy()
-        alpha = adapt_alpha(logits, cfg.kl_bound)
+        alpha = adapt_alpha(logits, kl_bound_for(cfg.kl_bound, len(logits)))
         weights = softmax_weights(logits, alpha)
         repaired = Rollouts(actions=batch.actions, observations=new_obs,
                             traces={"x": new_obs[..., 0], "y": new_obs[..., 1]}, lengths=batch.lengths,
