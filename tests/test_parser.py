@@ -219,7 +219,7 @@ MALFORMED = [
     ("x < 1 U U y > 1", 9),
     ("x < 1 $ y", 7),
     ("x < 1 # comment", 7),
-    ("x ≤ 1", 3),
+    ("x ≠ 1", 3),
     ("x <= = 1", 6),
     ("x + F < 1", 5),
     ("x < until", 5),
@@ -381,3 +381,55 @@ def test_fuzz_characters(text):
 @given(st.lists(st.sampled_from(TOKENS), max_size=15))
 def test_fuzz_tokens(tokens):
     _parse_or_spec_error(" ".join(tokens))
+
+
+FOREIGN = [  # another tool's syntax, and the words of the hint that says what to write here
+    ("F[0,10](x > 1)", "bounded operators are not TLTL"),
+    ("always[0:5](x > 0)", "bounded operators are not TLTL"),
+    ("x > 0 U[0,3] y > 0", "bounded operators are not TLTL"),
+    ("G_{[0,5]}(x > 0)", "bounded operators are not TLTL"),
+    ("x > 0 <-> y > 0", r"no '<->' \(iff\): write \(a -> b\) & \(b -> a\)"),
+    ("x > 0 iff y > 0", "TLTL has no iff or xor"),
+    ("O(x > 0)", "past-time operators"),
+    ("x > 0 since y > 0", "past-time operators"),
+    ("finally (x > 0)", "'finally' is written F"),
+    ("~(x > 0)", "negation is written !"),
+    ("[](x > 0)", r"'\[\]' \(always\) is written G"),
+    ("<>(x > 0)", r"'<>' \(eventually\) is written F"),
+    ("x > 0 /\\ y > 0", r"\(and\) is written &"),
+    ("x > 0 AND y > 0", "'and' is lowercase"),
+    ("x > 0 R y > 0", "release and weak until are not TLTL operators"),
+    ("GF x > 0", "operators are separate words: write G F"),
+    ("FG(x > 0)", "operators are separate words: write F G"),
+    ("x == 1", r"equality is not a TLTL comparison .*abs\(x - c\) < eps"),
+    ("x != 0", r"write abs\(x - c\) > eps"),
+    ("x =< 0", "did you mean '<='"),
+    ("x => 1", "did you mean '>='"),
+    ("x < inf", "a bound must be a finite number"),
+    ("obs[0] > 1", r"signal names are identifiers .*signals=\{'obs_0': 0\}"),
+    ("pos.x > 1", "signal names are identifiers"),
+    ("x(t) > 0", r"a signal takes no argument: write x, not x\(t\)"),
+    ("-(x > 0)", "negate a formula with !"),
+    ("abs(x > 0)", "functions take arithmetic, not formulas"),
+    ("T > 30", r"name it otherwise in signals= \(e.g. T_1\)"),
+    ("!door_open", r"signals are real numbers, compared to make a predicate \(e.g. door_open > 0.5\)"),
+    ("out = always(x > 0)", "write the formula alone, without 'name ='"),
+    ("x > 0 // comment", "without comments"),
+    ("TRUE", "constants are lowercase"),
+]
+
+
+@pytest.mark.parametrize(("text", "hint"), FOREIGN, ids=[repr(t) for t, _ in FOREIGN])
+def test_another_tools_syntax_is_refused_saying_what_to_write_instead(text, hint):
+    with pytest.raises(SpecError, match=hint):
+        parse(text)
+
+
+def test_logic_notation_reads_as_the_ascii_operators_and_names_that_look_like_operators_stay_names():
+    assert parse("□(x > 0 → ◇ y ≥ 1) ∧ ¬(z ≤ 2) ∨ ○ x > 1") == parse("G(x > 0 -> F y >= 1) & !(z <= 2) | X x > 1")
+    assert parse("P > 3 & S < 1 & O >= 2").signals == ("P", "S", "O")  # past-time letters are names where valid
+    assert str(parse("F(x > 0) & (y > 1)")) == "F x > 0 & y > 1"  # no chained-comparison message on valid text
+    with pytest.raises(SpecError, match="comparisons do not chain"):
+        parse("0 < x < 1")
+    with pytest.raises(SpecError, match="unexpected '>' after a complete formula"):
+        parse("F(x > 0) > 1")  # not a chain: the comparison follows a formula, not a predicate

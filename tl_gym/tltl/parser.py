@@ -14,6 +14,7 @@ from typing import Any
 
 from tl_gym.errors import SpecError
 from tl_gym.tltl import ast as nodes
+from tl_gym.tltl import foreign
 from tl_gym.tltl.ast import COMPARISONS, FUNCTIONS, RESERVED, SIGNAL_NAME_PATTERN, Expr, Formula
 from tl_gym.tltl.iterative import drive
 
@@ -22,13 +23,13 @@ _KEYWORDS = {
     "not": "!", "and": "&", "or": "|", "implies": "->",
     "eventually": "F", "always": "G", "next": "X", "until": "U", "then": "T",
 }
-_ALIASES = {"&&": "&", "||": "|", "=>": "->", "**": "^"}
+_ALIASES = {"&&": "&", "||": "|", "=>": "->", "**": "^", **foreign.UNICODE_ALIASES}
 _DIGITS = r"\d(?:_?\d)*"  # digits, grouped by single underscores as in Python (1_000)
 _TOKEN = re.compile(
     r"\s*(?:"
     rf"(?P<num>(?:{_DIGITS}\.?(?:{_DIGITS})?|\.{_DIGITS})(?:[eE][+-]?{_DIGITS})?)"
     rf"|(?P<ident>{SIGNAL_NAME_PATTERN})"  # the names `Var` accepts (θ, x_1); checked in _tokenize
-    r"|(?P<op>->|=>|<=|>=|&&|\|\||\*\*|[<>&|!()+\-*/^,])"
+    r"|(?P<op>->|=>|<=|>=|&&|\|\||\*\*|[<>&|!()+\-*/^,¬∧∨→⇒≤≥□◇○])"
     r")"
 )
 
@@ -49,9 +50,12 @@ def _tokenize(text: str) -> list[_Token]:
             pos += 1
         if pos >= len(text):
             break
+        if text[pos] in "<!=/" and (other := foreign.preempted(text, pos)):  # '<->' is not '<' then '->'
+            raise SpecError(f"unexpected {other[0]!r}: {other[1]}", text, pos + 1)
         match = _TOKEN.match(text, pos)
         if match is None or match.lastgroup is None:
-            raise SpecError(f"unexpected character {text[pos]!r}", text, pos + 1)
+            hint = foreign.hint_at(text, pos, tokens[-1].raw if tokens else None)
+            raise SpecError(f"unexpected character {text[pos]!r}" + (f": {hint}" if hint else ""), text, pos + 1)
         kind = match.lastgroup
         raw = match.group(kind)
         column = match.start(kind) + 1
@@ -121,6 +125,7 @@ class _Parser:
         self.formula_groups = _formula_groups(self.tokens)
         self.pos = 0
         self.last_primary: Formula | None = None
+        self.predicate_end = -1  # the token after the last predicate read
 
     # helpers -------------------------------------------------------------------------
     @property
@@ -145,7 +150,13 @@ class _Parser:
         if token.kind == "ident":  # true, false
             return self.error(f"{token.raw!r} is a constant and cannot name a signal", token)
         what = "a temporal operator" if token.text in ("F", "G", "X", "U", "T") else "reserved"
-        return self.error(f"{token.raw!r} is {what} and cannot name a signal", token)
+        return self.error(f"{token.raw!r} is {what} and cannot name a signal: name it otherwise in signals= "
+                          f"(e.g. {token.raw}_1)", token)
+
+    def with_hint(self, message: str, word: str) -> str:
+        """``message``, with what to write instead if ``word`` is another tool's syntax (`foreign.hint_for_word`)."""
+        hint = foreign.hint_for_word(word)
+        return f"{message}: {hint}" if hint else message
 
     def describe(self, token: _Token) -> str:
         return "the end of the formula" if token.kind == "end" else repr(token.raw)
@@ -169,11 +180,12 @@ class _Parser:
             raise self.error("empty formula")
         formula = drive(self.implies())
         if self.tok.kind != "end":
-            if self.tok.text in COMPARISONS and isinstance(self.last_primary, nodes.Predicate):
+            if self.tok.text in COMPARISONS and self.pos == self.predicate_end:
                 raise self.error("comparisons do not chain; join them with '&'")
             if self.pos and (misused := self.reserved_as_name(self.tokens[self.pos - 1], self.tok)):
                 raise misused
-            raise self.error(f"unexpected {self.describe(self.tok)} after a complete formula")
+            raise self.error(self.with_hint(f"unexpected {self.describe(self.tok)} after a complete formula",
+                                            self.tok.raw))
         return formula
 
     def implies(self) -> _Production:
@@ -246,12 +258,18 @@ class _Parser:
         lhs = yield self.expression()
         token = self.tok
         if token.kind != "op" or token.text not in COMPARISONS:
-            raise self.error(
-                f"expected a comparison ({' '.join(COMPARISONS)}) after {str(lhs)!r}, "
-                f"found {self.describe(token)}"
-            )
+            found = self.describe(token)
+            message = f"expected a comparison ({' '.join(COMPARISONS)}) after {str(lhs)!r}, found {found}"
+            if token.raw == "=>":
+                message += ": did you mean '>='? ('=>' is read as '->')"
+            elif isinstance(lhs, nodes.Var):
+                hinted = self.with_hint(message, lhs.name)
+                message = hinted if hinted != message else (
+                    f"{message}: signals are real numbers, compared to make a predicate (e.g. {lhs.name} > 0.5)")
+            raise self.error(message)
         self.pos += 1
         self.last_primary = nodes.Predicate(lhs, token.text, (yield self.expression()))
+        self.predicate_end = self.pos
         return self.last_primary
 
     # arithmetic -------------------------------------------------------------------------
@@ -266,7 +284,7 @@ class _Parser:
         if token.kind == "num" and float(token.raw) != float("inf"):
             self.pos += 1
             return nodes.Num(float(token.raw))
-        if token.kind == "ident" and token.text not in RESERVED:
+        if token.kind == "ident" and token.text not in RESERVED and token.text not in foreign.NOT_NAMES:
             self.pos += 1
             return nodes.Var(token.text)
         return None
@@ -325,10 +343,20 @@ class _Parser:
                 return (yield self.call(token))
             if token.text in RESERVED:
                 raise self.error(f"{token.raw!r} is reserved and cannot name a signal", token)
+            if token.text in foreign.NOT_NAMES:
+                raise self.error(self.with_hint(f"{token.raw!r} cannot name a signal", token.raw), token)
             if self.tok.kind == "op" and self.tok.text == "(":
                 known = " ".join(FUNCTIONS)
-                raise self.error(f"unknown function {token.raw!r} (functions: {known})", token)
+                message = f"unknown function {token.raw!r} (functions: {known})"
+                if foreign.hint_for_word(token.raw) is None:
+                    message += ("; operators: ! F G X U T (not eventually always next until then)"
+                                if self.pos in self.formula_groups else
+                                f"; a signal takes no argument: write {token.raw}, not {token.raw}(t)")
+                raise self.error(self.with_hint(message, token.raw), token)
             return nodes.Var(token.text)
+        if self.tok.kind == "op" and self.tok.text == "(" and self.pos in self.formula_groups:  # -(x > 0)
+            raise self.error("a formula in parentheses cannot be a number: negate a formula with ! (or not), "
+                             "and give functions and arithmetic numbers, not formulas")
         if self.accept("("):
             inner = yield self.expression()
             self.expect(")", f"')' to close the '(' at column {token.column}")
@@ -342,6 +370,9 @@ class _Parser:
         args = [(yield self.expression())]
         while self.accept(","):
             args.append((yield self.expression()))
+        if self.tok.kind == "op" and self.tok.text in COMPARISONS:
+            raise self.error(f"expected ')' to close the call to {name.raw!r}, found {self.describe(self.tok)}: "
+                             "functions take arithmetic, not formulas")
         self.expect(")", f"')' to close the call to {name.raw!r}")
         arity = FUNCTIONS[name.text]
         if arity > 0 and len(args) != arity:
