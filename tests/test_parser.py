@@ -354,7 +354,7 @@ def test_parse_takes_text_only():
 
 # --------------------------------------------------------------------------- fuzzing
 
-ALPHABET = "xyz01.5e FGXUT!&|-><=()+*/^,a_ \tnotdlwsqrbpm"
+ALPHABET = "xyz01.5e FGXUT!&|-><=()+*/^,a_ \tnotdlwsqrbpm[]{}~#□◇¬≤→"
 TOKENS = [
     "x", "y", "1", "2.5", "-", "+", "*", "/", "^", "**", "(", ")", ",", "<", "<=", ">", ">=", "!", "&", "&&",
     "|", "||", "->", "=>", "F", "G", "X", "U", "T", "true", "false", "not", "and", "or", "implies", "eventually",

@@ -38,7 +38,8 @@ SIGNAL_NAME_PATTERN = r"[^\W\d]\w*"
 _SIGNAL_NAME = re.compile(SIGNAL_NAME_PATTERN)
 RESERVED = frozenset(
     "F G X U T true false not and or implies eventually always next until then "
-    "abs sqrt exp log min max".split()
+    "abs sqrt exp log min max "
+    "inf Inf infinity nan NaN".split()  # not numbers here (a bound must be finite), and no signal's name either
 )
 FUNCTIONS = {"abs": 1, "sqrt": 1, "exp": 1, "log": 1, "min": -1, "max": -1}
 COMPARISONS = ("<", "<=", ">", ">=")

@@ -73,9 +73,6 @@ WORDS: dict[str, str] = {
                     "drop it, or use a large finite bound"),
 }
 
-#: Words that cannot name a signal, though they look like names: a bound at infinity holds always or never.
-NOT_NAMES = frozenset(("inf", "Inf", "infinity", "nan", "NaN"))
-
 #: Other spellings of the operators that the tokenizer reads as this grammar's own (``□ x > 0`` is ``G x > 0``).
 UNICODE_ALIASES: dict[str, str] = {
     "¬": "!", "∧": "&", "∨": "|", "→": "->", "⇒": "->", "≤": "<=", "≥": ">=", "□": "G", "◇": "F", "○": "X",

@@ -284,7 +284,7 @@ class _Parser:
         if token.kind == "num" and float(token.raw) != float("inf"):
             self.pos += 1
             return nodes.Num(float(token.raw))
-        if token.kind == "ident" and token.text not in RESERVED and token.text not in foreign.NOT_NAMES:
+        if token.kind == "ident" and token.text not in RESERVED:
             self.pos += 1
             return nodes.Var(token.text)
         return None
@@ -342,9 +342,8 @@ class _Parser:
             if token.text in FUNCTIONS:
                 return (yield self.call(token))
             if token.text in RESERVED:
-                raise self.error(f"{token.raw!r} is reserved and cannot name a signal", token)
-            if token.text in foreign.NOT_NAMES:
-                raise self.error(self.with_hint(f"{token.raw!r} cannot name a signal", token.raw), token)
+                message = f"{token.raw!r} is reserved and cannot name a signal"
+                raise self.error(self.with_hint(message, token.raw), token)
             if self.tok.kind == "op" and self.tok.text == "(":
                 known = " ".join(FUNCTIONS)
                 message = f"unknown function {token.raw!r} (functions: {known})"
