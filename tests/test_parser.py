@@ -388,7 +388,7 @@ FOREIGN = [  # another tool's syntax, and the words of the hint that says what t
     ("always[0:5](x > 0)", "bounded operators are not TLTL"),
     ("x > 0 U[0,3] y > 0", "bounded operators are not TLTL"),
     ("G_{[0,5]}(x > 0)", "bounded operators are not TLTL"),
-    ("x > 0 <-> y > 0", r"no '<->' \(iff\): write \(a -> b\) & \(b -> a\)"),
+    ("x > 0 <-> y > 0", r"TLTL has no iff \('<->'\): write \(a -> b\) & \(b -> a\)"),
     ("x > 0 iff y > 0", "TLTL has no iff or xor"),
     ("O(x > 0)", "past-time operators"),
     ("x > 0 since y > 0", "past-time operators"),
@@ -414,7 +414,18 @@ FOREIGN = [  # another tool's syntax, and the words of the hint that says what t
     ("T > 30", r"name it otherwise in signals= \(e.g. T_1\)"),
     ("!door_open", r"signals are real numbers, compared to make a predicate \(e.g. door_open > 0.5\)"),
     ("out = always(x > 0)", "write the formula alone, without 'name ='"),
-    ("x > 0 // comment", "without comments"),
+    ("# comment", "without comments"),
+    ("x // 2 > 1", "divide with /"),
+    ("x <> 1", "not-equal is not a TLTL comparison"),
+    ("x > 0 <=> y > 0", r"TLTL has no iff"),
+    ("a > 0 ↔ b > 0", r"TLTL has no iff"),
+    ("x ~= 1", "not-equal is not a TLTL comparison"),
+    ("x < = 1", "did you mean '<='"),
+    ("x ⇒ 1", "did you mean '>='"),
+    ("inf > 1", r"name it otherwise in signals= \(e.g. inf_1\)"),
+    ("x > NaN", "a comparison with NaN has no robustness"),
+    ("X[0] > 1", "signal names are identifiers"),
+    ("G(P)", "signals are real numbers"),  # a past-time letter that is a signal missing its comparison
     ("TRUE", "constants are lowercase"),
 ]
 

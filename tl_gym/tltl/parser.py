@@ -50,7 +50,8 @@ def _tokenize(text: str) -> list[_Token]:
             pos += 1
         if pos >= len(text):
             break
-        if text[pos] in "<!=/" and (other := foreign.preempted(text, pos)):  # '<->' is not '<' then '->'
+        after_operand = bool(tokens) and (tokens[-1].kind in ("num", "ident") or tokens[-1].text == ")")
+        if text[pos] in "<!=/" and (other := foreign.preempted(text, pos, after_operand)):  # '<->': not '<', '->'
             raise SpecError(f"unexpected {other[0]!r}: {other[1]}", text, pos + 1)
         match = _TOKEN.match(text, pos)
         if match is None or match.lastgroup is None:
@@ -260,10 +261,13 @@ class _Parser:
         if token.kind != "op" or token.text not in COMPARISONS:
             found = self.describe(token)
             message = f"expected a comparison ({' '.join(COMPARISONS)}) after {str(lhs)!r}, found {found}"
-            if token.raw == "=>":
-                message += ": did you mean '>='? ('=>' is read as '->')"
+            if token.raw in ("=>", "⇒"):
+                message += f": did you mean '>='? ({token.raw!r} is read as '->')"
             elif isinstance(lhs, nodes.Var):
-                hinted = self.with_hint(message, lhs.name)
+                # a word of another tool used as an operator (an operand follows: "GF x > 0"), or a constant
+                operator_like = token.kind in ("num", "ident") or token.text in ("(", "!", "F", "G", "X")
+                constant = lhs.name.lower() in ("true", "false")
+                hinted = self.with_hint(message, lhs.name) if operator_like or constant else message
                 message = hinted if hinted != message else (
                     f"{message}: signals are real numbers, compared to make a predicate (e.g. {lhs.name} > 0.5)")
             raise self.error(message)
@@ -343,6 +347,8 @@ class _Parser:
                 return (yield self.call(token))
             if token.text in RESERVED:
                 message = f"{token.raw!r} is reserved and cannot name a signal"
+                if self.tok.kind == "op" and self.tok.text in COMPARISONS:  # "inf > 1": a signal's name
+                    raise self.error(f"{message}: name it otherwise in signals= (e.g. {token.raw}_1)", token)
                 raise self.error(self.with_hint(message, token.raw), token)
             if self.tok.kind == "op" and self.tok.text == "(":
                 known = " ".join(FUNCTIONS)
