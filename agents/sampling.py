@@ -73,7 +73,8 @@ def env_keyword_hint(env: Any, names: Iterable[str], hyperparameters: Mapping[st
     """
     if not isinstance(env, str):
         return ""
-    taken = [name for name in names if name in env_keywords(env)]
+    keywords = env_keywords(env)
+    taken = [name for name in names if name in keywords]
     if not taken:
         return ""
     which = ", ".join(map(repr, taken))

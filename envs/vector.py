@@ -85,9 +85,11 @@ class CarNavVectorEnv(CarProperties, VectorEnv):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']} for the batched car, "
                              f"got {render_mode!r}; vectorization_mode='sync' gives each car its own window")
-        if autoreset_mode is not None and autoreset_mode not in list(AutoresetMode) + [m.value for m in AutoresetMode]:
-            raise ValueError(f"autoreset_mode must be an AutoresetMode, got {autoreset_mode!r}")
-        if autoreset_mode is not None and AutoresetMode(autoreset_mode) is not AutoresetMode.NEXT_STEP:
+        try:
+            mode = AutoresetMode.NEXT_STEP if autoreset_mode is None else AutoresetMode(autoreset_mode)
+        except ValueError:
+            raise ValueError(f"autoreset_mode must be an AutoresetMode, got {autoreset_mode!r}") from None
+        if mode is not AutoresetMode.NEXT_STEP:
             raise ValueError(f"autoreset_mode={autoreset_mode!r}: the batched car resets a finished car on the next "
                              "step (AutoresetMode.NEXT_STEP) only; vectorization_mode='sync' offers the other modes")
         self.num_envs = int(num_envs)

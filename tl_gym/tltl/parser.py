@@ -113,6 +113,11 @@ def _formula_groups(tokens: list[_Token]) -> set[int]:
     return marked
 
 
+def _rename(name: str) -> str:
+    """What to do with a signal whose name is reserved."""
+    return f"name it otherwise in signals= (e.g. {name}_1)"
+
+
 class _Parser:
     """Recursive descent written as generators (`tl_gym.tltl.iterative.drive`): no depth limit.
 
@@ -125,7 +130,6 @@ class _Parser:
         self.tokens = _tokenize(text)
         self.formula_groups = _formula_groups(self.tokens)
         self.pos = 0
-        self.last_primary: Formula | None = None
         self.predicate_end = -1  # the token after the last predicate read
 
     # helpers -------------------------------------------------------------------------
@@ -151,8 +155,7 @@ class _Parser:
         if token.kind == "ident":  # true, false
             return self.error(f"{token.raw!r} is a constant and cannot name a signal", token)
         what = "a temporal operator" if token.text in ("F", "G", "X", "U", "T") else "reserved"
-        return self.error(f"{token.raw!r} is {what} and cannot name a signal: name it otherwise in signals= "
-                          f"(e.g. {token.raw}_1)", token)
+        return self.error(f"{token.raw!r} is {what} and cannot name a signal: {_rename(token.raw)}", token)
 
     def with_hint(self, message: str, word: str) -> str:
         """``message``, with what to write instead if ``word`` is another tool's syntax (`foreign.hint_for_word`)."""
@@ -236,8 +239,7 @@ class _Parser:
         token = self.tok
         if token.kind == "ident" and token.text in ("true", "false"):
             self.pos += 1
-            self.last_primary = nodes.Constant(token.text == "true")
-            return self.last_primary
+            return nodes.Constant(token.text == "true")
         if token.kind == "op" and token.text == "(" and self.pos in self.formula_groups:
             self.pos += 1  # a parenthesised formula (an arithmetic group starts a predicate, below)
             inner = yield self.implies()
@@ -267,14 +269,14 @@ class _Parser:
                 # a word of another tool used as an operator (an operand follows: "GF x > 0"), or a constant
                 operator_like = token.kind in ("num", "ident") or token.text in ("(", "!", "F", "G", "X")
                 constant = lhs.name.lower() in ("true", "false")
-                hinted = self.with_hint(message, lhs.name) if operator_like or constant else message
-                message = hinted if hinted != message else (
-                    f"{message}: signals are real numbers, compared to make a predicate (e.g. {lhs.name} > 0.5)")
+                hint = foreign.hint_for_word(lhs.name) if operator_like or constant else None
+                real = f"signals are real numbers, compared to make a predicate (e.g. {lhs.name} > 0.5)"
+                message += f": {hint or real}"
             raise self.error(message)
         self.pos += 1
-        self.last_primary = nodes.Predicate(lhs, token.text, (yield self.expression()))
+        predicate = nodes.Predicate(lhs, token.text, (yield self.expression()))
         self.predicate_end = self.pos
-        return self.last_primary
+        return predicate
 
     # arithmetic -------------------------------------------------------------------------
     def plain(self, binds_tighter: tuple[str, ...]) -> Expr | None:
@@ -348,7 +350,7 @@ class _Parser:
             if token.text in RESERVED:
                 message = f"{token.raw!r} is reserved and cannot name a signal"
                 if self.tok.kind == "op" and self.tok.text in COMPARISONS:  # "inf > 1": a signal's name
-                    raise self.error(f"{message}: name it otherwise in signals= (e.g. {token.raw}_1)", token)
+                    raise self.error(f"{message}: {_rename(token.raw)}", token)
                 raise self.error(self.with_hint(message, token.raw), token)
             if self.tok.kind == "op" and self.tok.text == "(":
                 known = " ".join(FUNCTIONS)
