@@ -304,7 +304,7 @@ class Agent(abc.ABC):
         source = meta["env"]
         saved_id = isinstance(env, str) and env == source.get("id") and env_kwargs is None
         if env is None or (saved_id and (source.get("spec_json") or source.get("kwargs") is not None)):
-            env, env_kwargs = _env_from_source(source, path)
+            env, env_kwargs = _env_from_source(source, path, by_id=saved_id)
         agent = klass(env=env, seed=meta["seed"], env_kwargs=env_kwargs, **klass._saved_config(dict(meta["config"])))
         for key in ("observation_space", "action_space"):
             got = describe_space(getattr(agent, key))
@@ -353,6 +353,9 @@ def describe_env_source(env: Any, env_kwargs: dict[str, Any]) -> dict[str, Any]:
     ``max_episode_steps``) is recorded by its full spec; when that spec cannot be written (a
     wrapper with a callable argument) nothing is recorded to rebuild it from, so that `load`
     asks for ``env=`` instead of rebuilding the bare registered env, which would act differently.
+    A spec that can be written but not rebuilt (a wrapper Gymnasium cannot recreate, as SB3's
+    ``Monitor``: its spec has no arguments) records the id, its kwargs and the wrappers' names:
+    `load` then asks for ``env=`` too, and the saved id given as ``env`` is made without them.
     """
     if isinstance(env, str):
         return {"id": env, "kwargs": to_json(env_kwargs) if is_jsonable(env_kwargs) else None, "spec_json": None}
@@ -360,13 +363,17 @@ def describe_env_source(env: Any, env_kwargs: dict[str, Any]) -> dict[str, Any]:
     if spec is None:
         return {"id": None, "kwargs": None, "spec_json": None}
     kwargs = {k: v for k, v in spec.kwargs.items() if k not in _VECTOR_KEYS}
-    spec_json = None
-    if getattr(spec, "additional_wrappers", ()) or spec.max_episode_steps != _registered_steps(spec.id):
-        try:
-            spec_json = spec.to_json()
-        except Exception:  # noqa: BLE001 - callables in kwargs: then the user passes env= on load
-            return {"id": spec.id, "kwargs": None, "spec_json": None}
-    return {"id": spec.id, "kwargs": to_json(kwargs) if is_jsonable(kwargs) else None, "spec_json": spec_json}
+    recorded = {"id": spec.id, "kwargs": to_json(kwargs) if is_jsonable(kwargs) else None, "spec_json": None}
+    wrappers = getattr(spec, "additional_wrappers", ())
+    if not wrappers and spec.max_episode_steps == _registered_steps(spec.id):
+        return recorded
+    unrebuildable = [wrapper.name for wrapper in wrappers if wrapper.kwargs is None]
+    if unrebuildable:
+        return {**recorded, "unrebuildable_wrappers": unrebuildable}
+    try:
+        return {**recorded, "spec_json": spec.to_json()}
+    except Exception:  # noqa: BLE001 - callables in kwargs: then the user passes env= on load
+        return {"id": spec.id, "kwargs": None, "spec_json": None}
 
 
 def _registered_steps(env_id: str) -> int | None:
@@ -377,7 +384,14 @@ def _registered_steps(env_id: str) -> int | None:
         return None
 
 
-def _env_from_source(source: Mapping[str, Any], path: Any) -> tuple[Any, dict[str, Any] | None]:
+def _env_from_source(source: Mapping[str, Any], path: Any, *, by_id: bool = False) -> tuple[Any, dict[str, Any] | None]:
+    """The env (or id and kwargs) a file records; ``by_id``: the user named the saved id as ``env``."""
+    unrebuildable = source.get("unrebuildable_wrappers")
+    if unrebuildable and not by_id:
+        raise IncompatibleSaveError(
+            f"{path} was saved on a {source.get('id')} wrapped in {', '.join(unrebuildable)}, which Gymnasium cannot "
+            f"rebuild; pass env= (the env wrapped again, or env={source.get('id')!r} for it without them)"
+        )
     if source.get("spec_json"):
         spec = gym.envs.registration.EnvSpec.from_json(source["spec_json"])
         return gym.make(spec), None

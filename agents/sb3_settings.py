@@ -15,6 +15,7 @@ import ast
 import dataclasses
 import functools
 import importlib
+import importlib.util
 import inspect
 import math
 import os
@@ -391,6 +392,10 @@ def check_algorithm_value(key: str, value: Any) -> None:
     """
     if callable(value):
         return
+    if key == "tensorboard_log" and value is not None and importlib.util.find_spec("tensorboard") is None:
+        # SB3 takes it and raises only at the first learn(), from its logger's setup
+        raise ImportError(f"tensorboard_log={value!r} needs the tensorboard package, which is not installed "
+                          "(pip install tensorboard)")
     if key in _FRACTIONS:
         check_fraction(key, value, allow_zero=_FRACTIONS[key])
     elif key == "learning_rate":

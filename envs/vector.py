@@ -48,7 +48,7 @@ class CarNavVectorEnv(CarProperties, VectorEnv):
     rewards for the same actions. Autoreset is Gymnasium's default (``NEXT_STEP``:
     the step after an episode ends resets that car, ignores its action and pays 0),
     and ``info`` uses the vector layout, arrays with ``_key`` masks: on the step that
-    ends episodes, ``"robustness"``, ``"satisfied"``, ``"trace"`` (an object array of
+    ends episodes, ``"robustness"``, ``"satisfied"``, ``"is_success"``, ``"trace"`` (an object array of
     one `tl_gym.wrapper.Trace` per car, ``info["trace"][i]["x"]`` of shape ``(T+1,)``, as
     ``SyncVectorEnv`` batches the wrapper's) and, with ``reward="smooth"``,
     ``"smooth_robustness"``. ``reward_mode="dense"`` and ``observe_monitor=True`` run the

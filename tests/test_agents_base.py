@@ -390,6 +390,24 @@ def test_load_rebuilds_a_wrapped_or_time_limited_env_or_asks_for_it(tmp_path):
     assert Agent.load(tmp_path / "short.zip", env=COUNTER_ID).horizon == 6  # the saved id: the saved env, whole
 
 
+class Watched(gym.Wrapper):
+    """A wrapper that records no constructor arguments (as SB3's Monitor): its spec cannot be rebuilt."""
+
+
+def test_load_asks_for_the_env_when_a_wrapper_cannot_be_rebuilt_and_the_saved_id_makes_it_without(tmp_path):
+    # the spec of a Monitor-like wrapper writes to JSON (kwargs null) but gym.make cannot recreate it
+    agent = REPS(Watched(gym.make(POINT_ID)), seed=0, n_episodes=4).learn(1)
+    path = agent.save(tmp_path / "watched.zip")
+    with pytest.raises(IncompatibleSaveError, match=f"wrapped in Watched.*pass env=.*env='{POINT_ID}'"):
+        Agent.load(path)
+    by_id = Agent.load(path, env=POINT_ID)
+    again = Agent.load(path, env=Watched(gym.make(POINT_ID)))
+    def rho(a):
+        return a.evaluate(3, seed=1)["robustness"].tolist()
+
+    assert rho(by_id) == rho(again) == rho(agent)
+
+
 class Counter(gym.Env):
     """Counts its steps; reports the prefix robustness of ``F(c > 4)`` at every step, so that any time limit ends it."""
 

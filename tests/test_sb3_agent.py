@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import pickle
 import sys
 import tempfile
@@ -63,8 +64,19 @@ def test_learning_leaves_no_sb3_log_folders(tmp_path, monkeypatch):
     agent.learn(2)
     Agent.load(agent.save(tmp_path / "a.zip")).learn(1)
     assert not list(tmp_path.glob("SB3-*"))
+    real_find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",  # as if tensorboard were installed: SB3's own logger is kept
+                        lambda name, *args: object() if name == "tensorboard" else real_find_spec(name, *args))
     logged = SB3Agent("TLCarNav-v0", "ppo", seed=0, tensorboard_log=str(tmp_path / "tb"), **TINY)
     assert logged.model.tensorboard_log == str(tmp_path / "tb") and not logged.model._custom_logger
+
+
+def test_tensorboard_log_without_tensorboard_is_refused_before_any_env_is_built(monkeypatch):
+    real_find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *args: None if name == "tensorboard" else real_find_spec(name, *args))
+    with pytest.raises(ImportError, match=r"tensorboard_log='tb' needs the tensorboard package.*pip install"):
+        SB3Agent("TLCarNav-v0", "ppo", seed=0, tensorboard_log="tb", **TINY)
 
 
 def test_off_policy_algorithm_by_class():

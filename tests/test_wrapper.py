@@ -407,6 +407,28 @@ def test_sb3_vec_env_across_autoreset():
     assert ends == 4
 
 
+class ClaimsSuccess(gym.Wrapper):
+    """Reports its own ``is_success`` at every step, as parking-v0 does."""
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return obs, reward, terminated, truncated, {**info, "is_success": True}
+
+
+@pytest.mark.parametrize("spec", ["F(a > 0.5)", "F(a > 5)"])
+def test_sb3s_success_rate_reads_the_formulas_satisfaction_and_the_envs_own_is_kept(spec):
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.env_util import make_vec_env
+
+    venv = make_vec_env(lambda: TLTLRewardWrapper(ClaimsSuccess(Scripted()), spec, signals={"a": 0}), n_envs=1)
+    model = PPO("MlpPolicy", venv, n_steps=10, batch_size=10, n_epochs=1, seed=0)
+    model.learn(10)  # two episodes of five steps
+    satisfied = parse(spec).robustness({"a": Scripted().values[:, 0]}) > 0
+    assert list(model.ep_success_buffer) == [satisfied, satisfied]  # rollout/success_rate
+    _, info = run(TLTLRewardWrapper(ClaimsSuccess(Scripted()), spec, signals={"a": 0}))
+    assert info["is_success"] == info["satisfied"] == satisfied and info["env_is_success"] is True
+
+
 def test_observation_space_an_index_cannot_address():
     with pytest.raises(TypeError, match="'state'.*Discrete space"):
         TLTLRewardWrapper(gym.make("FrozenLake-v1"), "F(state > 14)", signals={"state": 0})

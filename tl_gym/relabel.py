@@ -60,14 +60,12 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from tl_gym.wrapper import MONITOR_KEY, TLTLRewardWrapper
+from tl_gym.wrapper import MONITOR_KEY, TLTLRewardWrapper, env_info
 
 W = TypeVar("W", bound=gym.Wrapper)
 ACHIEVED, DESIRED = "achieved_goal", "desired_goal"
 #: How `GoalRelabeller.sample` picks the goals of an episode's relabellings.
 RELABEL_STRATEGIES = ("future", "satisfied")
-#: Keys the wrapper adds to the terminal info: a replay computes them afresh.
-_TERMINAL_KEYS = ("robustness", "satisfied", "trace", "smooth_robustness")
 
 
 @dataclasses.dataclass
@@ -121,7 +119,7 @@ class EpisodeRecorder(gym.Wrapper):
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
         obs, info = self.env.reset(seed=seed, options=options)
-        self._current = Episode([_base(obs)], [_clean(info)], [], False, False)
+        self._current = Episode([_base(obs)], [env_info(info)], [], False, False)
         return obs, info
 
     def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
@@ -129,7 +127,7 @@ class EpisodeRecorder(gym.Wrapper):
         episode = self._current
         if episode is not None:
             episode.observations.append(_base(obs))
-            episode.infos.append(_clean(info))
+            episode.infos.append(env_info(info))
             episode.actions.append(np.array(action, copy=True))
             if terminated or truncated:
                 episode.terminated, episode.truncated = bool(terminated), bool(truncated)
@@ -286,8 +284,3 @@ def find_wrapper(env: gym.Env, kind: type[W]) -> W | None:
 def _base(obs: Any) -> dict[str, Any]:
     """The wrapped env's observation: the Dict without the monitor features."""
     return {k: np.array(v, copy=True) for k, v in obs.items() if k != MONITOR_KEY}
-
-
-def _clean(info: dict[str, Any]) -> dict[str, Any]:
-    """The info as the env below the wrapper gave it (the wrapper's terminal keys removed)."""
-    return {k: v for k, v in info.items() if k not in _TERMINAL_KEYS}

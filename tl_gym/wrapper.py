@@ -100,7 +100,9 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
     the observations around it; `dense_reward` recomputes it from them.
 
     On the terminal step ``info`` gets ``"robustness"`` (exact, unclipped),
-    ``"satisfied"`` (ρ > 0), ``"trace"`` (a read-only mapping signal name -> float64 array s_0 … s_T)
+    ``"satisfied"`` (ρ > 0) and the same as ``"is_success"`` (which SB3's ``success_rate`` logs read; an
+    env's own ``"is_success"`` of that step moves to ``"env_is_success"``),
+    ``"trace"`` (a read-only mapping signal name -> float64 array s_0 … s_T)
     and, with ``reward="smooth"``, ``"smooth_robustness"``; with ``end_on_violation=True``, an episode
     ended by a broken invariant also gets ``"violated"`` (the invariant, as text). Rewards are Python
     floats of robustness values clipped to ``[-clip, clip]``, so an infinite robustness (``true`` with
@@ -345,6 +347,8 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         trace = self._trace_arrays()
         if not trace:  # a formula that reads no signal still needs the trace's length
             trace = {"_": np.zeros(len(self._rows))}
+        if "is_success" in info:  # the env's own success (parking-v0's: in the slot now), kept beside the formula's
+            info[ENV_IS_SUCCESS] = info["is_success"]
         info.update(terminal_info(self.formula, trace, self.rho_max, self.beta if self.reward == "smooth" else None))
         if not self._reader.names:
             info["trace"] = Trace({})
@@ -391,11 +395,31 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                                               gamma=1.0 if last else self.gamma, bonus=self.satisfaction_bonus)
 
 
+#: Keys `terminal_info` writes into the info of an episode's last step.
+TERMINAL_KEYS = ("robustness", "satisfied", "is_success", "trace", "smooth_robustness")
+#: Where the wrapper keeps an env's own ``is_success`` of the last step, whose key the formula's takes.
+ENV_IS_SUCCESS = "env_is_success"
+
+
+def env_info(info: Mapping[str, Any]) -> dict[str, Any]:
+    """A step's info as the env below the wrapper gave it: the terminal keys removed, its ``is_success`` back.
+
+    Example:
+        >>> env_info({"robustness": 1.0, "satisfied": True, "is_success": True, "env_is_success": False, "t": 3})
+        {'t': 3, 'is_success': False}
+    """
+    out = {k: v for k, v in info.items() if k not in TERMINAL_KEYS and k != ENV_IS_SUCCESS}
+    if ENV_IS_SUCCESS in info:
+        out["is_success"] = info[ENV_IS_SUCCESS]
+    return out
+
+
 def terminal_info(formula: Formula, trace: Mapping[str, np.ndarray], rho_max: float,
                   smooth_beta: float | None = None) -> dict[str, Any]:
     """The terminal ``info`` of finished episodes: the one place its contract is written.
 
-    Keys: ``"robustness"`` (exact ρ), ``"satisfied"`` (ρ > 0), ``"trace"`` (a `Trace`) and, when
+    Keys: ``"robustness"`` (exact ρ), ``"satisfied"`` (ρ > 0), ``"is_success"`` (the same, under the key
+    stable-baselines3 reads for its ``success_rate`` logs), ``"trace"`` (a `Trace`) and, when
     ``smooth_beta`` is given, ``"smooth_robustness"``. A trace of 1-D arrays is one episode (floats
     and one `Trace`); a trace of ``(N, T+1)`` arrays is N episodes of one length (arrays, and an
     object array of one `Trace` per episode, the layout Gymnasium's vector envs give).
@@ -408,7 +432,9 @@ def terminal_info(formula: Formula, trace: Mapping[str, np.ndarray], rho_max: fl
     """
     rho = formula.robustness(trace, rho_max)
     batched = np.ndim(rho) > 0
-    info: dict[str, Any] = {"robustness": rho if batched else float(rho), "satisfied": rho > 0}
+    satisfied = rho > 0
+    info: dict[str, Any] = {"robustness": rho if batched else float(rho), "satisfied": satisfied,
+                            "is_success": satisfied.copy() if batched else satisfied}
     # read-only mappings, not dicts: vector envs keep one per env (episodes of different lengths
     # may end on one step; a dict would be batched into one array of one length)
     if batched:
