@@ -65,8 +65,8 @@ def evaluate_policy(
     Raises:
         ValueError: ``n_episodes < 1``, or the env's time limit sits outside its reward wrapper
             (`check_time_limits`).
-        RuntimeError: the env reports no robustness (not wrapped in `tl_gym.TLTLRewardWrapper`), or it states
-            no episode length and an episode ran `UNSTATED_EPISODE_GUARD` steps without ending.
+        EpisodeError: (a RuntimeError) the env reports no robustness (not wrapped in `tl_gym.TLTLRewardWrapper`),
+            or it states no episode length and an episode ran `UNSTATED_EPISODE_GUARD` steps without ending.
     """
     check_count("n_episodes", n_episodes)
     if isinstance(env, gym.Env):

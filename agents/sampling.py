@@ -24,6 +24,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.envs.registration import load_env_creator
 
+from tl_gym.errors import EpisodeError
 from tl_gym.time_limits import episode_length, is_count, time_limits
 from tl_gym.tltl.ast import Formula
 from tl_gym.wrapper import TLTLRewardWrapper
@@ -224,7 +225,7 @@ def rollout(
         seed: reset seed of episode 0.
 
     Raises:
-        RuntimeError: an episode did not end within ``T`` steps, or the env reports no robustness.
+        EpisodeError: an episode did not end within ``T`` steps, or the env reports no robustness.
     """
     feedforward = np.asarray(feedforward, dtype=float)
     n_episodes, horizon, act_dim = feedforward.shape
@@ -320,7 +321,7 @@ def run_episodes(venv: gym.vector.VectorEnv, act: Controller, seed: int | None =
             lengths may stay ``-1``); default all.
 
     Raises:
-        RuntimeError: the env reports no robustness, or an episode outlived ``max_steps``.
+        EpisodeError: the env reports no robustness, or an episode outlived ``max_steps`` (a RuntimeError).
     """
     n_envs = venv.num_envs
     obs_space = venv.single_observation_space
@@ -335,9 +336,10 @@ def run_episodes(venv: gym.vector.VectorEnv, act: Controller, seed: int | None =
     t = 0
     while np.any(lengths[:wanted] < 0):
         if max_steps is not None and t >= max_steps:
-            raise RuntimeError(
+            raise EpisodeError(
                 f"{int(np.sum(lengths[:wanted] < 0))} episode(s) did not end within {max_steps} steps; "
-                + (limit_hint or f"set the agent's horizon to the env's episode length (it says T={max_steps})")
+                + (limit_hint or f"set the agent's horizon (now {max_steps}) to the number of steps the env's "
+                   "episodes take")
             )
         action = act(t, obs, start)
         obs, _, terminated, truncated, info = venv.step(np.asarray(action).astype(action_dtype, copy=False))
@@ -354,7 +356,7 @@ def run_episodes(venv: gym.vector.VectorEnv, act: Controller, seed: int | None =
             continue
         info = terminal_info(info)
         if "robustness" not in info:
-            raise RuntimeError("the env's terminal info holds no 'robustness': wrap it in tl_gym.TLTLRewardWrapper")
+            raise EpisodeError("the env's terminal info holds no 'robustness': wrap it in tl_gym.TLTLRewardWrapper")
         lengths[ended] = t
         robustness[ended] = np.asarray(info["robustness"], dtype=float)[ended]
         for name, per_env in episode_traces(info, n_envs).items():
@@ -533,8 +535,9 @@ def resolve_horizon(horizon: int | None, env: Any) -> int:
     stated = infer_horizon(env)
     if horizon is None:
         if stated is None:
-            raise ValueError(f"{NO_EPISODE_LENGTH}; or, if its episodes end on their own after T steps, pass "
-                             "horizon=T (the number of actions per episode)")
+            raise ValueError(f"{NO_EPISODE_LENGTH}; or, if its episodes end on their own after T steps, give the "
+                             "agent horizon=T (the number of actions per episode; the wrapper's horizon= only "
+                             "scales the monitor's t/T)")
         return stated
     if stated is not None and stated != horizon:
         raise ValueError(f"horizon={horizon} but the env's episodes last {stated} steps; pass horizon={stated}")

@@ -165,17 +165,13 @@ class SB3Agent(Agent):
             steps_per_iteration=steps_per_iteration, n_envs=n_envs, policy=policy, normalize=normalize,
             n_timesteps=n_timesteps, noise_type=noise_type, noise_std=noise_std).items() if v is not None}
         explicit = canonical_settings({**explicit, **algo_kwargs})
-        entry = {}
         hyperparams = hyperparams.hyperparams if saved else check_hyperparams_source(hyperparams)
-        if hyperparams is not False and not saved:
-            table = load_hyperparams(None if hyperparams is True else hyperparams)
-            env_id, key_kwargs = _env_key(env, env_kwargs)
-            entry = find_hyperparams(table, env_id, key_kwargs, self.algo_class.__name__)
+        entry = {} if saved else _task_entry(self.algo_class, env, env_kwargs, hyperparams)
         # where each keyword the agent adds comes from, for the message of an env that does not take it
         sources = dict.fromkeys(TL_REWARD_ENV_KWARGS[tl_reward], f"tl_reward={tl_reward!r}")
         task_shaping = entry.pop(MARKOV_ENV_KWARGS, {})  # only an entry the file gave has any
         if tl_reward == "markov" and task_shaping:  # the task's best shaping, under the user's keywords
-            where = (f"{MARKOV_ENV_KWARGS} of {self.algo_class.__name__.lower()} on {env_id} in "
+            where = (f"{MARKOV_ENV_KWARGS} of {self.algo_class.__name__.lower()} on {_env_key(env, env_kwargs)[0]} in "
                      f"{HYPERPARAMS_FILE.name if hyperparams is True else hyperparams}")
             if isinstance(env, str):
                 env_kwargs = {**TL_REWARD_ENV_KWARGS["markov"], **task_shaping, **users_env_kwargs}
@@ -183,10 +179,12 @@ class SB3Agent(Agent):
             else:
                 _warn_unshaped(env, task_shaping, where)
         settings = merge_hyperparameters(entry, explicit, on_policy)
+        # potential shaping keeps the optimal policies only with the agent's own discount
+        agent_gamma = _discount(self.algo_class, settings)
         if isinstance(env, str) and env_kwargs.get("reward_mode") == "potential" and "gamma" not in env_kwargs:
-            # potential shaping keeps the optimal policies only with the agent's own discount
-            env_kwargs = {**env_kwargs, "gamma": settings.get("gamma", _default_argument(self.algo_class, "gamma",
-                                                                                           0.99))}
+            env_kwargs = {**env_kwargs, "gamma": agent_gamma}
+        elif not isinstance(env, str) and not saved:
+            _warn_potential_gamma(env, agent_gamma, self.algo_class.__name__)
         hyperparameters, algo_kwargs = split_settings(settings)
         hyperparameters.update(algo=self.algo_class.__name__, tl_reward=tl_reward, hyperparams=hyperparams,
                                algo_kwargs=algo_kwargs)
@@ -538,6 +536,38 @@ def _action_noise(noise_type: str, std: float, space: gym.Space) -> Any:
     return NormalActionNoise(mean, sigma) if noise_type == "normal" else OrnsteinUhlenbeckActionNoise(mean, sigma)
 
 
+def agent_discount(algo: Any, env: Any, env_kwargs: Mapping[str, Any] | None = None,
+                   hyperparams: bool | str | os.PathLike = True, gamma: float | None = None) -> float:
+    """The discount ``SB3Agent(env, algo, env_kwargs=..., hyperparams=..., gamma=gamma)`` trains with.
+
+    The ``gamma`` given, else the task's entry's in the hyperparameter file, else the algorithm's default:
+    for a wrapper built before its agent (the CLI's ``--spec``) whose potential shaping must discount alike.
+
+    Example:
+        >>> agent_discount("ppo", "TLCarNav-v0"), agent_discount("ppo", "TLCarNav-v0", hyperparams=False)
+        (0.999, 0.99)
+    """
+    algo_class = resolve_algorithm(algo)
+    if gamma is not None:
+        return float(gamma)
+    return _discount(algo_class, _task_entry(algo_class, env, env_kwargs, check_hyperparams_source(hyperparams)))
+
+
+def _task_entry(algo_class: type, env: Any, env_kwargs: Mapping[str, Any] | None,
+                hyperparams: bool | str | os.PathLike) -> dict[str, Any]:
+    """The hyperparameter file's entry for the algorithm on this env (empty with ``hyperparams=False``)."""
+    if hyperparams is False:
+        return {}
+    table = load_hyperparams(None if hyperparams is True else hyperparams)
+    env_id, key_kwargs = _env_key(env, env_kwargs)
+    return find_hyperparams(table, env_id, key_kwargs, algo_class.__name__)
+
+
+def _discount(algo_class: type, settings: Mapping[str, Any]) -> float:
+    """The γ of merged settings: theirs, else the algorithm's default."""
+    return settings.get("gamma", _default_argument(algo_class, "gamma", 0.99))
+
+
 def _env_key(env: Any, env_kwargs: Mapping[str, Any] | None) -> tuple[str | None, dict[str, Any]]:
     """The env id and keywords the hyperparameter file is looked up with."""
     if isinstance(env, str):
@@ -599,6 +629,15 @@ def _warn_unshaped(env: Any, shaping: Mapping[str, Any], where: str) -> None:
     if missing:
         warnings.warn(f"the env object does not have the {where}: {missing} (an env object is used as it was "
                       "built); make it with those keywords, or pass the env id", stacklevel=3)
+
+
+def _warn_potential_gamma(env: Any, agent_gamma: float, algo: str) -> None:
+    """Warn that an env object's potential shaping discounts by another γ than the agent (the env cannot be rebuilt)."""
+    env_gamma = _env_setting(env, "gamma")
+    if _env_setting(env, "reward_mode") == "potential" and env_gamma is not None and env_gamma != agent_gamma:
+        warnings.warn(f"the env's potential shaping uses gamma={env_gamma!r} but {algo} discounts by {agent_gamma!r}: "
+                      "the shaping keeps the optimal policies only with the agent's own discount; make the env "
+                      f"with gamma={agent_gamma!r} (or pass the env id: the agent then sets it)", stacklevel=3)
 
 
 def _make_sync_vec(env_id: str, n_envs: int, env_kwargs: Mapping[str, Any],

@@ -84,6 +84,13 @@ def build_env(run: dict[str, Any], render_mode: str | None = None) -> Any:
     if not run.get("signals"):
         raise ValueError("--spec needs --signals to say where each signal comes from, e.g. --signals cos_th=0")
     wrapper_kwargs = {**tl_kwargs, **run.get("wrapper_kwargs", {})}  # run.json files before --wrapper-kwargs lack it
+    if wrapper_kwargs.get("reward_mode") == "potential" and "gamma" not in wrapper_kwargs and _is_sb3(run["agent"]):
+        # the shaping keeps the optimal policies only with the agent's discount, which an env id gets from the agent
+        from tl_gym.agents.sb3 import agent_discount
+
+        settings = run["hyperparameters"]
+        wrapper_kwargs["gamma"] = agent_discount(run["agent"], run["env"], run["env_kwargs"],
+                                                 settings.get("hyperparams", True), settings.get("gamma"))
     return tl_gym.TLTLRewardWrapper(gym.make(run["env"], **kwargs), run["spec"], run["signals"], **wrapper_kwargs)
 
 
@@ -97,6 +104,11 @@ def rendered_env(run: dict[str, Any], agent: Any) -> Any:
     if run.get("spec") is None:
         return gym.make(run["env"], **{**agent.env_kwargs, "render_mode": "rgb_array"})
     return build_env(run, render_mode="rgb_array")
+
+
+def _is_sb3(agent: str) -> bool:
+    """Whether the run's agent is an SB3 algorithm by name (not TLPS/REPS, not a ``module:Class``)."""
+    return ":" not in agent and not is_episodic(agent)
 
 
 def _tl_reward_env_kwargs(run: dict[str, Any]) -> dict[str, Any]:
@@ -218,7 +230,7 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
 
     # history.csv is written after every iteration (all of this fresh agent's rows), so a long run can be
     # watched and a killed one keeps its rows
-    callbacks = [record, HistoryCSV(out / "history.csv")]
+    callbacks = [HistoryCSV(out / "history.csv"), record]  # the row is kept even if the snapshot's episodes fail
     if args.eval_every is not None:
         callbacks.append(EvalCallback(args.eval_every, args.eval_episodes, best_path=out / BEST_FILE,
                                       log_path=out / EVALUATIONS_FILE))

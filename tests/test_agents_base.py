@@ -519,7 +519,7 @@ def test_an_env_without_a_formula_or_an_episode_length_is_refused_saying_what_to
     del endless.horizon
     with pytest.raises(ValueError, match=r"the env states no episode length: give it a time limit inside its "
                                          r"TLTLRewardWrapper.*; or, if its episodes end on their own after T steps, "
-                                         r"pass horizon=T"):
+                                         r"give the agent horizon=T"):
         REPS(endless, n_episodes=2)
 
 

@@ -10,6 +10,8 @@ import shlex
 import sys
 import zipfile
 
+import gymnasium as gym
+import numpy as np
 import pytest
 from tl_gym.agents import Agent
 from tl_gym.cli import build_env, main
@@ -271,6 +273,7 @@ def test_wrapper_kwargs_reach_the_wrapper_over_the_sb3_defaults(tmp_path, capsys
     assert run["wrapper_kwargs"] == {"satisfaction_bonus": 5, "reward_mode": "potential"}
     assert env.satisfaction_bonus == 5.0 and env.reward_mode == "potential"  # over markov's "dense"
     assert env.observe_monitor  # the rest of markov's keywords stay
+    assert env.gamma == Agent.load(out / "agent.zip").model.gamma == 0.9  # the shaping discounts as PPO's entry
     del run["wrapper_kwargs"]  # a run.json written before the option
     assert build_env(run).reward_mode == "dense"
     assert main(["eval", str(out), "--episodes", "2"]) == 0
@@ -382,3 +385,36 @@ def test_eval_gif_path_is_checked_before_the_evaluation_and_best_of_a_runner_run
                                                       "agent": "reps"}))
     assert main(["eval", str(runner_run), "--best"]) == 2
     assert "the experiment runner keeps no best agent, only the final one (drop --best)" in capsys.readouterr().err
+
+
+class Endless(gym.Env):
+    """Never ends its episodes, and states no length."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+    action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        return np.zeros(1, np.float32), {}
+
+    def step(self, action):
+        return np.zeros(1, np.float32), 0.0, False, False, {}
+
+
+gym.register("EndlessForCli-v0", entry_point=Endless)
+
+
+def test_train_on_an_env_whose_episodes_never_end_is_one_error_line_and_keeps_the_history(tmp_path, capsys,
+                                                                                         monkeypatch):
+    """The snapshot's episodes met the guard with a traceback, and history.csv was not yet written."""
+    import tl_gym.agents.evaluation as evaluation
+
+    monkeypatch.setattr(evaluation, "UNSTATED_EPISODE_GUARD", 40)
+    out = tmp_path / "endless"
+    status = main(["train", "--env", "EndlessForCli-v0", "--spec", "F(x > 0.5)", "--signals", "x=0", "--agent", "ppo",
+                   "--iterations", "1", "--out", str(out), "--quiet", *SB3_TINY[:-2], "--snapshots", "1"])
+    assert status == 2
+    error = capsys.readouterr().err
+    assert error.startswith("tl-gym train: error: ")
+    assert "did not end within 40 steps; the env states no episode length" in error
+    assert len((out / "history.csv").read_text().splitlines()) == 2  # the header and the iteration trained

@@ -274,7 +274,7 @@ def test_an_env_object_is_taken_as_it_is():
 
 
 @pytest.mark.parametrize(("kwargs", "label"), [
-    ({"observe_monitor": True, "reward_mode": "potential", "satisfaction_bonus": 5.0}, "markov"),
+    ({"observe_monitor": True, "reward_mode": "potential", "satisfaction_bonus": 5.0, "gamma": 0.999}, "markov"),
     ({"reward_mode": "dense"}, "terminal"),  # no view: the raw observation
 ])
 def test_an_env_object_with_other_reward_settings_saves_and_loads(tmp_path, kwargs, label):
@@ -483,6 +483,18 @@ def test_an_env_object_without_the_tasks_shaping_is_warned_about(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         SB3Agent(shaped, "ppo", hyperparams=str(own), **TINY)
+
+
+def test_an_env_objects_potential_shaping_with_another_discount_than_the_agents_is_warned_about():
+    # an env id gets the agent's gamma; an object cannot be rebuilt, so its user is told
+    undiscounted = gym.make("TLCarNav-v0", observe_monitor=True, reward_mode="potential")  # the wrapper's gamma=1
+    with pytest.warns(UserWarning, match=r"potential shaping uses gamma=1.0 but PPO discounts by 0.99: .*gamma=0.99"):
+        SB3Agent(undiscounted, "ppo", hyperparams=False, **TINY)
+    matched = gym.make("TLCarNav-v0", observe_monitor=True, reward_mode="potential", gamma=0.99)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        SB3Agent(matched, "ppo", hyperparams=False, **TINY)
+        SB3Agent(gym.make("TLCarNav-v0", observe_monitor=True, reward_mode="dense"), "ppo", hyperparams=False, **TINY)
 
 
 def test_an_env_keyword_the_env_refuses_is_named_with_its_source(tmp_path):

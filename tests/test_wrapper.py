@@ -228,6 +228,8 @@ def test_trace_property_is_read_only_and_grows():
         ({"satisfaction_bonus": math.inf}, ValueError, "satisfaction_bonus"),
         ({"satisfaction_bonus": math.nan}, ValueError, "satisfaction_bonus"),
         ({"satisfaction_bonus": "10"}, ValueError, "satisfaction_bonus"),
+        ({"horizon": 0}, ValueError, "horizon must be"),  # without observe_monitor too: it is written into the spec
+        ({"horizon": 2.5}, ValueError, "horizon must be"),
     ],
 )
 def test_bad_arguments_fail_at_construction(kwargs, error, match):

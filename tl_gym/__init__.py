@@ -11,7 +11,7 @@ from importlib.metadata import PackageNotFoundError, version
 from gymnasium.envs.registration import register, registry
 
 from tl_gym import logic
-from tl_gym.errors import SpecError, TLGymError, TraceError, UnknownSignalError
+from tl_gym.errors import EpisodeError, SpecError, TLGymError, TraceError, UnknownSignalError
 from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.parser import parse
 from tl_gym.wrapper import TLTLRewardWrapper
@@ -37,6 +37,7 @@ for _id, _entry in (
 del _id, _entry
 
 __all__ = [
-    "Formula", "SpecError", "TLGymError", "TLTLRewardWrapper", "TraceError", "UnknownSignalError", "logic", "parse",
+    "EpisodeError", "Formula", "SpecError", "TLGymError", "TLTLRewardWrapper", "TraceError", "UnknownSignalError",
+    "logic", "parse",
     "__version__",
 ]

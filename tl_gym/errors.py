@@ -57,3 +57,7 @@ class TraceError(TLGymError, ValueError):
 
 class IncompatibleSaveError(TLGymError, ValueError):
     """A saved agent does not match the running code or environment."""
+
+
+class EpisodeError(TLGymError, RuntimeError):
+    """Episodes an agent runs do not end as the task needs: not within the horizon, or without a robustness."""

@@ -10,7 +10,7 @@ from typing import Any, SupportsFloat
 import gymnasium as gym
 import numpy as np
 
-from tl_gym.checks import check_finite, check_fraction, check_positive
+from tl_gym.checks import check_count, check_finite, check_fraction, check_positive
 from tl_gym.monitor_view import MonitorView, augment, augment_space, split
 from tl_gym.shaping import HierarchicalPotential, discounted_increment, satisfaction_value
 from tl_gym.signals import SignalMap, SignalReader
@@ -213,6 +213,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
                                   observe_monitor=observe_monitor, monitor_scale=monitor_scale, gamma=gamma,
                                   satisfaction_bonus=satisfaction_bonus)
         check_finite("env_reward_weight", env_reward_weight)
+        check_count("horizon", horizon, allow_none=True)  # checked with the view or without: it goes into the spec
         if not isinstance(env, gym.Env):
             raise TypeError(f"env must be a gymnasium.Env, got {type(env).__name__}")
         if not isinstance(end_on_violation, bool):
