@@ -55,7 +55,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         out_dir = default_out_dir(sweep)
         if not args.no_run:
             failed += len(run_with_options(sweep, out_dir, args).failed)
-        runs = results.load_runs(out_dir)
+        try:
+            runs = results.load_runs(out_dir)
+        except FileNotFoundError as error:  # --no-run before any run: one line, saying how to get the runs
+            parser.error(f"{error}" + (" (or drop --no-run: this command runs them)" if args.no_run else ""))
         if not runs:
             print(f"{sweep.name}: no finished runs in {out_dir}; nothing written", file=sys.stderr)
             continue

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import re
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -35,23 +36,39 @@ def parse_value(text: str) -> Any:
         return text
 
 
+_KEY_INDEX = re.compile(r"(?P<key>[^\[\]]+)\[(?P<index>-?\d+)\]")
+
+
 def parse_signals(text: str) -> dict[str, Any]:
-    """Parse ``name=source,...``: an integer source is an observation index, any other a Dict key.
+    """Parse ``name=source,...``: an index, ``key[i]`` (the wrapper's ``(key, i)``) or a Dict key.
+
+    An integer is an observation index, ``key[i]`` element ``i`` of a Dict key's array, any other
+    text a Dict key holding one number.
 
     Raises ``argparse.ArgumentTypeError``, which argparse reports as ``argument --signals: ...``.
 
     Example:
         >>> parse_signals("cos_th=0,th_dot=2")
         {'cos_th': 0, 'th_dot': 2}
+        >>> parse_signals("x=observation[0],gx=desired_goal[-5],mode=mode")
+        {'x': ('observation', 0), 'gx': ('desired_goal', -5), 'mode': 'mode'}
     """
     signals: dict[str, Any] = {}
     for item in filter(None, (part.strip() for part in text.split(","))):
         name, sep, source = item.partition("=")
         if not sep or not name.strip() or not source.strip():
             raise argparse.ArgumentTypeError(f"expects name=source pairs separated by commas, such as "
-                                             f"cos_th=0,th_dot=2 (an index, or a Dict key), got {item!r}")
+                                             f"cos_th=0,th_dot=2 (an index, a Dict key, or key[i] for an element "
+                                             f"of a Dict key's array), got {item!r}")
         source = source.strip()
-        signals[name.strip()] = int(source) if source.lstrip("-").isdigit() else source
+        element = _KEY_INDEX.fullmatch(source)
+        if element is not None:
+            signals[name.strip()] = (element["key"].strip(), int(element["index"]))
+        elif "[" in source or "]" in source:
+            raise argparse.ArgumentTypeError(f"signal {name.strip()!r}: {source!r} is neither a key nor key[i] "
+                                             "(one integer index in brackets, such as observation[0])")
+        else:
+            signals[name.strip()] = int(source) if source.lstrip("-").isdigit() else source
     return signals
 
 
@@ -166,11 +183,14 @@ def build_parser(with_hyperparameters: bool = False) -> argparse.ArgumentParser:
     train.add_argument("--env-kwargs", type=parse_env_kwargs, default={}, help="env keywords as a JSON object")
     train.add_argument("--spec", default=None, help="a TLTL formula to pay as reward instead of the env's own")
     train.add_argument("--signals", type=parse_signals, default=None,
-                       help="with --spec: signal sources, e.g. cos_th=0,th_dot=2 (observation indices or Dict keys)")
+                       help="with --spec: signal sources, e.g. cos_th=0,th_dot=2 (observation indices), speed=speed "
+                            "(a Dict key) or x=observation[0] (an element of a Dict key's array)")
     train.add_argument("--wrapper-kwargs", type=parse_env_kwargs, default={},
                        help="with --spec: TLTLRewardWrapper keywords as a JSON object, e.g. "
                             "'{\"reward_mode\": \"dense\", \"satisfaction_bonus\": 5}'")
-    train.add_argument("--agent", default="tlps", help="tlps, reps or a stable-baselines3 algorithm (ppo, sac, ...)")
+    train.add_argument("--agent", default="tlps",
+                       help="tlps, reps, a stable-baselines3 or sb3-contrib algorithm (ppo, sac, td3, tqc, ...), "
+                            "or package.module:Name of an agent class")
     train.add_argument("--iterations", type=int, default=None,
                        help="policy updates (default: 50; SB3 agents: the task's n_timesteps budget rounded up to "
                             "whole iterations of steps_per_iteration, else 50)")

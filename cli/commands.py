@@ -33,9 +33,13 @@ numbers, booleans (``true``/``false``), ``none`` or JSON when they parse as such
 from __future__ import annotations
 
 import argparse
+import difflib
+import inspect
 import json
 import math
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -92,6 +96,17 @@ def build_env(run: dict[str, Any], render_mode: str | None = None) -> Any:
         wrapper_kwargs["gamma"] = agent_discount(run["agent"], run["env"], run["env_kwargs"],
                                                  settings.get("hyperparams", True), settings.get("gamma"))
     return tl_gym.TLTLRewardWrapper(gym.make(run["env"], **kwargs), run["spec"], run["signals"], **wrapper_kwargs)
+
+
+def check_wrapper_keywords(wrapper_kwargs: dict[str, Any]) -> None:
+    """Refuse a ``--wrapper-kwargs`` name `TLTLRewardWrapper` does not take, with the nearest one it does."""
+    accepted = [name for name in inspect.signature(tl_gym.TLTLRewardWrapper).parameters
+                if name not in ("env", "spec", "signals")]  # given by --env, --spec, --signals
+    for name in wrapper_kwargs:
+        if name not in accepted:
+            near = difflib.get_close_matches(name, accepted, n=1)
+            hint = f"; did you mean {near[0]!r}?" if near else f"; it takes {', '.join(accepted)}"
+            raise ValueError(f"--wrapper-kwargs: TLTLRewardWrapper takes no keyword {name!r}{hint}")
 
 
 def rendered_env(run: dict[str, Any], agent: Any) -> Any:
@@ -185,6 +200,7 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
     if args.wrapper_kwargs and args.spec is None:
         raise ValueError("--wrapper-kwargs only makes sense with --spec (a TL id such as TLCarNav-v0 takes the "
                          "wrapper's keywords in --env-kwargs)")
+    check_wrapper_keywords(args.wrapper_kwargs)
     run = {
         "env": args.env, "env_kwargs": env_kwargs, "spec": args.spec, "signals": args.signals,
         "wrapper_kwargs": dict(args.wrapper_kwargs),
@@ -236,17 +252,55 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
                                       log_path=out / EVALUATIONS_FILE))
     if not args.quiet and run["spec"] is None:  # what the agent adds to --env-kwargs is said, not silent
         print(f"{type(agent).__name__} on {run['env']} with the env keywords {agent.env_kwargs}")
-    agent.learn(iterations, callback=as_callback(callbacks), progress_bar=not args.quiet)
+    with StopAfterIteration() as stop:  # Ctrl-C: finish the iteration, then save and plot what was trained
+        agent.learn(iterations, callback=as_callback([*callbacks, stop.callback]), progress_bar=not args.quiet)
     agent.save(out / AGENT_FILE)
     write_plots(agent, run, snapshots, out)
     last = agent.history[-1]
-    print(f"iteration {last['iteration']}: mean robustness {last['mean_robustness']:.4g}, "
-          f"success rate {last['success_rate']:.1%}, {last['env_steps']} env steps, {last['wall_time']:.1f} s")
+    scores = (f"mean robustness {last['mean_robustness']:.4g}, success rate {last['success_rate']:.1%}"
+              if last.get("episodes", 1) else "no episode ended in it (an iteration shorter than an episode)")
+    print(f"iteration {last['iteration']}: {scores}, {last['env_steps']} env steps, {last['wall_time']:.1f} s")
     # an earlier run's were removed: these exist if this run evaluated (not before --eval-every's first N iterations)
     best = "".join(f", {name}" for name in (BEST_FILE, EVALUATIONS_FILE) if (out / name).exists())
     trajectories = ", trajectories.png" if snapshots else ""  # write_plots draws them only from snapshots
     print(f"wrote {out}/{{{RUN_FILE}, {AGENT_FILE}{best}, history.csv, learning_curve.png{trajectories}}}")
+    if stop.requested:
+        print(f"tl-gym train: interrupted: stopped after iteration {last['iteration']} of {iterations}; the agent "
+              "continues with Agent.load", file=sys.stderr)
+        return 130
     return 0
+
+
+class StopAfterIteration:
+    """A first Ctrl-C asks training to stop once the iteration under way ends; a second one interrupts at once.
+
+    The agent's state is whole only between iterations (a policy update half done is no agent to save), so
+    the first SIGINT is turned into a request that ``callback`` answers after the iteration (SB3's callback
+    convention: ``False`` stops). Off the main thread, where no handler can be set, Ctrl-C interrupts as usual.
+    """
+
+    def __init__(self) -> None:
+        self.requested = False
+        self._previous: Any = None
+
+    def __enter__(self) -> StopAfterIteration:
+        if threading.current_thread() is threading.main_thread():
+            self._previous = signal.getsignal(signal.SIGINT) or signal.default_int_handler  # None: set outside Python
+            signal.signal(signal.SIGINT, self._request)
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
+
+    def _request(self, signum: int, frame: Any) -> None:
+        self.requested = True
+        signal.signal(signal.SIGINT, self._previous)  # the next Ctrl-C interrupts
+        print("\ntl-gym train: stopping after this iteration, then saving (Ctrl-C again to stop at once)",
+              file=sys.stderr)
+
+    def callback(self, agent: Any, row: dict[str, Any]) -> bool:
+        return not self.requested
 
 
 def write_plots(agent: Any, run: dict[str, Any], snapshots: list[tuple[int, dict[str, Any]]], out: Path) -> None:
@@ -296,6 +350,7 @@ def _read_json(path: Path) -> dict[str, Any]:
 
 def evaluate(args: argparse.Namespace) -> int:
     """``tl-gym eval``: print the evaluation of a saved run, optionally save a GIF."""
+    check_count("--episodes", args.episodes)
     run = read_run(args.run)
     env = build_env(run)
     saved = args.run / (BEST_FILE if args.best else AGENT_FILE)
@@ -303,7 +358,9 @@ def evaluate(args: argparse.Namespace) -> int:
         runner_run = not (args.run / RUN_FILE).exists()
         why = ("the experiment runner keeps no best agent, only the final one (drop --best)" if args.best and
                runner_run else "the run was trained without --eval-every" if args.best
-               else "train writes it when training ends (was the run stopped?)")
+               else "a runner's record in git keeps no agent (spec.json, history.csv and done.json only): rerun its "
+               "spec on this machine to get it (docs/benchmarks.md)" if (args.run / "done.json").exists()
+               else "train writes it when training ends or stops after a Ctrl-C (was the run killed?)")
         raise FileNotFoundError(f"{saved} not found: {why}")
     if args.gif is not None:  # before the evaluation and the rendering, not after them
         check_gif_path(args.gif)

@@ -159,3 +159,15 @@ def test_the_linear_smoother_target_reads_the_alternated_pair():
     met, missed = targets([], linear_alternated=(0.002, 0.0005)), targets([], linear_alternated=(0.003, 0.0005))
     assert any("**4.00×**" in line and "target ≤ 5×: met" in line for line in met)
     assert any("**6.00×**" in line and "target ≤ 5×: not met" in line for line in missed)
+
+
+def test_reproduce_paper_without_runs_and_without_running_is_one_error_line(tmp_path, monkeypatch, capsys):
+    """--no-run with no results on disk printed a FileNotFoundError traceback."""
+    from benchmarks import reproduce_paper
+
+    monkeypatch.chdir(tmp_path)  # runs/sweeps/... is relative: nothing there
+    with pytest.raises(SystemExit) as exit_info:
+        reproduce_paper.main(["--no-run"])
+    assert exit_info.value.code == 2
+    error = capsys.readouterr().err
+    assert "holds no sweep.json" in error and "(or drop --no-run: this command runs them)" in error

@@ -199,9 +199,22 @@ def test_eval_of_a_run_without_its_agent_or_with_a_broken_run_file(tmp_path, cap
     (tmp_path / "run.json").write_text(json.dumps(run))
     assert main(["eval", str(tmp_path)]) == 2
     assert "agent.zip not found: train writes it when training ends" in capsys.readouterr().err
+    (tmp_path / "done.json").write_text("{}")  # a runner's record as git keeps it
+    assert main(["eval", str(tmp_path)]) == 2
+    assert "a runner's record in git keeps no agent" in capsys.readouterr().err
     (tmp_path / "run.json").write_text("{")
     assert main(["eval", str(tmp_path)]) == 2
     assert "run.json is not valid JSON" in capsys.readouterr().err
+    assert main(["eval", str(tmp_path), "--episodes", "0"]) == 2
+    assert "--episodes must be" in capsys.readouterr().err
+
+
+def test_a_wrapper_keyword_misspelt_is_named_with_the_nearest(tmp_path, capsys):
+    assert main(["train", "--env", "Pendulum-v1", "--spec", "F(c > 0)", "--signals", "c=0", "--wrapper-kwargs",
+                 '{"reward_mod": "dense"}', "--agent", "reps", "--out", str(tmp_path / "r")]) == 2
+    assert ("--wrapper-kwargs: TLTLRewardWrapper takes no keyword 'reward_mod'; did you mean 'reward_mode'?"
+            in capsys.readouterr().err)
+    assert not (tmp_path / "r").exists()  # refused before anything is written
 
 
 def test_help_lists_the_hyperparameters(capsys):
@@ -221,7 +234,10 @@ def test_an_sb3_run_keeps_its_markov_view_and_vecnormalize(tmp_path, capsys):
     assert main(["train", "--env", "TLCarNav-v0", "--agent", "ppo", "--n-timesteps", "128", "--out", str(out),
                  "--quiet", *SB3_TINY]) == 0
     assert json.loads((out / "run.json").read_text())["iterations"] == 2
-    assert "note: n_timesteps" not in capsys.readouterr().err  # 128 is whole iterations: nothing to say
+    printed = capsys.readouterr()
+    assert "note: n_timesteps" not in printed.err  # 128 is whole iterations: nothing to say
+    # 64 steps of 2 envs end none of the car's 200-step episodes: said so, not "mean robustness nan"
+    assert "iteration 2: no episode ended in it (an iteration shorter than an episode), 128 env steps" in printed.out
     with zipfile.ZipFile(out / "agent.zip") as archive:
         assert "vecnormalize.pkl" in archive.namelist()
     agent = Agent.load(out / "agent.zip")
@@ -371,6 +387,32 @@ def test_ctrl_c_is_one_line_saying_what_is_kept(tmp_path, capsys, monkeypatch):
     assert capsys.readouterr().err.strip() == f"tl-gym train: interrupted; {out}/history.csv keeps the iterations done"
 
 
+def test_a_first_ctrl_c_stops_after_the_iteration_and_saves_the_agent(tmp_path, capsys, monkeypatch):
+    """Ctrl-C threw the trained agent away: only run.json and history.csv were left, nothing to evaluate or resume."""
+    import os
+    import signal
+
+    from tl_gym.agents import REPS
+
+    update = REPS._update
+
+    def interrupted_in_the_first(self, iteration):
+        row = update(self, iteration)
+        if iteration == 1:
+            os.kill(os.getpid(), signal.SIGINT)  # as a Ctrl-C in the middle of the run
+        return row
+
+    monkeypatch.setattr(REPS, "_update", interrupted_in_the_first)
+    out = tmp_path / "r"
+    before = signal.getsignal(signal.SIGINT)
+    assert main(["train", "--agent", "reps", "--n-episodes", "2", "--iterations", "3", "--out", str(out),
+                 "--quiet"]) == 130
+    assert signal.getsignal(signal.SIGINT) is before  # the handler is put back
+    assert "stopped after iteration 1 of 3" in capsys.readouterr().err
+    assert Agent.load(out / "agent.zip").num_iterations == 1
+    assert len((out / "history.csv").read_text().splitlines()) == 2 and (out / "learning_curve.png").exists()
+
+
 def test_eval_gif_path_is_checked_before_the_evaluation_and_best_of_a_runner_run_says_why(car_run, tmp_path,
                                                                                           capsys):
     (tmp_path / "a_file").write_text("")
@@ -418,3 +460,29 @@ def test_train_on_an_env_whose_episodes_never_end_is_one_error_line_and_keeps_th
     assert error.startswith("tl-gym train: error: ")
     assert "did not end within 40 steps; the env states no episode length" in error
     assert len((out / "history.csv").read_text().splitlines()) == 2  # the header and the iteration trained
+
+
+gym.register("DictForCli-v0", entry_point="tests.test_wrapper:Scripted", kwargs={"dict_obs": True}, max_episode_steps=5)
+
+
+def test_signals_pick_an_element_of_a_dict_keys_array_with_brackets(tmp_path, capsys):
+    """`--signals px=pos` named an array, and no command-line syntax could pick one of its elements."""
+    out = tmp_path / "dict"
+    assert main(["train", "--env", "DictForCli-v0", "--spec", "F(px > 0.5)", "--signals", "px=pos[1], v=speed",
+                 "--agent", "reps", "--n-episodes", "4", "--iterations", "1", "--out", str(out), "--quiet"]) == 0
+    run = json.loads((out / "run.json").read_text())
+    assert run["signals"] == {"px": ["pos", 1], "v": "speed"}
+    _, info = run_episode(build_env(run))
+    np.testing.assert_array_equal(info["trace"]["px"], np.linspace(0, 1, 18).reshape(6, 3)[:, 1])
+    assert main(["eval", str(out), "--episodes", "2"]) == 0
+    with pytest.raises(SystemExit):
+        main(["train", "--spec", "F(px > 0)", "--signals", "px=pos[a]", "--out", str(tmp_path / "bad")])
+    assert "'px': 'pos[a]' is neither a key nor key[i]" in capsys.readouterr().err
+
+
+def run_episode(env):
+    env.reset(seed=0)
+    while True:
+        _, _, terminated, truncated, info = env.step(np.zeros(env.action_space.shape, np.float32))
+        if terminated or truncated:
+            return env, info
