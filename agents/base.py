@@ -273,6 +273,7 @@ class Agent(abc.ABC):
             "history": to_json(self.history),
             "rng_state": to_json(self.rng.bit_generator.state),
             "predict_rng_state": to_json(self._predict_rng.bit_generator.state),  # stochastic predict's draws
+            "horizon": getattr(self, "horizon", None),  # an episodic agent's policy has one step per state
         }
         return write_archive(path, meta, self._state_arrays(), self._extra_files())
 
@@ -314,7 +315,16 @@ class Agent(abc.ABC):
             raise IncompatibleSaveError(
                 f"the env's formula {str(agent.formula)!r} differs from the saved one {meta['formula']!r}"
             )
-        check_arrays(arrays, agent._state_arrays())
+        try:
+            check_arrays(arrays, agent._state_arrays())
+        except IncompatibleSaveError as error:
+            saved_horizon = meta.get("horizon")  # saved since 2026-12-06
+            if saved_horizon is None or saved_horizon == getattr(agent, "horizon", saved_horizon):
+                raise
+            raise IncompatibleSaveError(
+                f"the agent was trained on episodes of {saved_horizon} steps and the env's last {agent.horizon}: its "
+                f"time-varying policy acts per step; load it on an env of {saved_horizon}-step episodes ({error})"
+            ) from None
         agent._load_state(arrays, files)
         agent.history = [dict(row) for row in meta["history"]]
         agent.num_iterations = int(meta["num_iterations"])

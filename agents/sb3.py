@@ -265,6 +265,11 @@ class SB3Agent(Agent):
         self.vec_normalize: VecNormalize | None = None
         if normalize is not None:
             normalize.setdefault("gamma", kwargs.get("gamma", _default_argument(self.algo_class, "gamma", 0.99)))
+            space = self.sb3_env.observation_space
+            if isinstance(space, gym.spaces.Dict) and normalize.get("norm_obs", True):
+                # VecNormalize refuses a Dict with a non-Box entry (a Discrete mode) unless told which keys to scale
+                normalize.setdefault("norm_obs_keys", [k for k, sub in space.spaces.items()
+                                                       if isinstance(sub, gym.spaces.Box)])
             self.vec_normalize = VecNormalize(self.sb3_env, **normalize)
         policy = self.config.policy or _default_policy(self.algo_class, self.observation_space)
         try:

@@ -215,6 +215,9 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
     out: Path = args.out
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} is a file: name a folder for the run")
+    if (out / RUNNER_SPEC_FILE).exists():  # its done.json and spec.json would describe another run's history and agent
+        raise ValueError(f"--out {out} is a run folder of the experiment runner: training there would corrupt its "
+                         "record; name another folder")
     agent = agent_for_run(run)
     if args.iterations is None:
         iterations = default_iterations(agent)
@@ -333,11 +336,19 @@ def read_run(folder: Path) -> dict[str, Any]:
     """
     run_file, runner_file = folder / RUN_FILE, folder / RUNNER_SPEC_FILE
     if run_file.exists():
-        return _read_json(run_file)
+        return _checked_run(_read_json(run_file), run_file)
     if runner_file.exists():
-        return {**_read_json(runner_file), "spec": None, "signals": None}
+        return _checked_run({**_read_json(runner_file), "spec": None, "signals": None}, runner_file)
     raise FileNotFoundError(f"{run_file} not found: is {folder} a folder written by `tl-gym train` "
                             f"(or a run folder of the experiment runner, with {RUNNER_SPEC_FILE})?")
+
+
+def _checked_run(run: Any, path: Path) -> dict[str, Any]:
+    """A run's description with the keys `eval` reads (a ``ValueError`` naming the file and the missing ones)."""
+    missing = [key for key in ("env", "agent") if not isinstance(run, dict) or key not in run]
+    if missing:
+        raise ValueError(f"{path} names no {' and no '.join(missing)}: not a run written by tl-gym train or the runner")
+    return {"env_kwargs": {}, **run}
 
 
 def _read_json(path: Path) -> dict[str, Any]:

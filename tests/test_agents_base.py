@@ -390,6 +390,14 @@ def test_load_rebuilds_a_wrapped_or_time_limited_env_or_asks_for_it(tmp_path):
     assert Agent.load(tmp_path / "short.zip", env=COUNTER_ID).horizon == 6  # the saved id: the saved env, whole
 
 
+def test_loading_on_an_env_of_another_episode_length_names_the_horizons(tmp_path):
+    """It said "array 'policy_mean' has shape (6, 2) in the file, the agent expects (9, 2)"."""
+    path = REPS(gym.make(COUNTER_ID, max_episode_steps=6), seed=0, n_episodes=4).learn(1).save(tmp_path / "six.zip")
+    with pytest.raises(IncompatibleSaveError, match=r"trained on episodes of 6 steps and the env's last 9: .*load it "
+                                                    r"on an env of 6-step episodes \(array 'policy_mean' has shape"):
+        Agent.load(path, env=gym.make(COUNTER_ID, max_episode_steps=9))
+
+
 class Watched(gym.Wrapper):
     """A wrapper that records no constructor arguments (as SB3's Monitor): its spec cannot be rebuilt."""
 

@@ -205,8 +205,19 @@ def test_eval_of_a_run_without_its_agent_or_with_a_broken_run_file(tmp_path, cap
     (tmp_path / "run.json").write_text("{")
     assert main(["eval", str(tmp_path)]) == 2
     assert "run.json is not valid JSON" in capsys.readouterr().err
+    (tmp_path / "run.json").write_text("{}")
+    assert main(["eval", str(tmp_path)]) == 2
+    assert "run.json names no env and no agent" in capsys.readouterr().err
     assert main(["eval", str(tmp_path), "--episodes", "0"]) == 2
     assert "--episodes must be" in capsys.readouterr().err
+
+
+def test_train_refuses_to_write_into_a_runner_run_folder(tmp_path, capsys):
+    (tmp_path / "spec.json").write_text("{}")
+    (tmp_path / "done.json").write_text("{}")
+    assert main(["train", "--agent", "reps", "--out", str(tmp_path)]) == 2
+    assert "is a run folder of the experiment runner" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["done.json", "spec.json"]  # nothing written or removed
 
 
 def test_a_wrapper_keyword_misspelt_is_named_with_the_nearest(tmp_path, capsys):

@@ -28,6 +28,8 @@ from tl_gym.agents.sb3_settings import (
     resolve_algorithm,
 )
 
+import tl_gym
+
 #: A budget small enough for fast tests (PPO: one rollout of 2 envs x 32 steps).
 TINY = {"steps_per_iteration": 64, "n_envs": 2, "batch_size": 32, "n_epochs": 1}
 
@@ -709,3 +711,32 @@ def test_an_algorithm_that_cannot_take_the_env_says_so_and_recurrent_ppo_gets_it
     pytest.importorskip("sb3_contrib")
     agent = SB3Agent("TLPendulum-v0", "recurrentppo", n_envs=1, n_steps=64, batch_size=32, steps_per_iteration=64)
     assert type(agent.model.policy).__name__ == "RecurrentActorCriticPolicy"
+
+
+class WithMode(gym.Env):
+    """A Dict observation with a Discrete entry beside the Box: VecNormalize cannot scale the whole Dict."""
+
+    observation_space = gym.spaces.Dict({"pos": gym.spaces.Box(-10.0, 10.0, (2,), np.float32),
+                                         "mode": gym.spaces.Discrete(3)})
+    action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.pos = np.zeros(2, np.float32)
+        return {"pos": self.pos.copy(), "mode": 0}, {}
+
+    def step(self, action):
+        self.pos = np.clip(self.pos + action, -10, 10).astype(np.float32)
+        return {"pos": self.pos.copy(), "mode": int(self.pos[0] > 0)}, 0.0, False, False, {}
+
+
+def test_the_default_normalisation_scales_the_box_entries_of_a_dict_with_other_entries():
+    """VecNormalize raised "only supports gym.spaces.Box" at the default settings; the Box keys are scaled now."""
+    env = tl_gym.TLTLRewardWrapper(gym.wrappers.TimeLimit(WithMode(), 20), "F(x > 2)", signals={"x": ("pos", 0)},
+                                   observe_monitor=True, reward_mode="dense")
+    agent = SB3Agent(env, "ppo", seed=0, hyperparams=False, **TINY).learn(1)
+    assert set(agent.vec_normalize.norm_obs_keys) == {"pos", "monitor"}  # not "mode"
+    assert agent.vec_normalize.obs_rms.keys() == {"pos", "monitor"}
+    obs, _ = env.reset(seed=0)
+    action, _ = agent.predict(obs)
+    assert agent.action_space.contains(action)
