@@ -262,6 +262,7 @@ def test_bad_dict_signals_fail_at_construction(signals, error, match):
     [
         ({"a": lambda obs: obs[:2]}, ValueError, "'a'.*one real number.*shape \\(2,\\)"),
         ({"a": lambda obs: "high"}, TypeError, "'a'.*real number.*str"),
+        ({"a": lambda obs: obs[0] > 0.5}, TypeError, "'a' must be a real number, got bool: np.False_"),  # numpy's too
         (lambda obs, info: {"b": 1.0}, UnknownSignalError, "'a'"),
         (lambda obs, info: [1.0], TypeError, "mapping"),
     ],
@@ -429,6 +430,27 @@ def test_sb3s_success_rate_reads_the_formulas_satisfaction_and_the_envs_own_is_k
     assert list(model.ep_success_buffer) == [satisfied, satisfied]  # rollout/success_rate
     _, info = run(TLTLRewardWrapper(ClaimsSuccess(Scripted()), spec, signals={"a": 0}))
     assert info["is_success"] == info["satisfied"] == satisfied and info["env_is_success"] is True
+
+
+class Scalar(gym.Env):
+    """A 0-D Box observation: one number with no axis."""
+
+    observation_space = spaces.Box(-1.0, 1.0, shape=(), dtype=np.float64)
+    action_space = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        return np.array(0.25), {}
+
+    def step(self, action):
+        return np.array(0.75), 0.0, False, True, {}
+
+
+def test_a_zero_dimensional_box_is_read_by_the_empty_index():
+    with pytest.raises(ValueError, match=r"a Box of shape \(\): its one number is the index \(\)"):
+        TLTLRewardWrapper(Scalar(), "F(s > 0.5)", signals={"s": 0})
+    _, info = run(TLTLRewardWrapper(Scalar(), "F(s > 0.5)", signals={"s": ()}))
+    assert info["trace"]["s"].tolist() == [0.25, 0.75] and info["robustness"] == 0.25
 
 
 def test_observation_space_an_index_cannot_address():

@@ -65,9 +65,10 @@ def _box_index(name: str, space: spaces.Space, index: tuple, where: str) -> tupl
     if not isinstance(space, spaces.Box):
         raise TypeError(f"signal {name!r}: {where} is a {type(space).__name__} space, which an index cannot address")
     if len(index) != len(space.shape) or not all(_is_index(i) for i in index):
+        hint = ": its one number is the index ()" if space.shape == () else ""
         raise ValueError(
             f"signal {name!r}: index {index if len(index) != 1 else index[0]!r} does not pick one element of "
-            f"{where}, a Box of shape {space.shape}"
+            f"{where}, a Box of shape {space.shape}{hint}"
         )
     for i, size in zip(index, space.shape):
         if not -size <= i < size:
@@ -112,7 +113,7 @@ class SignalReader:
             return _CallableGetter(name, source, _accepts_info(source))
         if isinstance(source, list):  # a (key, index) tuple after a JSON round trip (an EnvSpec, a saved agent)
             source = tuple(source)
-        if _is_index(source) or (isinstance(source, tuple) and source and all(_is_index(i) for i in source)):
+        if _is_index(source) or (isinstance(source, tuple) and all(_is_index(i) for i in source)):  # () for a 0-D Box
             index = _box_index(name, space, source if isinstance(source, tuple) else (source,), "the observation")
             return _KeyGetter(None, index)
         if isinstance(source, str) or (isinstance(source, tuple) and source and isinstance(source[0], str)):
@@ -239,7 +240,7 @@ def _add_note(error: BaseException, note: str) -> None:
 
 
 def _check_scalar(name: str, value: Any) -> None:
-    if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.ndarray, np.generic)):
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Real, np.ndarray, np.generic)):
         raise TypeError(f"signal {name!r} must be a real number, got {type(value).__name__}: {value!r}")
     if np.ndim(value) != 0 or np.asarray(value).dtype.kind not in "iuf":
         raise ValueError(
