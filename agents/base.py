@@ -199,6 +199,11 @@ class Agent(abc.ABC):
 
         Returns:
             The agent, so that ``Agent(env).learn(50)`` chains.
+
+        Raises:
+            ValueError: ``iterations`` is not an int >= 0.
+            TypeError: ``callback`` is none of the accepted kinds.
+            EpisodeError: an episode outlived the horizon, or the env reports no robustness.
         """
         if not isinstance(iterations, (int, np.integer)) or iterations < 0:
             raise ValueError(f"iterations must be a non-negative int, got {iterations!r}")
@@ -243,6 +248,10 @@ class Agent(abc.ABC):
         Returns:
             ``{"mean_robustness": float, "success_rate": float, "robustness": (n_episodes,) array,
             "traces": {signal: [each episode's s_0 … s_T]}}`` (`evaluate_policy`).
+
+        Raises:
+            ValueError: ``n_episodes`` < 1.
+            EpisodeError: an episode did not end (see `evaluate_policy`).
         """
         if seed is not None:
             self._predict_rng = np.random.default_rng([seed, 2])
@@ -254,6 +263,10 @@ class Agent(abc.ABC):
 
         Returns:
             The path written.
+
+        Raises:
+            TypeError: ``path`` is not a path, or the agent's config holds a value JSON cannot write.
+            OSError: the file cannot be written (the previous file at ``path``, if any, is left intact).
         """
         config = to_json(self._config())
         if not is_jsonable(config):

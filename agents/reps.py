@@ -156,8 +156,9 @@ class REPS(AbstractEpisodicSearch):
     """Episodic REPS over the feed-forward terms of a time-varying linear-Gaussian policy.
 
     See the module docstring for the algorithm and `REPSConfig` for the hyperparameters.
-    History rows add ``eta`` (the dual's temperature), ``kl`` (``KL(w ‖ uniform)``) and
-    ``policy_std`` (mean standard deviation of the policy after the update).
+    History rows add ``eta`` (the dual's temperature), ``kl`` (``KL(w ‖ uniform)``),
+    ``policy_std`` (mean standard deviation of the policy after the update), ``std_floor`` (the
+    exploration floor) and, with ``feedback="fitted"`` (the default), ``feedback_gain`` (docs/agents.md).
 
     Example:
         >>> from tl_gym.agents import REPS

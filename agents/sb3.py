@@ -122,7 +122,10 @@ class SB3Agent(Agent):
             is an error.
         hyperparams: ``True`` (the packaged ``sb3.yml``), ``False`` (none: SB3's defaults) or a file path
             (text or a `pathlib.Path`).
-        **algo_kwargs: the algorithm's constructor arguments; each one given wins over the file's.
+        **algo_kwargs: the algorithm's constructor arguments; each one given wins over the file's. Three more
+            `SB3Config` settings come this way: ``end_is_terminal`` (default ``True``: every episode end is a
+            termination for SB3, `TraceEndIsTerminal`), ``her_goals`` and ``her_strategy`` (hindsight
+            relabelling of whole TL episodes on goal envs, off-policy algorithms; docs/agents.md).
 
     History rows add ``episodes`` (episodes that ended in the iteration).
 
@@ -133,8 +136,9 @@ class SB3Agent(Agent):
             add (naming it and where it comes from).
 
     Example:
-        >>> resolve_algorithm("ppo").__name__  # what SB3Agent("TLCarNav-v0", "ppo") trains
-        'PPO'
+        >>> agent = SB3Agent("TLCarNav-v0", "ppo", seed=0, steps_per_iteration=400, n_envs=2, batch_size=100)
+        >>> agent.learn(1).history[0]["env_steps"], type(agent.model).__name__, agent.config.tl_reward
+        (400, 'PPO', 'markov')
     """
 
     config: SB3Config

@@ -161,7 +161,8 @@ class TLPS(AbstractEpisodicSearch):
     History rows add ``smooth_robustness`` (mean ρ̂ of the samples), ``smooth_updated``
     (mean ρ̂ of the updated trajectories), ``alpha``, ``kl`` (KL(w ‖ uniform)),
     ``weight_rank_corr`` (Spearman correlation of the logits with the exact robustness),
-    ``policy_std``, ``std_floor`` and the seconds spent sampling and in the trust region.
+    ``policy_std``, ``std_floor``, with ``feedback="fitted"`` (the default) ``feedback_gain``, and the
+    seconds spent sampling and in the trust region.
 
     Example:
         >>> from tl_gym.agents import TLPS

@@ -264,6 +264,8 @@ def make_car_env(task: int = 1, no_revisit: str = "leave", **kwargs: Any) -> TLT
         monitor_scale: divisor of the monitor's robustness values and positions; 100 units,
             a third of the arena, keeps them of order one (and the unit of the potential).
         gamma: the agent's discount, for the dense and potential modes (`TLTLRewardWrapper`).
+        satisfaction_bonus: ``B`` ≥ 0 added to the robustness paid once the (prefix) formula is satisfied
+            (`TLTLRewardWrapper`).
         car keywords: `CarNavEnv` arguments (`CarParams` fields such as ``horizon`` and ``start_std``,
             layout overrides, ``render_mode``).
     """

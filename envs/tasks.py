@@ -193,7 +193,7 @@ def task_formula(
 
     Args:
         task: 1 or 2.
-        no_revisit: ``"leave"`` or ``"strict"`` (task 2 only; ignored for task 1).
+        no_revisit: ``"leave"`` or ``"strict"`` (checked for both tasks; task 1's formula has no such clause).
         start: mean start ``(x, y, θ)`` (see `make_layout`).
         goals: ``(x_low, x_high, y_low, y_high)`` per goal.
         obstacle: ``(x, y, radius)``.

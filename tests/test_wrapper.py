@@ -573,3 +573,21 @@ def test_a_dict_entry_that_is_not_one_number_is_refused_with_advice_that_works()
     with pytest.raises(ValueError, match=r"'grid' holds Box of shape \(2, 3\).*such as \('grid', 0, 0\)$"):
         TLTLRewardWrapper(Grid(), "F(a > 0)", signals={"a": "grid"})
     TLTLRewardWrapper(Grid(), "F(a > 0)", signals={"a": ("grid", 0, 0)})
+
+
+def test_a_signal_callable_is_called_once_per_state_the_first_reset_included():
+    """The first reset called each callable twice (once to check it, once to read it): a counter read 2 at s_0."""
+    calls = {"one": 0, "all": 0}
+
+    def counted(obs):
+        calls["one"] += 1
+        return float(calls["one"])
+
+    def all_at_once(obs, info):
+        calls["all"] += 1
+        return {"a": float(calls["all"]), "b": 0.0}
+
+    for signals, key in (({"a": counted, "b": 2}, "one"), (all_at_once, "all")):
+        env = TLTLRewardWrapper(Scripted(), SPEC, signals=signals)
+        _, info = run(env)
+        assert info["trace"]["a"].tolist() == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0] and calls[key] == 6

@@ -154,30 +154,31 @@ class SignalReader:
         return out
 
     def first(self, obs: Any, info: dict) -> list[float]:
-        """Read s_0; on the first call, check what callables return."""
-        if self._pending_check:
-            self._check_callables(obs, info)
-            self._pending_check = False
-        return self.read(obs, info, 0)
-
-    def _check_callables(self, obs: Any, info: dict) -> None:
+        """Read s_0; on the first call, check what callables return (calling each once, as every read does)."""
+        if not self._pending_check:
+            return self.read(obs, info, 0)
+        self._pending_check = False
         if self._all_at_once is not None:
             values = self._call_all_at_once(obs, info)
-            if not isinstance(values, Mapping):
-                raise TypeError(
-                    f"the signals callable must return a mapping name -> number, got {type(values).__name__}"
-                )
-            missing = [n for n in self.names if n not in values]
-            if missing:
-                raise UnknownSignalError(
-                    f"the signals callable returned no {missing[0]!r}, which the formula reads "
-                    f"(returned: {', '.join(map(str, values)) or 'none'})"
-                )
-            for name in self.names:
-                _check_scalar(name, values[name])
-            return
-        for name, getter in zip(self.names, self._getters):
-            _check_scalar(name, getter(obs, info))
+            self._check_mapping(values)
+            return self._finite([float(values[n]) for n in self.names], 0)
+        raw = [getter(obs, info) for getter in self._getters]
+        for name, value in zip(self.names, raw):
+            _check_scalar(name, value)
+        return self._finite([float(value) for value in raw], 0)
+
+    def _check_mapping(self, values: Any) -> None:
+        """What the one signals callable returned: a mapping holding a real number for each signal read."""
+        if not isinstance(values, Mapping):
+            raise TypeError(f"the signals callable must return a mapping name -> number, got {type(values).__name__}")
+        missing = [n for n in self.names if n not in values]
+        if missing:
+            raise UnknownSignalError(
+                f"the signals callable returned no {missing[0]!r}, which the formula reads "
+                f"(returned: {', '.join(map(str, values)) or 'none'})"
+            )
+        for name in self.names:
+            _check_scalar(name, values[name])
 
     def _call_all_at_once(self, obs: Any, info: dict) -> Any:
         try:
@@ -195,6 +196,10 @@ class SignalReader:
             row = [float(values[n]) for n in self.names]
         else:
             row = [float(g(obs, info)) for g in self._getters]
+        return self._finite(row, step)
+
+    def _finite(self, row: list[float], step: int) -> list[float]:
+        """``row``, or a `TraceError` naming the first signal that is NaN or infinite."""
         total = sum(row)
         if total - total != 0.0:  # NaN or inf somewhere (or an overflowing sum): find it
             for name, value in zip(self.names, row):

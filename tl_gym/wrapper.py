@@ -273,6 +273,13 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     # Gymnasium API ------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
+        """Reset the env and start a new trace at its observation s_0 (with the monitor's features appended).
+
+        Raises:
+            TraceError: a signal of s_0 is NaN or infinite (naming it).
+            TypeError, ValueError, UnknownSignalError: a signal callable returns no real number, or the one
+                callable no value for a signal the formula reads (checked at the first reset, naming the signal).
+        """
         obs, info = self.env.reset(seed=seed, options=options)
         row = self._reader.first(obs, info)
         self._rows = [row]
@@ -293,6 +300,15 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         return obs, info
 
     def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
+        """Step the env, record the state and pay the reward of the mode.
+
+        The step that ends the episode pays the terminal value and its ``info`` holds `terminal_info`'s keys.
+
+        Raises:
+            RuntimeError: the episode is over, or was never started: `reset` first.
+            TraceError: a signal is NaN or infinite (naming it and the step), or, on the last step, a predicate's
+                arithmetic is undefined on the trace.
+        """
         if self._done:
             raise RuntimeError("the episode is over (or never started): call reset() before step()")
         obs, env_reward, terminated, truncated, info = self.env.step(action)

@@ -361,6 +361,14 @@ class Formula:
 
         Returns:
             A float for ``(T,)`` signals, an array of shape ``(N,)`` for ``(N, T)``.
+
+        Raises:
+            UnknownSignalError: the trace lacks a signal the formula reads.
+            TraceError: signals of different shapes, no state, more than two axes, a NaN or infinite value
+                (naming the signal and position), or a predicate's arithmetic undefined on the trace.
+            ValueError: an unknown ``backend``, or ``rho_max`` ≤ 0.
+
+        Every other evaluation method of a formula raises the same on the same input.
         """
         from tl_gym.tltl import exact, fused
 
@@ -375,14 +383,14 @@ class Formula:
     def robustness_over_time(self, trace: Trace, rho_max: float = math.inf) -> np.ndarray:
         """Robustness of every suffix: entry ``t`` judges the states ``t … T-1``.
 
-        Returns an array of shape ``(T,)`` or ``(N, T)``; entry 0 is `robustness`.
+        Returns an array of shape ``(T,)`` or ``(N, T)``; entry 0 is `robustness`. Raises as `robustness`.
         """
         from tl_gym.tltl import exact
 
         return exact.robustness_over_time(self, trace, rho_max)
 
     def satisfied(self, trace: Trace) -> bool | np.ndarray:
-        """Boolean semantics at position 0: a bool, or a bool array of shape ``(N,)``."""
+        """Boolean semantics at position 0: a bool, or a bool array of shape ``(N,)``. Raises as `robustness`."""
         from tl_gym.tltl import exact
 
         return exact.satisfied(self, trace)
@@ -401,6 +409,9 @@ class Formula:
         when numba is installed (``tl_gym[fast]``; `tl_gym.tltl.fused_smooth`, equal to the
         numpy plan to rounding) once the process has spent a second smoothing with numpy, else
         with the numpy plan; ``"numba"`` uses the kernel at once, ``"numpy"`` never.
+
+        Raises as `robustness`, and ``ValueError`` for ``beta`` ≤ 0 or an unknown ``form``; a `TraceError` for a
+        predicate value too large to smooth (``|β · value|`` overflows), naming it.
         """
         from tl_gym.tltl import smooth
 
@@ -441,6 +452,9 @@ class Formula:
 
         Each max node of ``n`` terms adds ``log(n)/β`` above, each min node
         ``log(n)/β`` below, taken along the worst path, for traces of length ``horizon``.
+
+        Raises:
+            ValueError: ``horizon`` < 1 or ``beta`` ≤ 0.
         """
         from tl_gym.tltl import bracket
 

@@ -398,6 +398,7 @@ def parse(text: str) -> Formula:
 
     Raises:
         SpecError: the text is malformed; the message shows the column and a caret.
+        TypeError: ``text`` is neither a string nor a `Formula`.
     """
     if isinstance(text, Formula):
         return text
