@@ -22,7 +22,7 @@ from tl_gym.checks import check_positive
 
 from .base import Agent, check_episodic
 from .feedback import FITTED_EXPLORATION_FLOOR, FeedbackSettings, fit_feedback, signal_components
-from .policy import DEFAULT_INIT_STD, DEFAULT_MIN_STD, LinearGaussianPolicy
+from .policy import DEFAULT_INIT_STD, DEFAULT_MIN_STD, LinearGaussianPolicy, check_covariance
 from .sampling import Rollouts, flat_observations, resolve_horizon
 
 
@@ -89,8 +89,7 @@ class EpisodicSearchConfig:
             object.__setattr__(self, "init_mean", mean.tolist())
         check_positive("init_std", self.init_std)
         check_positive("min_std", self.min_std)
-        if self.covariance not in ("diag", "full"):
-            raise ValueError(f"covariance must be 'diag' or 'full', got {self.covariance!r}")
+        check_covariance(self.covariance)
         for name in ("feedback_features", "feedback_angles"):
             value = getattr(self, name)
             if isinstance(value, (list, tuple, np.ndarray)):  # plain lists, so that the config stays JSON

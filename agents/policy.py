@@ -38,6 +38,16 @@ DEFAULT_INIT_STD = 0.5
 DEFAULT_MIN_STD = 1e-3
 
 
+#: The covariance structures of the policy's per-step Gaussians.
+COVARIANCES = ("diag", "full")
+
+
+def check_covariance(covariance: Any) -> None:
+    """Refuse a covariance structure the policy has not (one check for the policy and the agents' configs)."""
+    if covariance not in COVARIANCES:
+        raise ValueError(f"covariance must be 'diag' or 'full', got {covariance!r}")
+
+
 class LinearGaussianPolicy:
     """Time-varying linear-Gaussian policy with per-episode feed-forward exploration.
 
@@ -84,8 +94,7 @@ class LinearGaussianPolicy:
         min_std: float = DEFAULT_MIN_STD,
         angles: Any = None,
     ):
-        if covariance not in ("diag", "full"):
-            raise ValueError(f"covariance must be 'diag' or 'full', got {covariance!r}")
+        check_covariance(covariance)
         check_positive("min_std", min_std)
         std = np.broadcast_to(np.asarray(init_std, dtype=float), (act_dim,))
         for value in std.tolist():

@@ -90,6 +90,11 @@ def is_episodic(name: str) -> bool:
     return name.lower() in EPISODIC_AGENTS
 
 
+def is_sb3(name: str) -> bool:
+    """Whether ``name`` names an SB3 / sb3-contrib algorithm (not TLPS/REPS, not a ``module:Class`` agent)."""
+    return ":" not in name and not is_episodic(name)
+
+
 def _import(target: str) -> Any:
     module_name, _, attribute = target.partition(":")
     module = importlib.import_module(module_name)
@@ -142,7 +147,7 @@ def make_agent(name: str, env: Any, *, seed: int | None = None, env_kwargs: Mapp
         ValueError: an unknown SB3 algorithm or a bad hyperparameter (the agent's own message).
     """
     klass = agent_class(name)
-    if ":" not in name and not is_episodic(name):
+    if is_sb3(name):
         check_sb3_name(name)
         return klass(env, name, seed=seed, env_kwargs=env_kwargs, **hyperparameters)
     return klass(env, seed=seed, env_kwargs=env_kwargs, **hyperparameters)

@@ -354,9 +354,8 @@ def run_episodes(venv: gym.vector.VectorEnv, act: Controller, seed: int | None =
         t += 1
         if not ended.any():
             continue
-        info = terminal_info(info)
-        if "robustness" not in info:
-            raise EpisodeError("the env's terminal info holds no 'robustness': wrap it in tl_gym.TLTLRewardWrapper")
+        info = ended_info(info)
+        require_robustness(info)
         lengths[ended] = t
         robustness[ended] = np.asarray(info["robustness"], dtype=float)[ended]
         for name, per_env in episode_traces(info, n_envs).items():
@@ -422,10 +421,16 @@ def _zero_after(actions: np.ndarray, lengths: np.ndarray) -> np.ndarray:
     return actions * mask[:, :, None]
 
 
-def terminal_info(info: Mapping[str, Any]) -> Mapping[str, Any]:
+def ended_info(info: Mapping[str, Any]) -> Mapping[str, Any]:
     """The info of the episodes that just ended: ``info`` itself, or its ``final_info`` under same-step autoreset."""
     final = info.get("final_info")
     return final if isinstance(final, Mapping) else info
+
+
+def require_robustness(info: Mapping[str, Any]) -> None:
+    """Refuse the terminal info of an env that is not TL-rewarded (every agent reads the robustness there)."""
+    if "robustness" not in info:
+        raise EpisodeError("the env's terminal info holds no 'robustness': wrap it in tl_gym.TLTLRewardWrapper")
 
 
 def episode_traces(info: Mapping[str, Any], n_envs: int) -> dict[str, list[np.ndarray | None]]:

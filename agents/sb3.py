@@ -52,7 +52,7 @@ from tl_gym.relabel import EpisodeRecorder, GoalRelabeller, find_wrapper
 
 from .base import Agent, describe_env_source
 from .hindsight import make_hindsight_feeder
-from .sampling import env_attribute, env_copies, unqualified_id
+from .sampling import env_attribute, env_copies, require_robustness, unqualified_id
 from .sb3_settings import (
     DEFAULT_TL_REWARD,
     HYPERPARAMS_FILE,
@@ -522,9 +522,7 @@ def _make_collector() -> Any:
         def _on_step(self) -> bool:
             for done, info in zip(self.locals["dones"], self.locals["infos"]):
                 if done:
-                    if "robustness" not in info:
-                        raise RuntimeError("the env's terminal info holds no 'robustness': wrap it in "
-                                           "tl_gym.TLTLRewardWrapper")
+                    require_robustness(info)
                     self.robustness.append(float(info["robustness"]))
             return True
 

@@ -30,12 +30,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tl_gym.agents.run_folder import AGENT_FILE, HISTORY_FILE, RUNNER_DONE_FILE, RUNNER_SPEC_FILE
 from tl_gym.agents.serialization import write_atomic
 
 from benchmarks.provenance import code_version
 from benchmarks.sweep_config import RunSpec
 
-DONE, SPEC, HISTORY, TRAJECTORIES, AGENT = "done.json", "spec.json", "history.csv", "trajectories.npz", "agent.zip"
+DONE, SPEC, HISTORY, AGENT = RUNNER_DONE_FILE, RUNNER_SPEC_FILE, HISTORY_FILE, AGENT_FILE
+TRAJECTORIES = "trajectories.npz"
 #: A run's latest checkpoint: a folder of the agent (written last: it marks a whole checkpoint), the replay buffer
 #: of an off-policy agent, the trajectories sampled so far and STATE; removed once the run is done.
 CHECKPOINT, REPLAY_BUFFER, STATE = "checkpoint", "replay_buffer.pkl", "state.json"

@@ -49,7 +49,8 @@ import numpy as np
 from tl_gym.agents import Agent
 from tl_gym.agents.callbacks import EvalCallback, HistoryCSV, as_callback
 from tl_gym.agents.evaluation import UNSTATED_EPISODE_GUARD, as_vector_env, collect_episodes, predictor_controller
-from tl_gym.agents.registry import is_episodic, make_agent
+from tl_gym.agents.registry import is_episodic, is_sb3, make_agent
+from tl_gym.agents.run_folder import AGENT_FILE, HISTORY_FILE, RUNNER_DONE_FILE, RUNNER_SPEC_FILE
 from tl_gym.agents.sampling import env_attribute, infer_horizon, run_episodes
 
 import tl_gym
@@ -60,12 +61,10 @@ from tl_gym.errors import TLGymError
 from .arguments import build_parser, parse_hyperparameters
 
 RUN_FILE = "run.json"
-RUNNER_SPEC_FILE = "spec.json"  # a run folder of the experiment runner (benchmarks/run_one.py, docs/benchmarks.md)
-AGENT_FILE = "agent.zip"
 BEST_FILE = "best_agent.zip"
 EVALUATIONS_FILE = "evaluations.csv"
 #: Every file `train` may write in its run folder: an earlier run's are removed first, so none is left over.
-RUN_OUTPUTS = (RUN_FILE, AGENT_FILE, BEST_FILE, EVALUATIONS_FILE, "history.csv", "learning_curve.png",
+RUN_OUTPUTS = (RUN_FILE, AGENT_FILE, BEST_FILE, EVALUATIONS_FILE, HISTORY_FILE, "learning_curve.png",
                "trajectories.png")
 
 
@@ -88,7 +87,7 @@ def build_env(run: dict[str, Any], render_mode: str | None = None) -> Any:
     if not run.get("signals"):
         raise ValueError("--spec needs --signals to say where each signal comes from, e.g. --signals cos_th=0")
     wrapper_kwargs = {**tl_kwargs, **run.get("wrapper_kwargs", {})}  # run.json files before --wrapper-kwargs lack it
-    if wrapper_kwargs.get("reward_mode") == "potential" and "gamma" not in wrapper_kwargs and _is_sb3(run["agent"]):
+    if wrapper_kwargs.get("reward_mode") == "potential" and "gamma" not in wrapper_kwargs and is_sb3(run["agent"]):
         # the shaping keeps the optimal policies only with the agent's discount, which an env id gets from the agent
         from tl_gym.agents.sb3 import agent_discount
 
@@ -119,11 +118,6 @@ def rendered_env(run: dict[str, Any], agent: Any) -> Any:
     if run.get("spec") is None:
         return gym.make(run["env"], **{**agent.env_kwargs, "render_mode": "rgb_array"})
     return build_env(run, render_mode="rgb_array")
-
-
-def _is_sb3(agent: str) -> bool:
-    """Whether the run's agent is an SB3 algorithm by name (not TLPS/REPS, not a ``module:Class``)."""
-    return ":" not in agent and not is_episodic(agent)
 
 
 def _tl_reward_env_kwargs(run: dict[str, Any]) -> dict[str, Any]:
@@ -249,7 +243,7 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
 
     # history.csv is written after every iteration (all of this fresh agent's rows), so a long run can be
     # watched and a killed one keeps its rows
-    callbacks = [HistoryCSV(out / "history.csv"), record]  # the row is kept even if the snapshot's episodes fail
+    callbacks = [HistoryCSV(out / HISTORY_FILE), record]  # the row is kept even if the snapshot's episodes fail
     if args.eval_every is not None:
         callbacks.append(EvalCallback(args.eval_every, args.eval_episodes, best_path=out / BEST_FILE,
                                       log_path=out / EVALUATIONS_FILE))
@@ -370,7 +364,7 @@ def evaluate(args: argparse.Namespace) -> int:
         why = ("the experiment runner keeps no best agent, only the final one (drop --best)" if args.best and
                runner_run else "the run was trained without --eval-every" if args.best
                else "a runner's record in git keeps no agent (spec.json, history.csv and done.json only): rerun its "
-               "spec on this machine to get it (docs/benchmarks.md)" if (args.run / "done.json").exists()
+               "spec on this machine to get it (docs/benchmarks.md)" if (args.run / RUNNER_DONE_FILE).exists()
                else "train writes it when training ends or stops after a Ctrl-C (was the run killed?)")
         raise FileNotFoundError(f"{saved} not found: {why}")
     if args.gif is not None:  # before the evaluation and the rendering, not after them
