@@ -267,6 +267,17 @@ def test_smoothing_refuses_values_beyond_its_range(text):
         formula.smooth_robustness(trace, 1.0)
 
 
+@pytest.mark.parametrize(("text", "rho_max", "beta"), [("true", 6e299, 1.0), ("G true", 1e296, 1e6),
+                                                     ("X(x > 0)", 1e299, 9.0)])
+def test_smoothing_refuses_a_finite_rho_max_beyond_its_range(text, rho_max, beta):
+    """It smoothed ⊤ (and X at the last state) as ±inf, where the exact robustness is ±rho_max."""
+    formula, trace = parse(text), {"x": [3.0]}
+    assert abs(formula.robustness(trace, rho_max)) == rho_max
+    with pytest.raises(ValueError, match=r"rho_max=.* is too large to smooth with β = .*pass rho_max=inf"):
+        formula.smooth_robustness(trace, beta, rho_max)
+    assert formula.smooth_robustness(trace, beta, 1e4) == pytest.approx(formula.robustness(trace, 1e4))
+
+
 def test_value_range_skips_checks_only_where_values_are_known_finite():
     from tl_gym.tltl.expressions import value_range
 

@@ -494,6 +494,9 @@ def _check(beta: float, rho_max: float, form: str, backend: str = "numpy") -> tu
         raise ValueError(f"form must be one of {FORMS}, got {form!r}")
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if math.isfinite(rho_max) and beta * rho_max >= _INF / 2:  # ⊤ would be smoothed as +∞, as a predicate that large
+        raise ValueError(f"rho_max={rho_max:g} is too large to smooth with β = {beta:g} (|β · rho_max| must stay "
+                         f"below {_INF / 2:.0e}); pass rho_max=inf for an unbounded ⊤")
     return beta, rho_max
 
 
