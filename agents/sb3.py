@@ -268,7 +268,7 @@ class SB3Agent(Agent):
         normalize = parse_normalize(self.config.normalize)
         self.vec_normalize: VecNormalize | None = None
         if normalize is not None:
-            normalize.setdefault("gamma", kwargs.get("gamma", _default_argument(self.algo_class, "gamma", 0.99)))
+            normalize.setdefault("gamma", _discount(self.algo_class, kwargs))
             space = self.sb3_env.observation_space
             if isinstance(space, gym.spaces.Dict) and normalize.get("norm_obs", True):
                 # VecNormalize refuses a Dict with a non-Box entry (a Discrete mode) unless told which keys to scale

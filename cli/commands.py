@@ -281,9 +281,13 @@ class StopAfterIteration:
         self._previous: Any = None
 
     def __enter__(self) -> StopAfterIteration:
-        if threading.current_thread() is threading.main_thread():
-            self._previous = signal.getsignal(signal.SIGINT) or signal.default_int_handler  # None: set outside Python
-            signal.signal(signal.SIGINT, self._request)
+        if threading.current_thread() is not threading.main_thread():
+            return self
+        previous = signal.getsignal(signal.SIGINT)
+        if previous is signal.SIG_IGN:  # ignored (a background job): left so, as Python leaves it
+            return self
+        self._previous = signal.default_int_handler if previous is None else previous  # None: set outside Python
+        signal.signal(signal.SIGINT, self._request)
         return self
 
     def __exit__(self, *exc: Any) -> None:
