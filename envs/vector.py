@@ -30,7 +30,7 @@ from tl_gym.envs.tasks import task_formula
 
 from tl_gym.checks import check_count
 from tl_gym.monitor_view import MonitorView, augment_space
-from tl_gym.shaping import HierarchicalPotential, discounted_increment, satisfaction_value
+from tl_gym.shaping import HierarchicalPotential, discounted_increment
 from tl_gym.tltl.online import PrefixMonitor
 from tl_gym.tltl.online_batch import BatchPrefixMonitor
 from tl_gym.wrapper import (
@@ -221,8 +221,7 @@ class CarNavVectorEnv(CarProperties, VectorEnv):
                 rewards = rewards + self._shaping
             return obs, rewards, done, ~done, infos
         if self.reward_mode != "terminal":
-            paid = satisfaction_value(np.clip(self._value, -self.clip, self.clip), self.settings.satisfaction_bonus)
-            rewards, self._paid = discounted_increment(paid, self._paid, self.gamma)
+            rewards, self._paid = discounted_increment(self.settings.prefix_paid(self._value), self._paid, self.gamma)
         if self._potentials:
             rewards = rewards + self._shaping
         return obs, rewards, done, done.copy(), infos
@@ -231,11 +230,10 @@ class CarNavVectorEnv(CarProperties, VectorEnv):
         """Rewards of the episodes that just ended (all of them), filling ``infos`` in the vector layout."""
         path = self._path[: self._t + 1]
         trace = {"x": np.ascontiguousarray(path[:, :, 0].T), "y": np.ascontiguousarray(path[:, :, 1].T)}
-        ended = terminal_info(self.formula, trace, self.rho_max, self.beta if self.reward == "smooth" else None)
+        ended = terminal_info(self.formula, trace, self.rho_max, self.settings.smooth_beta)
         for key, values in ended.items():  # every car ended: the vector layout's masks are all true
             infos[key], infos[f"_{key}"] = values, np.ones(self.num_envs, dtype=bool)
-        rho = np.clip(ended.get("smooth_robustness", ended["robustness"]), -self.clip, self.clip)
-        return satisfaction_value(rho, self.settings.satisfaction_bonus, ended["satisfied"])
+        return self.settings.terminal_paid(ended)
 
     def render(self) -> np.ndarray | None:
         """One frame with every car and its path so far (``render_mode="rgb_array"``)."""

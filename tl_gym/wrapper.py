@@ -65,6 +65,27 @@ class RewardSettings:
         if not isinstance(self.observe_monitor, bool):
             raise TypeError(f"observe_monitor must be True or False, got {self.observe_monitor!r}")
 
+    @property
+    def smooth_beta(self) -> float | None:
+        """The β of the terminal reward's smoothed robustness (``reward="smooth"``), else None."""
+        return self.beta if self.reward == "smooth" else None
+
+    def prefix_paid(self, value: Any) -> Any:
+        """Φ of a state in the dense mode: its clipped prefix robustness, plus the bonus once satisfied.
+
+        The one rule the wrapper and the batched car pay by (scalars or arrays), with `terminal_paid` at the end.
+        """
+        return satisfaction_value(_clip(value, self.clip), self.satisfaction_bonus)
+
+    def terminal_paid(self, info: Mapping[str, Any]) -> Any:
+        """What an ended episode is worth: its clipped terminal robustness, plus the bonus when satisfied.
+
+        The robustness is the smoothed one with ``reward="smooth"``, the bonus is for the exact one > 0
+        (`terminal_info`'s keys; scalars or arrays).
+        """
+        rho = info.get("smooth_robustness", info["robustness"])
+        return satisfaction_value(_clip(rho, self.clip), self.satisfaction_bonus, info["satisfied"])
+
     @classmethod
     def split(cls, kwargs: Mapping[str, Any], **defaults: Any) -> tuple[RewardSettings, dict[str, Any]]:
         """The settings among ``kwargs`` (over ``defaults``) and the keywords that are not reward settings.
@@ -77,6 +98,13 @@ class RewardSettings:
         names = {field.name for field in dataclasses.fields(cls)}
         own = {**defaults, **{k: v for k, v in kwargs.items() if k in names}}
         return cls(**own), {k: v for k, v in kwargs.items() if k not in names}
+
+
+def _clip(value: Any, bound: float) -> Any:
+    """``value`` clipped to ``[-bound, bound]``: a Python float stays one (rewards are floats), arrays by numpy."""
+    if isinstance(value, np.ndarray):
+        return np.clip(value, -bound, bound)
+    return min(max(value, -bound), bound)
 
 
 class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
@@ -333,8 +361,7 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         elif self.reward_mode != "terminal":
             if value is None:
                 value = self._monitor.update(state)  # type: ignore[union-attr]
-            paid = satisfaction_value(self._clipped(value), self.satisfaction_bonus)
-            reward, self._paid = discounted_increment(paid, self._paid, self.gamma)
+            reward, self._paid = discounted_increment(self.settings.prefix_paid(value), self._paid, self.gamma)
         if self._potential is not None:  # γ Φ(s') − Φ(s), with Φ(s_T) = 0 at the last state
             phi = 0.0 if self._done else self._potential.update(state)
             shaping, self._phi = discounted_increment(phi, self._phi, self.gamma)
@@ -366,14 +393,10 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
             trace = {"_": np.zeros(len(self._rows))}
         if "is_success" in info:  # the env's own success (parking-v0's: in the slot now), kept beside the formula's
             info[ENV_IS_SUCCESS] = info["is_success"]
-        info.update(terminal_info(self.formula, trace, self.rho_max, self.beta if self.reward == "smooth" else None))
+        info.update(terminal_info(self.formula, trace, self.rho_max, self.settings.smooth_beta))
         if not self._reader.names:
             info["trace"] = Trace({})
-        rho = self._clipped(float(info.get("smooth_robustness", info["robustness"])))
-        return satisfaction_value(rho, self.satisfaction_bonus, info["satisfied"]) - self._paid
-
-    def _clipped(self, value: float) -> float:
-        return min(max(value, -self.clip), self.clip)
+        return self.settings.terminal_paid(info) - self._paid
 
     # The Markov view ----------------------------------------------------------------------
     def monitor_features(self, obs: Any) -> np.ndarray:
