@@ -9,13 +9,13 @@ first NaN or inf.
 from __future__ import annotations
 
 import math
-import numbers
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Union
 
 import numpy as np
 
+from tl_gym.checks import check_positive
 from tl_gym.errors import TraceError, UnknownSignalError
 
 Trace = Mapping[str, Union[np.ndarray, Sequence[float], Any]]
@@ -36,9 +36,7 @@ def chunks(n: int, length: int) -> list[slice]:
 
 def check_beta(beta: Any) -> float:
     """The smoothing's β, checked: a finite real number > 0 (numpy's scalars too); booleans are refused."""
-    if isinstance(beta, bool) or not (isinstance(beta, numbers.Real) and math.isfinite(beta) and beta > 0):
-        raise ValueError(f"beta must be a positive finite number, got {beta!r}")
-    return float(beta)
+    return check_positive("beta", beta)
 
 
 def check_rho_max(rho_max: Any) -> float:
@@ -46,9 +44,7 @@ def check_rho_max(rho_max: Any) -> float:
 
     numpy's scalars count as real numbers (``np.float32(100)`` from a config array is accepted).
     """
-    if isinstance(rho_max, bool) or not (isinstance(rho_max, numbers.Real) and rho_max > 0):
-        raise ValueError(f"rho_max must be positive (+inf allowed), got {rho_max!r}")
-    return float(rho_max)
+    return check_positive("rho_max", rho_max, allow_inf=True)
 
 
 def is_torch(value: Any) -> bool:
