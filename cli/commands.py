@@ -51,7 +51,7 @@ from tl_gym.agents.callbacks import EvalCallback, HistoryCSV, as_callback
 from tl_gym.agents.evaluation import UNSTATED_EPISODE_GUARD, as_vector_env, collect_episodes, predictor_controller
 from tl_gym.agents.registry import is_episodic, is_sb3, make_agent
 from tl_gym.agents.run_folder import AGENT_FILE, HISTORY_FILE, RUNNER_DONE_FILE, RUNNER_SPEC_FILE
-from tl_gym.agents.sampling import env_attribute, infer_horizon, run_episodes
+from tl_gym.agents.sampling import env_attribute, env_keywords, infer_horizon, run_episodes
 
 import tl_gym
 from tl_gym.checks import check_count
@@ -188,6 +188,10 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
     """``tl-gym train``: train, then write the run folder."""
     env_kwargs = dict(args.env_kwargs)
     if args.task is not None:
+        takes = env_keywords(args.env)
+        if takes and "task" not in takes:  # known keywords without one: say so before Gymnasium's long message
+            raise ValueError(f"--task is the car's task keyword (TLCarNav-v0: 1 or 2); {args.env} takes no task "
+                             f"(its keywords: {', '.join(sorted(takes))})")
         env_kwargs["task"] = args.task
     if args.signals is not None and args.spec is None:
         raise ValueError("--signals only makes sense with --spec")

@@ -212,6 +212,13 @@ def test_eval_of_a_run_without_its_agent_or_with_a_broken_run_file(tmp_path, cap
     assert "--episodes must be" in capsys.readouterr().err
 
 
+def test_task_on_an_env_without_one_is_named(tmp_path, capsys):
+    assert main(["train", "--env", "TLPendulum-v0", "--task", "2", "--out", str(tmp_path / "r")]) == 2
+    error = capsys.readouterr().err
+    assert "--task is the car's task keyword (TLCarNav-v0: 1 or 2); TLPendulum-v0 takes no task" in error
+    assert "up_by" in error and not (tmp_path / "r").exists()
+
+
 def test_train_refuses_to_write_into_a_runner_run_folder(tmp_path, capsys):
     (tmp_path / "spec.json").write_text("{}")
     (tmp_path / "done.json").write_text("{}")
