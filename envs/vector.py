@@ -33,13 +33,10 @@ from tl_gym.monitor_view import MonitorView, augment_space
 from tl_gym.shaping import HierarchicalPotential, discounted_increment
 from tl_gym.tltl.online import PrefixMonitor
 from tl_gym.tltl.online_batch import BatchPrefixMonitor
-from tl_gym.wrapper import (
-    MONITOR_KEY,
-    terminal_info,
-)
+from tl_gym.wrapper import MONITOR_KEY, RewardSettingsAttributes, terminal_info
 
 
-class CarNavVectorEnv(CarProperties, VectorEnv):
+class CarNavVectorEnv(RewardSettingsAttributes, CarProperties, VectorEnv):
     """``num_envs`` TLCarNav-v0 cars with one batched simulator and one batched reward.
 
     It behaves as ``SyncVectorEnv`` over ``gym.make("TLCarNav-v0", ...)`` with the same
@@ -97,9 +94,6 @@ class CarNavVectorEnv(CarProperties, VectorEnv):
         self.layout, self.params, overrides = car_setup(task, car_kwargs)
         self.formula = task_formula(task, no_revisit, **overrides)
         self.settings = settings
-        self.reward, self.reward_mode = settings.reward, settings.reward_mode
-        self.observe_monitor = settings.observe_monitor
-        self.beta, self.rho_max, self.clip, self.gamma = settings.beta, settings.rho_max, settings.clip, settings.gamma
         self.render_mode = render_mode
 
         self.single_observation_space = observation_space(self.params, self.layout)

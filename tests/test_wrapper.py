@@ -591,3 +591,20 @@ def test_a_signal_callable_is_called_once_per_state_the_first_reset_included():
         env = TLTLRewardWrapper(Scripted(), SPEC, signals=signals)
         _, info = run(env)
         assert info["trace"]["a"].tolist() == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0] and calls[key] == 6
+
+
+def test_setting_a_reward_attribute_changes_what_is_paid_and_is_checked():
+    """The settings moved into `RewardSettings` and the attributes were left behind: setting one changed nothing."""
+    env = TLTLRewardWrapper(Scripted(), "F(a > 0.5)", signals={"a": 0}, reward_mode="dense")
+    base = sum(run(env)[0])
+    env.satisfaction_bonus = 100.0
+    assert sum(run(env)[0]) == pytest.approx(base + 100.0) and env.settings.satisfaction_bonus == 100.0
+    env.clip = 0.1
+    assert sum(run(env)[0]) == pytest.approx(0.1 + 100.0)
+    with pytest.raises(ValueError, match="clip must be"):
+        env.clip = -1.0
+    with pytest.raises(AttributeError, match="rho_max is fixed when the env is built"):
+        env.rho_max = 5.0
+    venv = gym.vector.SyncVectorEnv([lambda: TLTLRewardWrapper(Scripted(), "F(a > 0.5)", signals={"a": 0})])
+    venv.set_attr("satisfaction_bonus", 3.0)  # SB3's and Gymnasium's way to anneal a setting
+    assert venv.get_attr("satisfaction_bonus") == (3.0,)

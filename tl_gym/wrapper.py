@@ -100,6 +100,41 @@ class RewardSettings:
         return cls(**own), {k: v for k, v in kwargs.items() if k not in names}
 
 
+def _setting(name: str, settable: bool) -> property:
+    """An attribute that reads ``self.settings.<name>``; a settable one replaces the settings, checked again."""
+
+    def get(self: Any) -> Any:
+        return getattr(self.settings, name)
+
+    def set_(self: Any, value: Any) -> None:
+        if not settable:
+            raise AttributeError(f"{name} is fixed when the env is built (its monitors and spaces depend on it)")
+        self.settings = dataclasses.replace(self.settings, **{name: value})
+
+    return property(get, set_, doc=f"The reward setting ``{name}`` (`RewardSettings`).")
+
+
+class RewardSettingsAttributes:
+    """The reward settings as attributes (``env.satisfaction_bonus``, ``env.clip``, ...), all read from ``settings``.
+
+    What the env pays is what these say: setting ``reward``, ``beta``, ``clip``, ``gamma`` or
+    ``satisfaction_bonus`` (SB3's ``venv.set_attr("satisfaction_bonus", 5.0)``, an annealed bonus) replaces
+    ``settings``, checked as at construction; ``reward_mode``, ``rho_max``, ``observe_monitor`` and
+    ``monitor_scale``, which the monitors and spaces are built with, cannot be set.
+    """
+
+    settings: RewardSettings
+    reward = _setting("reward", settable=True)
+    beta = _setting("beta", settable=True)
+    clip = _setting("clip", settable=True)
+    gamma = _setting("gamma", settable=True)
+    satisfaction_bonus = _setting("satisfaction_bonus", settable=True)
+    reward_mode = _setting("reward_mode", settable=False)
+    rho_max = _setting("rho_max", settable=False)
+    observe_monitor = _setting("observe_monitor", settable=False)
+    monitor_scale = _setting("monitor_scale", settable=False)
+
+
 def _clip(value: Any, bound: float) -> Any:
     """``value`` clipped to ``[-bound, bound]``: a Python float stays one (rewards are floats), arrays by numpy."""
     if isinstance(value, np.ndarray):
@@ -107,7 +142,7 @@ def _clip(value: Any, bound: float) -> Any:
     return min(max(value, -bound), bound)
 
 
-class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
+class TLTLRewardWrapper(RewardSettingsAttributes, gym.Wrapper, gym.utils.RecordConstructorArgs):
     """Pays the robustness of a TLTL formula over the episode's trajectory as reward.
 
     The wrapper records one value per signal the formula reads, from the reset
@@ -272,21 +307,13 @@ class TLTLRewardWrapper(gym.Wrapper, gym.utils.RecordConstructorArgs):
         #: agents compare with a time limit outside the wrapper (`tl_gym.agents.sampling.check_time_limits`)
         self.episode_length = length
         self.settings = settings
-        self.reward = reward
-        self.beta = settings.beta
-        self.rho_max = settings.rho_max
-        self.reward_mode = reward_mode
         self.env_reward_weight = float(env_reward_weight)
-        self.clip = settings.clip
         self._reader = reader
-        self.observe_monitor = observe_monitor
         self.monitor_view = view
         if view is not None:
             self._monitor: PrefixMonitor | None = view.monitor
         else:
             self._monitor = PrefixMonitor(formula, self.rho_max) if reward_mode != "terminal" else None
-        self.gamma = settings.gamma
-        self.satisfaction_bonus = settings.satisfaction_bonus
         self._potential = (
             HierarchicalPotential(formula, self.rho_max, monitor_scale) if reward_mode == "potential" else None
         )
