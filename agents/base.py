@@ -376,9 +376,9 @@ def describe_env_source(env: Any, env_kwargs: dict[str, Any]) -> dict[str, Any]:
     ``max_episode_steps``) is recorded by its full spec; when that spec cannot be written (a
     wrapper with a callable argument) nothing is recorded to rebuild it from, so that `load`
     asks for ``env=`` instead of rebuilding the bare registered env, which would act differently.
-    A spec that can be written but not rebuilt (a wrapper Gymnasium cannot recreate, as SB3's
-    ``Monitor``: its spec has no arguments) records the id, its kwargs and the wrappers' names:
-    `load` then asks for ``env=`` too, and the saved id given as ``env`` is made without them.
+    A spec with wrappers Gymnasium cannot recreate (one that records no arguments, as SB3's ``Monitor``)
+    records the spec without them and their names: `load` then asks for ``env=``, and the saved id
+    given as ``env`` is rebuilt from that spec, every other wrapper and the time limit included.
     """
     if isinstance(env, str):
         return {"id": env, "kwargs": to_json(env_kwargs) if is_jsonable(env_kwargs) else None, "spec_json": None}
@@ -392,11 +392,13 @@ def describe_env_source(env: Any, env_kwargs: dict[str, Any]) -> dict[str, Any]:
         return recorded
     unrebuildable = [wrapper.name for wrapper in wrappers if wrapper.kwargs is None]
     if unrebuildable:
-        return {**recorded, "unrebuildable_wrappers": unrebuildable}
+        recorded["unrebuildable_wrappers"] = unrebuildable
+        spec = dataclasses.replace(spec, additional_wrappers=tuple(w for w in wrappers if w.kwargs is not None))
     try:
         return {**recorded, "spec_json": spec.to_json()}
-    except Exception:  # noqa: BLE001 - callables in kwargs: then the user passes env= on load
-        return {"id": spec.id, "kwargs": None, "spec_json": None}
+    except Exception:  # noqa: BLE001 - callables in kwargs or the entry point: then the user passes env= on load
+        # (the saved id named as env= then makes the id with its kwargs, when those could be written)
+        return recorded if unrebuildable else {"id": spec.id, "kwargs": None, "spec_json": None}
 
 
 def _registered_steps(env_id: str) -> int | None:
@@ -409,14 +411,18 @@ def _registered_steps(env_id: str) -> int | None:
 
 def _env_from_source(source: Mapping[str, Any], path: Any, *, by_id: bool = False) -> tuple[Any, dict[str, Any] | None]:
     """The env (or id and kwargs) a file records; ``by_id``: the user named the saved id as ``env``."""
-    unrebuildable = source.get("unrebuildable_wrappers")
+    spec = gym.envs.registration.EnvSpec.from_json(source["spec_json"]) if source.get("spec_json") else None
+    unrebuildable = list(source.get("unrebuildable_wrappers", ()))
+    if spec is not None and any(w.kwargs is None for w in spec.additional_wrappers):  # a file saved before they were
+        unrebuildable = [w.name for w in spec.additional_wrappers if w.kwargs is None]
+        spec = dataclasses.replace(spec, additional_wrappers=tuple(w for w in spec.additional_wrappers
+                                                                   if w.kwargs is not None))
     if unrebuildable and not by_id:
         raise IncompatibleSaveError(
             f"{path} was saved on a {source.get('id')} wrapped in {', '.join(unrebuildable)}, which Gymnasium cannot "
             f"rebuild; pass env= (the env wrapped again, or env={source.get('id')!r} for it without them)"
         )
-    if source.get("spec_json"):
-        spec = gym.envs.registration.EnvSpec.from_json(source["spec_json"])
+    if spec is not None:
         return gym.make(spec), None
     if source.get("id") is not None and source.get("kwargs") is not None:
         return source["id"], dict(source["kwargs"])

@@ -28,6 +28,7 @@ from tl_gym.agents import (
     StopOnRobustness,
     StopOnSuccessRate,
 )
+from tl_gym.agents.base import _env_from_source
 from tl_gym.agents.evaluation import evaluate_policy
 from tl_gym.agents.sampling import rollout
 
@@ -414,6 +415,29 @@ def test_load_asks_for_the_env_when_a_wrapper_cannot_be_rebuilt_and_the_saved_id
         return a.evaluate(3, seed=1)["robustness"].tolist()
 
     assert rho(by_id) == rho(again) == rho(agent)
+
+
+
+def test_the_saved_id_keeps_the_wrappers_gymnasium_can_rebuild_and_the_time_limit(tmp_path):
+    """Only the Monitor-like wrapper is left out: the TL wrapper and the time limit around Pendulum were dropped too."""
+    def wrapped():
+        return Watched(tl_gym.TLTLRewardWrapper(gym.make("Pendulum-v1", max_episode_steps=20), "F(c > 0.5)",
+                                                signals={"c": 0}))
+
+    agent = REPS(wrapped(), seed=0, n_episodes=4).learn(1)
+    path = agent.save(tmp_path / "pendulum.zip")
+    with pytest.raises(IncompatibleSaveError, match="wrapped in Watched"):
+        Agent.load(path)
+    by_id = Agent.load(path, env="Pendulum-v1")
+    assert by_id.horizon == 20 and by_id.evaluate(2, seed=3)["robustness"].tolist() == agent.evaluate(
+        2, seed=3)["robustness"].tolist()
+    # a file saved before: its spec_json holds the wrapper with no arguments, which gym.make cannot rebuild
+    old_style = dict(agent._env_source, spec_json=wrapped().spec.to_json())
+    del old_style["unrebuildable_wrappers"]
+    with pytest.raises(IncompatibleSaveError, match="wrapped in Watched"):
+        _env_from_source(old_style, "old.zip")
+    env, _ = _env_from_source(old_style, "old.zip", by_id=True)
+    assert env.get_wrapper_attr("formula") == agent.formula
 
 
 class Counter(gym.Env):
