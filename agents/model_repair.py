@@ -30,6 +30,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from tl_gym.errors import EpisodeError
 from tl_gym.tltl import fused
 from tl_gym.tltl.ast import Formula
 
@@ -196,12 +197,12 @@ def repair_feedforward(model: DynamicsModel, policy: LinearGaussianPolicy, batch
         first_step: the solver's first step length (at most √epsilon, the default).
 
     Raises:
-        RuntimeError: an episode ended before the horizon (its later states are not simulated).
+        EpisodeError: (a RuntimeError) an episode ended before the horizon (its later states are not simulated).
         ValueError: a signal is not an observation component (known after the first batch), or the
             model does not replay the batch's episodes (a wrapper changed observations or actions).
     """
     if np.any(batch.lengths != feedforward.shape[1]):
-        raise RuntimeError("action_repair='model' needs episodes of the full horizon; one ended early")
+        raise EpisodeError("action_repair='model' needs episodes of the full horizon; one ended early")
     columns = signal_columns(batch, formula.signals)
     names, index = tuple(columns), list(columns.values())
     start, noise = batch.observations[:, 0], model.noise(batch.observations, batch.actions)

@@ -64,6 +64,7 @@ from .sb3_settings import (
     algorithm_parameters,
     canonical_settings,
     check_hyperparams_source,
+    check_tensorboard,
     check_tl_reward,
     find_hyperparams,
     is_linear_schedule,
@@ -193,6 +194,8 @@ class SB3Agent(Agent):
         hyperparameters.update(algo=self.algo_class.__name__, tl_reward=tl_reward, hyperparams=hyperparams,
                                algo_kwargs=algo_kwargs)
         config = self._config_for(env, hyperparameters, given=settings)  # checked before any env is built
+        if not saved:
+            check_tensorboard(algo_kwargs)
         self._env_argument = env
         self._train_env_kwargs = dict(env_kwargs or {})  # read by _setup, which runs inside Agent.__init__
         if isinstance(env, str):

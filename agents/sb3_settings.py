@@ -392,10 +392,6 @@ def check_algorithm_value(key: str, value: Any) -> None:
     """
     if callable(value):
         return
-    if key == "tensorboard_log" and value is not None and importlib.util.find_spec("tensorboard") is None:
-        # SB3 takes it and raises only at the first learn(), from its logger's setup
-        raise ImportError(f"tensorboard_log={value!r} needs the tensorboard package, which is not installed "
-                          "(pip install tensorboard)")
     if key in _FRACTIONS:
         check_fraction(key, value, allow_zero=_FRACTIONS[key])
     elif key == "learning_rate":
@@ -526,6 +522,18 @@ def check_sb3_hyperparameters(algo: Any, hyperparameters: Mapping[str, Any]) -> 
     algo_class = resolve_algorithm(algo)
     own, algo_kwargs = split_settings(canonical_settings(hyperparameters))
     SB3Config(algo=algo_class.__name__, **{"n_timesteps": 1, **own}, algo_kwargs=algo_kwargs)
+    check_tensorboard(algo_kwargs)
+
+
+def check_tensorboard(algo_kwargs: Mapping[str, Any]) -> None:
+    """Refuse ``tensorboard_log`` without the tensorboard package, which SB3 needs only at its first ``learn()``.
+
+    Checked for an agent being built, not one being loaded: a saved agent acts and evaluates without it.
+    """
+    value = algo_kwargs.get("tensorboard_log")
+    if value is not None and importlib.util.find_spec("tensorboard") is None:
+        raise ImportError(f"tensorboard_log={value!r} needs the tensorboard package, which is not installed "
+                          "(pip install tensorboard)")
 
 
 def canonical_settings(settings: Mapping[str, Any]) -> dict[str, Any]:

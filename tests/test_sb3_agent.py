@@ -81,6 +81,18 @@ def test_tensorboard_log_without_tensorboard_is_refused_before_any_env_is_built(
         SB3Agent("TLCarNav-v0", "ppo", seed=0, tensorboard_log="tb", **TINY)
 
 
+def test_an_agent_saved_with_tensorboard_logs_loads_and_acts_without_tensorboard(tmp_path, monkeypatch):
+    real_find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",  # trained where tensorboard is installed
+                        lambda name, *args: object() if name == "tensorboard" else real_find_spec(name, *args))
+    path = SB3Agent("TLCarNav-v0", "ppo", seed=0, tensorboard_log=str(tmp_path / "tb"), **TINY).save(tmp_path / "a")
+    monkeypatch.setattr(importlib.util, "find_spec",  # loaded where it is not
+                        lambda name, *args: None if name == "tensorboard" else real_find_spec(name, *args))
+    loaded = Agent.load(path)
+    assert loaded.config.algo_kwargs["tensorboard_log"] == str(tmp_path / "tb")
+    assert loaded.evaluate(1, seed=0)["robustness"].shape == (1,)
+
+
 def test_off_policy_algorithm_by_class():
     agent = SB3Agent("TLCarNav-v0", SAC, seed=0, steps_per_iteration=200, n_envs=1, learning_starts=150,
                      batch_size=32, policy_kwargs={"net_arch": [32, 32]})
