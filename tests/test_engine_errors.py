@@ -276,6 +276,19 @@ def test_smoothing_refuses_a_finite_rho_max_beyond_its_range(text, rho_max, beta
     with pytest.raises(ValueError, match=r"rho_max=.* is too large to smooth with β = .*pass rho_max=inf"):
         formula.smooth_robustness(trace, beta, rho_max)
     assert formula.smooth_robustness(trace, beta, 1e4) == pytest.approx(formula.robustness(trace, 1e4))
+    # a formula that never takes the value ±rho_max smooths with any (a large sentinel rho_max worked, and works)
+    assert parse("F(x > 0.5)").smooth_robustness(trace, beta, rho_max) == pytest.approx(2.5)
+
+
+def test_the_wrapper_refuses_a_smooth_reward_with_an_unsmoothable_rho_max_when_built():
+    import gymnasium as gym
+
+    from tl_gym import TLTLRewardWrapper
+
+    with pytest.raises(ValueError, match=r"rho_max=1e\+300 is too large to smooth"):
+        TLTLRewardWrapper(gym.make("Pendulum-v1"), "F(c > 0.5) | X(c > 0)", signals={"c": 0}, reward="smooth",
+                          rho_max=1e300)
+    TLTLRewardWrapper(gym.make("Pendulum-v1"), "F(c > 0.5)", signals={"c": 0}, reward="smooth", rho_max=1e300)
 
 
 def test_value_range_skips_checks_only_where_values_are_known_finite():

@@ -19,6 +19,7 @@ from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.invariants import InvariantMonitor
 from tl_gym.tltl.online import PrefixMonitor
 from tl_gym.tltl.parser import parse
+from tl_gym.tltl.smooth import check_smoothable_rho_max
 
 REWARDS = ("exact", "smooth")
 REWARD_MODES = ("terminal", "dense", "potential")
@@ -277,6 +278,8 @@ class TLTLRewardWrapper(RewardSettingsAttributes, gym.Wrapper, gym.utils.RecordC
                                   satisfaction_bonus=satisfaction_bonus)
         check_finite("env_reward_weight", env_reward_weight)
         check_count("horizon", horizon, allow_none=True)  # checked with the view or without: it goes into the spec
+        if settings.reward == "smooth":  # at construction, not at the first episode's end
+            check_smoothable_rho_max(formula, settings.beta, settings.rho_max)
         if not isinstance(env, gym.Env):
             raise TypeError(f"env must be a gymnasium.Env, got {type(env).__name__}")
         if not isinstance(end_on_violation, bool):

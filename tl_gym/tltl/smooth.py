@@ -487,17 +487,31 @@ def _to_rho(z: np.ndarray, beta: float) -> np.ndarray:
         return np.where(np.abs(z) >= _INF / 2, np.sign(z) * np.inf, z / beta)
 
 
-def _check(beta: float, rho_max: float, form: str, backend: str = "numpy") -> tuple[float, float]:
+def _check(formula: Formula, beta: float, rho_max: float, form: str, backend: str = "numpy") -> tuple[float, float]:
     """The arguments checked; ``beta`` and ``rho_max`` as Python floats (a numpy scalar is accepted and converted)."""
     beta, rho_max = check_beta(beta), check_rho_max(rho_max)
+    check_smoothable_rho_max(formula, beta, rho_max)
     if form not in FORMS:
         raise ValueError(f"form must be one of {FORMS}, got {form!r}")
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
-    if math.isfinite(rho_max) and beta * rho_max >= _INF / 2:  # ⊤ would be smoothed as +∞, as a predicate that large
+    return beta, rho_max
+
+
+def check_smoothable_rho_max(formula: Formula, beta: float, rho_max: float) -> None:
+    """Refuse a finite ``rho_max`` that, β-scaled, cannot be told from ∞, in a formula whose value it can be.
+
+    ``true``, ``false`` and ``X φ`` at the last state are worth ±ρ_max: smoothed, a ρ_max with β·ρ_max ≥ 5e299
+    came back as ±inf (as a predicate value that large, which is refused too). A formula without them never
+    takes the value, so any ρ_max is fine there. The wrapper checks it at construction with ``reward="smooth"``.
+
+    Raises:
+        ValueError: naming ``rho_max`` and β.
+    """
+    if (math.isfinite(rho_max) and beta * rho_max >= _INF / 2
+            and any(isinstance(node, (nodes.Constant, nodes.Next)) for node in formula.walk())):
         raise ValueError(f"rho_max={rho_max:g} is too large to smooth with β = {beta:g} (|β · rho_max| must stay "
                          f"below {_INF / 2:.0e}); pass rho_max=inf for an unbounded ⊤")
-    return beta, rho_max
 
 
 def _evaluate(formula: Formula, signals: dict[str, np.ndarray], n: int, length: int, beta: float, rho_max: float,
@@ -559,7 +573,7 @@ def _at_position_zero(formula: Formula, signals: dict[str, np.ndarray], n: int, 
 def _smooth(formula: Formula, trace: Trace, beta: float, rho_max: float, form: str, first_only: bool,
             backend: str = "numpy") -> Any:
     """Shared entry: numpy in → numpy out; torch in → a differentiable torch tensor out."""
-    beta, rho_max = _check(beta, rho_max, form, backend)
+    beta, rho_max = _check(formula, beta, rho_max, form, backend)
     prepared = prepare(formula.signals, trace, torch_ok=True)
     names = tuple(prepared.signals)
     tensors = [prepared.signals[k] for k in names]
@@ -707,7 +721,7 @@ def smooth_robustness_and_gradient(
     A float and ``{signal: (T,)}``, or ``(N,)`` and ``{signal: (N, T)}`` for a batch; zero gradient
     for a signal the value does not depend on (`Formula.smooth_robustness_and_gradient`).
     """
-    beta, rho_max = _check(beta, rho_max, form, backend)
+    beta, rho_max = _check(formula, beta, rho_max, form, backend)
     prepared = prepare(formula.signals, trace)
     z, jac = _at_position_zero(formula, prepared.signals, prepared.n, prepared.length, beta, rho_max, form,
                                prepared.magnitudes, jacobian=True, backend=backend)
