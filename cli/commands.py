@@ -87,13 +87,6 @@ def build_env(run: dict[str, Any], render_mode: str | None = None) -> Any:
     if not run.get("signals"):
         raise ValueError("--spec needs --signals to say where each signal comes from, e.g. --signals cos_th=0")
     wrapper_kwargs = {**tl_kwargs, **run.get("wrapper_kwargs", {})}  # run.json files before --wrapper-kwargs lack it
-    if wrapper_kwargs.get("reward_mode") == "potential" and "gamma" not in wrapper_kwargs and is_sb3(run["agent"]):
-        # the shaping keeps the optimal policies only with the agent's discount, which an env id gets from the agent
-        from tl_gym.agents.sb3 import agent_discount
-
-        settings = run["hyperparameters"]
-        wrapper_kwargs["gamma"] = agent_discount(run["agent"], run["env"], run["env_kwargs"],
-                                                 settings.get("hyperparams", True), settings.get("gamma"))
     return tl_gym.TLTLRewardWrapper(gym.make(run["env"], **kwargs), run["spec"], run["signals"], **wrapper_kwargs)
 
 
@@ -199,11 +192,20 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
         raise ValueError("--wrapper-kwargs only makes sense with --spec (a TL id such as TLCarNav-v0 takes the "
                          "wrapper's keywords in --env-kwargs)")
     check_wrapper_keywords(args.wrapper_kwargs)
+    hyperparameters = parse_hyperparameters(extra)
+    wrapper_kwargs = dict(args.wrapper_kwargs)
+    if wrapper_kwargs.get("reward_mode") == "potential" and "gamma" not in wrapper_kwargs and is_sb3(args.agent):
+        # the shaping keeps the optimal policies only with the agent's discount, which an env id gets from the
+        # agent; written into run.json, so that `eval` rebuilds the env the agent trained on
+        from tl_gym.agents.sb3 import agent_discount
+
+        wrapper_kwargs["gamma"] = agent_discount(args.agent, args.env, env_kwargs,
+                                                 hyperparameters.get("hyperparams", True), hyperparameters.get("gamma"))
     run = {
         "env": args.env, "env_kwargs": env_kwargs, "spec": args.spec, "signals": args.signals,
-        "wrapper_kwargs": dict(args.wrapper_kwargs),
+        "wrapper_kwargs": wrapper_kwargs,
         "agent": args.agent, "iterations": args.iterations, "seed": args.seed,
-        "hyperparameters": parse_hyperparameters(extra),
+        "hyperparameters": hyperparameters,
     }
     if args.iterations is not None:
         check_count("--iterations", args.iterations)
@@ -264,7 +266,7 @@ def train(args: argparse.Namespace, extra: Sequence[str]) -> int:
     # an earlier run's were removed: these exist if this run evaluated (not before --eval-every's first N iterations)
     best = "".join(f", {name}" for name in (BEST_FILE, EVALUATIONS_FILE) if (out / name).exists())
     trajectories = ", trajectories.png" if snapshots else ""  # write_plots draws them only from snapshots
-    print(f"wrote {out}/{{{RUN_FILE}, {AGENT_FILE}{best}, history.csv, learning_curve.png{trajectories}}}")
+    print(f"wrote {out}/{{{RUN_FILE}, {AGENT_FILE}{best}, {HISTORY_FILE}, learning_curve.png{trajectories}}}")
     if stop.requested:
         print(f"tl-gym train: interrupted: stopped after iteration {last['iteration']} of {iterations}; the agent "
               "continues with Agent.load", file=sys.stderr)

@@ -304,10 +304,11 @@ def test_wrapper_kwargs_reach_the_wrapper_over_the_sb3_defaults(tmp_path, capsys
                  "--agent", "ppo", "--iterations", "1", "--out", str(out), "--quiet", *SB3_TINY]) == 0
     run = json.loads((out / "run.json").read_text())
     env = build_env(run)
-    assert run["wrapper_kwargs"] == {"satisfaction_bonus": 5, "reward_mode": "potential"}
+    # the shaping discounts as PPO's entry does, recorded so that eval rebuilds the env trained on
+    assert run["wrapper_kwargs"] == {"satisfaction_bonus": 5, "reward_mode": "potential", "gamma": 0.9}
     assert env.satisfaction_bonus == 5.0 and env.reward_mode == "potential"  # over markov's "dense"
     assert env.observe_monitor  # the rest of markov's keywords stay
-    assert env.gamma == Agent.load(out / "agent.zip").model.gamma == 0.9  # the shaping discounts as PPO's entry
+    assert env.gamma == Agent.load(out / "agent.zip").model.gamma == 0.9
     del run["wrapper_kwargs"]  # a run.json written before the option
     assert build_env(run).reward_mode == "dense"
     assert main(["eval", str(out), "--episodes", "2"]) == 0

@@ -432,6 +432,21 @@ def test_sb3s_success_rate_reads_the_formulas_satisfaction_and_the_envs_own_is_k
     assert info["is_success"] == info["satisfied"] == satisfied and info["env_is_success"] is True
 
 
+
+def test_env_info_gives_the_envs_own_info_back_with_stacked_wrappers_and_violations():
+    from tl_gym.wrapper import env_info
+
+    inner = TLTLRewardWrapper(ClaimsSuccess(Scripted()), "F(a > 5)", signals={"a": 0})  # never satisfied
+    outer = TLTLRewardWrapper(inner, "G(b < 2)", signals={"b": 2})  # always satisfied; both end at s_5
+    _, info = run(outer)
+    assert info["is_success"] is True and info["env_is_success"] is True  # the base env's, not the inner formula's
+    assert env_info(info) == {"t": 5, "is_success": True}
+    broken = TLTLRewardWrapper(ClaimsSuccess(Scripted()), "G(b < 0.5)", signals={"b": 2}, end_on_violation=True)
+    _, info = run(broken)  # b reaches 0.65 at s_3
+    assert info["violated"] == "G b < 0.5" and info["is_success"] is False
+    assert env_info(info) == {"t": 3, "is_success": True}
+
+
 class Scalar(gym.Env):
     """A 0-D Box observation: one number with no axis."""
 

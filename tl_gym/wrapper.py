@@ -26,6 +26,8 @@ REWARD_MODES = ("terminal", "dense", "potential")
 DEFAULT_CLIP = 1e4
 #: The key of the monitor features in a Dict observation (``observe_monitor=True``).
 MONITOR_KEY = "monitor"
+#: The info key naming the invariant an ``end_on_violation`` episode broke.
+VIOLATED_KEY = "violated"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -384,7 +386,7 @@ class TLTLRewardWrapper(RewardSettingsAttributes, gym.Wrapper, gym.utils.RecordC
                 self._broken = self._invariants.broken(state)
             if self._broken is not None:  # a termination even on the env's own last step: nothing follows
                 terminated = True
-                info["violated"] = str(self._broken)
+                info[VIOLATED_KEY] = str(self._broken)
         if terminated or truncated:
             self._done = True
             reward = self._terminal_reward(info)
@@ -421,8 +423,8 @@ class TLTLRewardWrapper(RewardSettingsAttributes, gym.Wrapper, gym.utils.RecordC
         trace = self._trace_arrays()
         if not trace:  # a formula that reads no signal still needs the trace's length
             trace = {"_": np.zeros(len(self._rows))}
-        if "is_success" in info:  # the env's own success (parking-v0's: in the slot now), kept beside the formula's
-            info[ENV_IS_SUCCESS] = info["is_success"]
+        if "is_success" in info and ENV_IS_SUCCESS not in info:  # the env's own (parking-v0's: in the slot now),
+            info[ENV_IS_SUCCESS] = info["is_success"]  # kept beside the formula's (an inner TL wrapper's kept its)
         info.update(terminal_info(self.formula, trace, self.rho_max, self.settings.smooth_beta))
         if not self._reader.names:
             info["trace"] = Trace({})
@@ -469,16 +471,18 @@ class TLTLRewardWrapper(RewardSettingsAttributes, gym.Wrapper, gym.utils.RecordC
 TERMINAL_KEYS = ("robustness", "satisfied", "is_success", "trace", "smooth_robustness")
 #: Where the wrapper keeps an env's own ``is_success`` of the last step, whose key the formula's takes.
 ENV_IS_SUCCESS = "env_is_success"
+#: Every key the wrapper adds to an info: the terminal ones, the env's own success and ``end_on_violation``'s.
+WRAPPER_KEYS = (*TERMINAL_KEYS, ENV_IS_SUCCESS, VIOLATED_KEY)
 
 
 def env_info(info: Mapping[str, Any]) -> dict[str, Any]:
-    """A step's info as the env below the wrapper gave it: the terminal keys removed, its ``is_success`` back.
+    """A step's info as the env below the wrapper gave it: the wrapper's keys removed, its ``is_success`` back.
 
     Example:
         >>> env_info({"robustness": 1.0, "satisfied": True, "is_success": True, "env_is_success": False, "t": 3})
         {'t': 3, 'is_success': False}
     """
-    out = {k: v for k, v in info.items() if k not in TERMINAL_KEYS and k != ENV_IS_SUCCESS}
+    out = {k: v for k, v in info.items() if k not in WRAPPER_KEYS}
     if ENV_IS_SUCCESS in info:
         out["is_success"] = info[ENV_IS_SUCCESS]
     return out
