@@ -33,6 +33,7 @@ from tl_gym.errors import IncompatibleSaveError
 
 from .callbacks import CallbackLike, as_callback
 from .evaluation import evaluate_policy
+from .registry import saved_class
 from .sampling import check_time_limits, env_keyword_hint, find_formula, make_vector_env, registered_spec
 from .serialization import (
     FORMAT_VERSION,
@@ -361,8 +362,6 @@ class Agent(abc.ABC):
 
 
 def _agent_class(name: str) -> type[Agent]:
-    from .registry import saved_class
-
     try:
         return saved_class(name)
     except LookupError as exc:

@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from tl_gym.tltl import ast as nodes
+from tl_gym.tltl import exact
 from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.expressions import postorder
 from tl_gym.tltl.operators import SIGN
@@ -101,8 +102,6 @@ def auto_robustness(formula: Formula, trace: Trace, rho_max: float = math.inf) -
     the many small formulas of a test suite never wait for a compiler, and a formula evaluated
     over and over spends at most about twice the best possible time before it runs compiled.
     """
-    from tl_gym.tltl import exact
-
     usage: _Usage = cached(formula, ("auto",), _Usage)
     if available() and usage.compiled is None:
         source = _kernel_source(formula)
@@ -118,8 +117,6 @@ def auto_robustness(formula: Formula, trace: Trace, rho_max: float = math.inf) -
 
 def robustness(formula: Formula, trace: Trace, rho_max: float = math.inf) -> float | np.ndarray:
     """Robustness at position 0 through the fused kernel; the numpy plan where it does not apply."""
-    from tl_gym.tltl import exact
-
     kernel = kernel_for(formula) if available() else _missing()
     if kernel is None:
         return exact.robustness(formula, trace, rho_max)
