@@ -32,9 +32,10 @@ from tl_gym.checks import check_count
 from tl_gym.errors import IncompatibleSaveError
 
 from .callbacks import CallbackLike, as_callback
+from .env_ids import env_keyword_hint, find_formula, make_vector_env, registered_spec
 from .evaluation import evaluate_policy
+from .horizon import check_time_limits
 from .registry import saved_class
-from .sampling import check_time_limits, env_keyword_hint, find_formula, make_vector_env, registered_spec
 from .serialization import (
     FORMAT_VERSION,
     check_arrays,
@@ -83,7 +84,7 @@ class Agent(abc.ABC):
             exposes ``formula`` and reports ``info["robustness"]`` at episode end
             (`tl_gym.TLTLRewardWrapper`; the car env is wrapped already). Episodes are sampled
             batched: an id from its ``vector_entry_point`` when it has one, else a `SyncVectorEnv`; an `Env`
-            object in a `SyncVectorEnv` of copies of it (`agents.sampling.env_copies`).
+            object in a `SyncVectorEnv` of copies of it (`agents.env_ids.env_copies`).
         seed: seed of every random choice the agent makes; same seed, same results.
         env_kwargs: keyword arguments for the env constructor when ``env`` is an id.
         **hyperparameters: the agent's hyperparameters (see its config class); checked here.

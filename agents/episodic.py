@@ -22,8 +22,9 @@ from tl_gym.checks import check_positive
 
 from .base import Agent, check_episodic
 from .feedback import FITTED_EXPLORATION_FLOOR, FeedbackSettings, fit_feedback, signal_components
+from .horizon import resolve_horizon
 from .policy import DEFAULT_INIT_STD, DEFAULT_MIN_STD, LinearGaussianPolicy, check_covariance
-from .sampling import Rollouts, flat_observations, resolve_horizon
+from .sampling import Rollouts, flat_observations
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

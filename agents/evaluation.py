@@ -17,7 +17,8 @@ import numpy as np
 
 from tl_gym.checks import check_count
 
-from .sampling import NO_EPISODE_LENGTH, Controller, check_time_limits, infer_horizon, run_episodes
+from .horizon import NO_EPISODE_LENGTH, check_time_limits, infer_horizon
+from .sampling import Controller, run_episodes
 
 
 class PolicyPredictor(Protocol):

@@ -35,8 +35,9 @@ from tl_gym.tltl import fused
 from tl_gym.tltl.ast import Formula
 
 from .feedback import matching_components
+from .horizon import env_attribute
 from .policy import LinearGaussianPolicy
-from .sampling import Rollouts, env_attribute
+from .sampling import Rollouts
 from .trust_region import Gradient, projected_ascent, smooth_value_and_grad
 
 

@@ -1,170 +1,25 @@
 """Batched episode sampling on a Gymnasium vector env.
 
-`make_vector_env` turns what a user hands an agent (an env id, an `Env`, a
-`VectorEnv`) into a `VectorEnv`: for an id, the env's own batched simulator
-(its ``vector_entry_point``, one numpy call per step for all cars) rather than
-`SyncVectorEnv`; an `Env` object is copied. `rollout` runs ``N`` episodes of horizon ``T`` with a linear
+`rollout` runs ``N`` episodes of horizon ``T`` with a linear
 controller ``a_t = K_t s_t + k_t^i`` (or any feedback term ``f(t, s_t) + k_t^i``,
 such as the policy's ``K_t (s_t ⊖ s̄_t)``) and returns what every agent needs: the
 actions, the observations, the formula's signal traces ``(N, T+1)``, the exact
 robustness and success flags read from the reward wrapper's terminal ``info``.
-The Python loop runs over time steps only; all envs of a step move in one call.
+`run_episodes` runs any controller until the episodes end. The Python loop runs over
+time steps only; all envs of a step move in one call. The vector env comes from
+`tl_gym.agents.env_ids.make_vector_env`, the horizon from `tl_gym.agents.horizon`.
 """
 
 from __future__ import annotations
 
-import copy
-import importlib
-import inspect
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from gymnasium.envs.registration import load_env_creator
 
 from tl_gym.errors import EpisodeError
-from tl_gym.time_limits import episode_length, is_count, time_limits
-from tl_gym.tltl.ast import Formula
-from tl_gym.wrapper import TLTLRewardWrapper
-
-
-def registered_spec(env_id: str) -> gym.envs.registration.EnvSpec:
-    """`gymnasium.spec` of an env id, Gymnasium's ``"module:EnvId"`` form included.
-
-    As `gymnasium.make` does, the module is imported first (it registers the id), so that an agent,
-    a run config or ``tl-gym train --env`` takes the ids ``gym.make`` takes.
-
-    Example:
-        >>> registered_spec("gymnasium.envs.classic_control:Pendulum-v1").id
-        'Pendulum-v1'
-    """
-    module, _, name = env_id.rpartition(":")  # Gymnasium's ids hold no ":" themselves
-    if module:
-        importlib.import_module(module)
-    return gym.spec(name)
-
-
-def env_keywords(env_id: str) -> frozenset[str]:
-    """The keywords ``gym.make(env_id, ...)`` takes by name; empty when the id is unknown or they cannot be read.
-
-    The entry point's named parameters, and for one that takes ``**kwargs`` the names its ``env_keywords()``
-    attribute lists (tl_gym's ids declare theirs). For the messages that tell an env keyword given to an agent.
-
-    Example:
-        >>> sorted(env_keywords("Pendulum-v1"))
-        ['g', 'render_mode']
-    """
-    try:
-        spec = registered_spec(env_id)
-        creator = load_env_creator(spec.entry_point) if isinstance(spec.entry_point, str) else spec.entry_point
-        parameters = inspect.signature(creator).parameters
-    except (gym.error.Error, ImportError, AttributeError, TypeError, ValueError):
-        return frozenset()
-    named = {name for name, p in parameters.items() if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
-    return frozenset(named | set(getattr(creator, "env_keywords", tuple)()))
-
-
-def env_keyword_hint(env: Any, names: Iterable[str], hyperparameters: Mapping[str, Any]) -> str:
-    """``"; 'task' is a keyword of the env TLCarNav-v0: pass env_kwargs={'task': 2}"`` for ``names`` the env takes.
-
-    ``""`` when ``env`` is not an id or takes none of them. Agents add it to the error of a hyperparameter they do
-    not have, the usual slip being an env keyword given to the agent.
-    """
-    if not isinstance(env, str):
-        return ""
-    keywords = env_keywords(env)
-    taken = [name for name in names if name in keywords]
-    if not taken:
-        return ""
-    which = ", ".join(map(repr, taken))
-    kwargs = "{" + ", ".join(f"{name!r}: {hyperparameters[name]!r}" for name in taken) + "}"
-    return (f"; {which} {'is a keyword' if len(taken) == 1 else 'are keywords'} of the env {env}, not of the agent: "
-            f"pass env_kwargs={kwargs}")
-
-
-def unqualified_id(env_id: str) -> str:
-    """``EnvId`` of an id in Gymnasium's ``"module:EnvId"`` form, the id itself otherwise (`registered_spec`'s name).
-
-    Example:
-        >>> unqualified_id("my_tasks:SwingUp-v0"), unqualified_id("Pendulum-v1")
-        ('SwingUp-v0', 'Pendulum-v1')
-    """
-    return env_id.rpartition(":")[2]
-
-
-def make_vector_env(env: Any, num_envs: int, env_kwargs: Mapping[str, Any] | None = None) -> gym.vector.VectorEnv:
-    """Build a vector env of ``num_envs`` copies of ``env``.
-
-    Args:
-        env: an env id (``"TLCarNav-v0"``), an `Env` (copied, `env_copies`) or a `VectorEnv`
-            (returned as is).
-        num_envs: number of parallel envs wanted.
-        env_kwargs: keyword arguments for the env constructor (env ids only).
-
-    Raises:
-        TypeError: ``env`` is none of the above, or ``env_kwargs`` come with an env object.
-    """
-    env_kwargs = dict(env_kwargs or {})
-    if isinstance(env, gym.vector.VectorEnv):
-        if env_kwargs:
-            raise TypeError("env_kwargs can only be used with an env id, not with a VectorEnv")
-        return env
-    if isinstance(env, str):
-        spec = registered_spec(env)
-        mode = "vector_entry_point" if spec.vector_entry_point is not None else "sync"
-        return gym.make_vec(env, num_envs=num_envs, vectorization_mode=mode, **env_kwargs)
-    if isinstance(env, gym.Env):  # copied: only an id gets the batched simulator of its vector_entry_point
-        if env_kwargs:
-            raise TypeError("env_kwargs can only be used with an env id, not with an Env object")
-        return gym.vector.SyncVectorEnv(env_copies(env, num_envs))
-    raise TypeError(f"env must be an env id, a gymnasium Env or a VectorEnv, got {type(env).__name__}")
-
-
-def env_copies(env: gym.Env, n: int) -> list[Callable[[], gym.Env]]:
-    """Constructors of ``n`` copies of the env object ``env``, for the agents' vector envs.
-
-    Copies (`copy.deepcopy`), so that what was set after ``gym.make`` stays (``env.unwrapped.configure(...)``
-    of highway-env, an attribute changed by hand), as SB3 keeps the env object it is given; the user's env
-    itself is not stepped. Each copy's random generator is drawn afresh: copies of an env that was seeded would
-    otherwise share its stream, and their unseeded resets (an SB3 agent without seed) would play one episode
-    ``n`` times. An env that cannot be copied (a live render window) is rebuilt from its spec.
-
-    Raises:
-        TypeError: the env can be neither copied nor rebuilt (naming both reasons).
-    """
-    try:
-        copies = [copy.deepcopy(env) for _ in range(n)]
-    except Exception as copy_error:  # noqa: BLE001 - any failure of a user's env to copy: try its spec
-        if env.spec is None:
-            raise TypeError(f"the env cannot be copied ({copy_error!r}) and has no spec to rebuild it from: "
-                            "pass an env id or a factory-registered id instead") from copy_error
-        try:
-            gym.make(env.spec).close()
-        except Exception as make_error:  # noqa: BLE001
-            raise TypeError(f"the env can neither be copied ({copy_error!r}) nor rebuilt from its spec "
-                            f"({make_error!r})") from make_error
-        spec = env.spec
-        return [lambda: gym.make(spec) for _ in range(n)]
-    for duplicate in copies:
-        duplicate.unwrapped.np_random = np.random.default_rng()  # fresh entropy; a seeded reset still decides
-    return [lambda e=e: e for e in copies]
-
-
-def find_formula(venv: gym.vector.VectorEnv) -> Formula:
-    """The TLTL formula the env pays as reward (its ``formula`` attribute).
-
-    Raises:
-        TypeError: the env exposes no formula; wrap it in `tl_gym.TLTLRewardWrapper`.
-    """
-    formula = env_attribute(venv, "formula")
-    if not isinstance(formula, Formula):
-        raise TypeError(
-            "the env has no `formula`: wrap it in tl_gym.TLTLRewardWrapper(env, spec, signals) "
-            "so that agents can read the TLTL robustness"
-        )
-    return formula
 
 
 @dataclass(frozen=True)
@@ -456,95 +311,3 @@ def episode_traces(info: Mapping[str, Any], n_envs: int) -> dict[str, list[np.nd
         rows = np.asarray(values, dtype=float)
         out[name] = [rows[i] if mask[i] else None for i in range(n_envs)]
     return out
-
-
-def infer_horizon(venv: gym.vector.VectorEnv) -> int | None:
-    """The env's episode length if it states one: the least it states.
-
-    What the reward wrapper recorded of the env it wraps (its ``episode_length``: time limits inside it, the
-    spec's ``max_episode_steps``, a ``horizon`` attribute; read from an `AsyncVectorEnv`'s workers too), a
-    ``horizon`` attribute (on the vector env, else on its sub-envs; a batched simulator's), ``params.horizon``
-    (the car's parameters) and, for a `SyncVectorEnv`, its first sub-env's `episode_length` (an env that reports
-    its robustness itself); only when none says anything, the vector env's spec. A time limit outside the wrapper
-    that cuts its episodes is refused by `check_time_limits` before this is asked.
-    """
-    params = env_attribute(venv, "params")
-    stated = [env_attribute(venv, "episode_length"), env_attribute(venv, "horizon"), getattr(params, "horizon", None)]
-    if isinstance(venv, gym.vector.SyncVectorEnv):  # in this process: a sub-env's own time limits, wrapper or not
-        stated.append(episode_length(venv.envs[0]))
-    counts = [int(value) for value in stated if is_count(value)]
-    if counts:
-        return min(counts)
-    # what the envs say is what they do: gym.make_vec(id, max_episode_steps=T) keeps T in the spec's kwargs and
-    # the registry's value in its max_episode_steps; only an env that says nothing is read from the vector spec
-    spec = getattr(venv, "spec", None)
-    steps = None if spec is None else spec.kwargs.get("max_episode_steps", spec.max_episode_steps)
-    return int(steps) if is_count(steps) else None
-
-
-def check_time_limits(venv: gym.vector.VectorEnv) -> None:
-    """Refuse envs whose ``TimeLimit`` sits outside their `TLTLRewardWrapper` and cuts its episodes.
-
-    Such a limit (``gym.make("TLPendulum-v0", max_episode_steps=50)``: Gymnasium wraps what the id's entry
-    point returns) ends episodes before the wrapper sees their end, so no step pays the robustness and an agent
-    would fail at its first update, blaming a missing wrapper. The outermost ``TimeLimit`` of a sub-env
-    (``_max_episode_steps`` as Gymnasium's attribute lookup finds it, outside in) is compared with the episode
-    length the wrapper recorded of the env it wraps: shorter, or the only limit there is, is refused. Sub-envs of
-    a `SyncVectorEnv` and an `AsyncVectorEnv` are asked alike; a batched simulator has no wrappers.
-
-    Raises:
-        ValueError: naming the limit and where the episode length belongs instead.
-    """
-    if not isinstance(venv, (gym.vector.SyncVectorEnv, gym.vector.AsyncVectorEnv)):
-        return
-    if not venv.call("has_wrapper_attr", "episode_length")[0]:  # no TLTLRewardWrapper: the env's own business
-        return
-    own = venv.get_attr("episode_length")[0]
-    if isinstance(venv, gym.vector.SyncVectorEnv):  # in this process: every TimeLimit outside the wrapper
-        outside = time_limits(venv.envs[0], until=lambda layer: isinstance(layer, TLTLRewardWrapper))
-        limit = min(outside) if outside else None
-    else:  # another process's env: the outermost TimeLimit, as Gymnasium's attribute lookup finds it
-        limit = env_attribute(venv, "_max_episode_steps")
-    if limit is None or (own is not None and limit >= own):
-        return
-    raise ValueError(
-        f"a TimeLimit of {limit} steps wraps the env's TLTLRewardWrapper from outside (gym.make(tl_id, "
-        f"max_episode_steps={limit}) puts it there): it ends episodes before the wrapper sees their end, so no "
-        f"step pays the robustness. Set the episode length inside the wrapper: the task's own keyword "
-        f"(horizon={limit} on TLCarNav-v0 and the suite's ids; TLPendulum-v0's up_by must stay below it), or "
-        f"TLTLRewardWrapper(gym.make(base_id, max_episode_steps={limit}), ...)"
-    )
-
-
-def env_attribute(venv: gym.vector.VectorEnv, name: str) -> Any:
-    """Attribute ``name`` of the vector env, or of its first sub-env; ``None`` when absent."""
-    value = getattr(venv, name, None)
-    if value is None and isinstance(venv, (gym.vector.SyncVectorEnv, gym.vector.AsyncVectorEnv)):
-        # asked first: an AsyncVectorEnv's workers shut down on an attribute their env lacks
-        if venv.call("has_wrapper_attr", name)[0]:
-            value = venv.get_attr(name)[0]
-    return value
-
-
-#: What to do about an env whose episodes have no stated length (agents, evaluation): one message for both.
-NO_EPISODE_LENGTH = ("the env states no episode length: give it a time limit inside its TLTLRewardWrapper, "
-                     "TLTLRewardWrapper(gym.make(id, max_episode_steps=T), ...)")
-
-
-def resolve_horizon(horizon: int | None, env: Any) -> int:
-    """The agent's horizon: the configured one, checked against the env's, or the env's own.
-
-    Raises:
-        ValueError: the two disagree, or neither is known.
-    """
-    stated = infer_horizon(env)
-    if horizon is None:
-        if stated is None:
-            raise ValueError(f"{NO_EPISODE_LENGTH}; or, if its episodes end on their own after T steps, give the "
-                             "agent horizon=T (the number of actions per episode; the wrapper's horizon= only "
-                             "scales the monitor's t/T)")
-        return stated
-    if stated is not None and stated != horizon:
-        raise ValueError(f"horizon={horizon} but the env's episodes last {stated} steps; pass horizon={stated}")
-    return int(horizon)
-

@@ -51,8 +51,10 @@ from tl_gym.errors import IncompatibleSaveError
 from tl_gym.relabel import EpisodeRecorder, GoalRelabeller, find_wrapper
 
 from .base import Agent, describe_env_source
+from .env_ids import env_copies, unqualified_id
 from .hindsight import make_hindsight_feeder
-from .sampling import env_attribute, env_copies, require_robustness, unqualified_id
+from .horizon import env_attribute
+from .sampling import require_robustness
 from .sb3_settings import (
     DEFAULT_TL_REWARD,
     HYPERPARAMS_FILE,

@@ -253,8 +253,8 @@ def sample_traces(agent: Any, spec: RunSpec, iteration: int) -> dict[str, np.nda
 
     ``it<k>_<signal>`` (the signals ρ was computed on) -> ``(episodes, T+1)`` float32, NaN-padded; ``it<k>_robustness``.
     """
+    from tl_gym.agents.env_ids import make_vector_env
     from tl_gym.agents.evaluation import collect_episodes
-    from tl_gym.agents.sampling import make_vector_env
 
     n = spec.trajectory_episodes
     with contextlib.closing(make_vector_env(spec.env, n, getattr(agent, "env_kwargs", spec.env_kwargs))) as venv:

@@ -194,7 +194,7 @@ def _check_hyperparameters(agent: str, values: Mapping[str, Any], where: str) ->
 def _check_env(env_id: str) -> None:
     """A registered id (Gymnasium's ``module:EnvId`` form too), checked before any run starts."""
     import gymnasium as gym
-    from tl_gym.agents.sampling import registered_spec
+    from tl_gym.agents.env_ids import registered_spec
 
     try:
         registered_spec(env_id)

@@ -48,10 +48,12 @@ import gymnasium as gym
 import numpy as np
 from tl_gym.agents import Agent
 from tl_gym.agents.callbacks import EvalCallback, HistoryCSV, as_callback
+from tl_gym.agents.env_ids import env_keywords
 from tl_gym.agents.evaluation import UNSTATED_EPISODE_GUARD, as_vector_env, collect_episodes, predictor_controller
+from tl_gym.agents.horizon import env_attribute, infer_horizon
 from tl_gym.agents.registry import is_episodic, is_sb3, make_agent
 from tl_gym.agents.run_folder import AGENT_FILE, HISTORY_FILE, RUNNER_DONE_FILE, RUNNER_SPEC_FILE
-from tl_gym.agents.sampling import env_attribute, env_keywords, infer_horizon, run_episodes
+from tl_gym.agents.sampling import run_episodes
 
 import tl_gym
 from tl_gym.checks import check_count

@@ -646,7 +646,7 @@ def test_an_env_object_is_copied_with_what_was_set_after_make():
 def test_copies_of_a_seeded_env_draw_their_own_episodes():
     """A seeded env's copies would share its random stream: unseeded resets (SB3 without a seed) would repeat one
     episode on every copy. Seeded resets still decide."""
-    from tl_gym.agents.sampling import env_copies
+    from tl_gym.agents.env_ids import env_copies
 
     env = gym.make("TLPendulum-v0")
     env.reset(seed=0)
@@ -727,7 +727,7 @@ def test_an_id_in_gymnasiums_module_form_is_taken_as_gym_make_takes_it(tmp_path,
 
 
 def test_an_attribute_an_async_vector_envs_envs_lack_is_none_and_the_workers_live_on():
-    from tl_gym.agents.sampling import env_attribute, infer_horizon
+    from tl_gym.agents.horizon import env_attribute, infer_horizon
 
     envs = gym.make_vec("Pendulum-v1", num_envs=2, vectorization_mode="async")
     try:
@@ -993,7 +993,7 @@ def test_an_env_keyword_given_to_an_agent_is_named_as_the_envs(make, hint):
 
 
 def test_env_keywords_lists_what_each_id_takes_by_name():
-    from tl_gym.agents.sampling import env_keywords
+    from tl_gym.agents.env_ids import env_keywords
 
     assert {"task", "no_revisit", "start_std", "horizon", "observe_monitor", "goals"} <= env_keywords("TLCarNav-v0")
     assert {"horizon", "up_by", "observe_monitor", "satisfaction_bonus"} <= env_keywords("TLPendulum-v0")

@@ -9,9 +9,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from tl_gym.agents import TLPS
+from tl_gym.agents.env_ids import find_formula, make_vector_env
 from tl_gym.agents.model_repair import closed_loop, feedforward_gradient, find_model, repair_feedforward
 from tl_gym.agents.policy import LinearGaussianPolicy
-from tl_gym.agents.sampling import find_formula, make_vector_env, rollout
+from tl_gym.agents.sampling import rollout
 from tl_gym.envs.car_model import CarModel
 from tl_gym.envs.dynamics import CarParams, car_step, wrap_angle
 

@@ -5,7 +5,7 @@
 judges them; one outside it (``gym.make("TLPendulum-v0", max_episode_steps=50)``: Gymnasium adds the limit
 around what the entry point returns) cuts the episode before the wrapper sees an end, and no step pays the
 robustness. The wrapper records `episode_length` of the env it wraps as its attribute of that name, so that an
-agent can compare it with the limit outside (`tl_gym.agents.sampling.check_time_limits`), in this process or
+agent can compare it with the limit outside (`tl_gym.agents.horizon.check_time_limits`), in this process or
 in an `AsyncVectorEnv`'s workers.
 """
 

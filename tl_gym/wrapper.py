@@ -309,7 +309,7 @@ class TLTLRewardWrapper(RewardSettingsAttributes, gym.Wrapper, gym.utils.RecordC
             self.compute_reward = refuse_goal_reward
         self.formula = formula
         #: the episode length the wrapped env states (`tl_gym.time_limits.episode_length`; None: none), which the
-        #: agents compare with a time limit outside the wrapper (`tl_gym.agents.sampling.check_time_limits`)
+        #: agents compare with a time limit outside the wrapper (`tl_gym.agents.horizon.check_time_limits`)
         self.episode_length = length
         self.settings = settings
         self.env_reward_weight = float(env_reward_weight)
