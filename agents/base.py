@@ -394,6 +394,8 @@ def describe_env_source(env: Any, env_kwargs: dict[str, Any]) -> dict[str, Any]:
     if unrebuildable:
         recorded["unrebuildable_wrappers"] = unrebuildable
         spec = dataclasses.replace(spec, additional_wrappers=tuple(w for w in wrappers if w.kwargs is not None))
+        if not spec.additional_wrappers and spec.max_episode_steps == _registered_steps(spec.id):
+            return recorded  # the id and its kwargs are the env: the id's own vector env (the batched car) is kept
     try:
         return {**recorded, "spec_json": spec.to_json()}
     except Exception:  # noqa: BLE001 - callables in kwargs or the entry point: then the user passes env= on load

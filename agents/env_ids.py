@@ -42,7 +42,8 @@ def env_keywords(env_id: str) -> frozenset[str]:
     """The keywords ``gym.make(env_id, ...)`` takes by name; empty when the id is unknown or they cannot be read.
 
     The entry point's named parameters, and for one that takes ``**kwargs`` the names its ``env_keywords()``
-    attribute lists (tl_gym's ids declare theirs). For the messages that tell an env keyword given to an agent.
+    attribute lists (tl_gym's ids declare theirs; one that lists none takes keywords that cannot be read: empty).
+    For the messages that tell an env keyword given to an agent, and the CLI's ``--task``.
 
     Example:
         >>> sorted(env_keywords("Pendulum-v1"))
@@ -55,7 +56,10 @@ def env_keywords(env_id: str) -> frozenset[str]:
     except (gym.error.Error, ImportError, AttributeError, TypeError, ValueError):
         return frozenset()
     named = {name for name, p in parameters.items() if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
-    return frozenset(named | set(getattr(creator, "env_keywords", tuple)()))
+    declared = getattr(creator, "env_keywords", None)
+    if declared is None and any(p.kind is p.VAR_KEYWORD for p in parameters.values()):
+        return frozenset()  # **kwargs it does not list: which keywords it takes cannot be read
+    return frozenset(named | set(declared() if declared is not None else ()))
 
 
 def env_keyword_hint(env: Any, names: Iterable[str], hyperparameters: Mapping[str, Any]) -> str:

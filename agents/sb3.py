@@ -196,7 +196,7 @@ class SB3Agent(Agent):
         hyperparameters.update(algo=self.algo_class.__name__, tl_reward=tl_reward, hyperparams=hyperparams,
                                algo_kwargs=algo_kwargs)
         config = self._config_for(env, hyperparameters, given=settings)  # checked before any env is built
-        if not saved:
+        if not saved:  # a saved agent loads and acts without it; it is checked again when it learns
             check_tensorboard(algo_kwargs)
         self._env_argument = env
         self._train_env_kwargs = dict(env_kwargs or {})  # read by _setup, which runs inside Agent.__init__
@@ -315,6 +315,7 @@ class SB3Agent(Agent):
             self.model.set_logger(Logger(folder=None, output_formats=[]))
 
     def _update(self, iteration: int) -> dict[str, Any]:
+        check_tensorboard(self.config.algo_kwargs)  # a loaded agent too: SB3 needs it only now, at its logger
         collector = _make_collector()
         before = self.model.num_timesteps
         for schedule in self._schedules.values():  # the env step SB3 counts this call's progress against

@@ -33,7 +33,6 @@ from tl_gym.monitor_view import MonitorView, augment_space
 from tl_gym.shaping import HierarchicalPotential, discounted_increment
 from tl_gym.tltl.online import PrefixMonitor
 from tl_gym.tltl.online_batch import BatchPrefixMonitor
-from tl_gym.tltl.smooth import check_smoothable_rho_max
 from tl_gym.wrapper import MONITOR_KEY, RewardSettingsAttributes, terminal_info
 
 
@@ -96,7 +95,7 @@ class CarNavVectorEnv(RewardSettingsAttributes, CarProperties, VectorEnv):
         self.formula = task_formula(task, no_revisit, **overrides)
         self.settings = settings
         if settings.reward == "smooth":  # as the single car's wrapper, when built
-            check_smoothable_rho_max(self.formula, settings.beta, settings.rho_max)
+            settings.check_smoothable(self.formula)
         self.render_mode = render_mode
 
         self.single_observation_space = observation_space(self.params, self.layout)

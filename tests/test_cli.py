@@ -505,3 +505,18 @@ def run_episode(env):
         _, _, terminated, truncated, info = env.step(np.zeros(env.action_space.shape, np.float32))
         if terminated or truncated:
             return env, info
+
+
+def _any_keywords(render_mode=None, **kwargs):
+    return gym.make("TLCarNav-v0", render_mode=render_mode, **kwargs)
+
+
+gym.register("AnyKeywordsForCli-v0", entry_point=_any_keywords)
+
+
+def test_task_is_passed_to_an_entry_point_whose_keywords_cannot_be_read(tmp_path):
+    """An entry point taking **kwargs without listing them was refused --task ("its keywords: render_mode")."""
+    out = tmp_path / "any"
+    assert main(["train", "--env", "AnyKeywordsForCli-v0", "--task", "2", "--agent", "reps", "--n-episodes", "2",
+                 "--iterations", "1", "--out", str(out), "--quiet"]) == 0
+    assert json.loads((out / "run.json").read_text())["env_kwargs"] == {"task": 2}

@@ -91,6 +91,8 @@ def test_an_agent_saved_with_tensorboard_logs_loads_and_acts_without_tensorboard
     loaded = Agent.load(path)
     assert loaded.config.algo_kwargs["tensorboard_log"] == str(tmp_path / "tb")
     assert loaded.evaluate(1, seed=0)["robustness"].shape == (1,)
+    with pytest.raises(ImportError, match="needs the tensorboard package"):  # learning would fail inside SB3
+        loaded.learn(1)
 
 
 def test_off_policy_algorithm_by_class():

@@ -19,7 +19,6 @@ from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.invariants import InvariantMonitor
 from tl_gym.tltl.online import PrefixMonitor
 from tl_gym.tltl.parser import parse
-from tl_gym.tltl.smooth import check_smoothable_rho_max
 
 REWARDS = ("exact", "smooth")
 REWARD_MODES = ("terminal", "dense", "potential")
@@ -68,6 +67,12 @@ class RewardSettings:
         if not isinstance(self.observe_monitor, bool):
             raise TypeError(f"observe_monitor must be True or False, got {self.observe_monitor!r}")
 
+    def check_smoothable(self, formula: Formula) -> None:
+        """Refuse a ``rho_max`` the smoothing cannot tell from ∞ in ``formula`` (`check_smoothable_rho_max`)."""
+        from tl_gym.tltl.smooth import check_smoothable_rho_max  # the smoothing engine loads when smoothing is asked
+
+        check_smoothable_rho_max(formula, self.beta, self.rho_max)
+
     @property
     def smooth_beta(self) -> float | None:
         """The β of the terminal reward's smoothed robustness (``reward="smooth"``), else None."""
@@ -103,39 +108,47 @@ class RewardSettings:
         return cls(**own), {k: v for k, v in kwargs.items() if k not in names}
 
 
-def _setting(name: str, settable: bool) -> property:
-    """An attribute that reads ``self.settings.<name>``; a settable one replaces the settings, checked again."""
+def _setting(name: str) -> property:
+    """A read-only attribute: ``self.settings.<name>``."""
 
     def get(self: Any) -> Any:
         return getattr(self.settings, name)
 
-    def set_(self: Any, value: Any) -> None:
-        if not settable:
-            raise AttributeError(f"{name} is fixed when the env is built (its monitors and spaces depend on it)")
-        self.settings = dataclasses.replace(self.settings, **{name: value})
+    def refuse(self: Any, value: Any) -> None:
+        raise AttributeError(f"{name} is fixed when the env is built (its spec, monitors, observation bounds and "
+                             f"checks are made with it): make the env again with {name}={value!r}")
 
-    return property(get, set_, doc=f"The reward setting ``{name}`` (`RewardSettings`).")
+    return property(get, refuse, doc=f"The reward setting ``{name}`` (`RewardSettings`), fixed at construction.")
 
 
 class RewardSettingsAttributes:
-    """The reward settings as attributes (``env.satisfaction_bonus``, ``env.clip``, ...), all read from ``settings``.
+    """The reward settings as attributes (``env.satisfaction_bonus``, ``env.clip``, ...), read from ``settings``.
 
-    What the env pays is what these say: setting ``reward``, ``beta``, ``clip``, ``gamma`` or
-    ``satisfaction_bonus`` (SB3's ``venv.set_attr("satisfaction_bonus", 5.0)``, an annealed bonus) replaces
-    ``settings``, checked as at construction; ``reward_mode``, ``rho_max``, ``observe_monitor`` and
-    ``monitor_scale``, which the monitors and spaces are built with, cannot be set.
+    Read-only: what the env pays, its recorded spec, its monitors' features and bounds and the checks made
+    at construction all follow the settings it was built with, so a value set later (as plain attributes
+    once allowed) would pay one thing and record or observe another. Make the env again to change one.
     """
 
     settings: RewardSettings
-    reward = _setting("reward", settable=True)
-    beta = _setting("beta", settable=True)
-    clip = _setting("clip", settable=True)
-    gamma = _setting("gamma", settable=True)
-    satisfaction_bonus = _setting("satisfaction_bonus", settable=True)
-    reward_mode = _setting("reward_mode", settable=False)
-    rho_max = _setting("rho_max", settable=False)
-    observe_monitor = _setting("observe_monitor", settable=False)
-    monitor_scale = _setting("monitor_scale", settable=False)
+    reward = _setting("reward")
+    beta = _setting("beta")
+    clip = _setting("clip")
+    gamma = _setting("gamma")
+    satisfaction_bonus = _setting("satisfaction_bonus")
+    reward_mode = _setting("reward_mode")
+    rho_max = _setting("rho_max")
+    observe_monitor = _setting("observe_monitor")
+    monitor_scale = _setting("monitor_scale")
+
+
+def _wraps_a_tl_wrapper(env: gym.Env) -> bool:
+    """Whether a `TLTLRewardWrapper` lies somewhere below ``env`` (itself included)."""
+    layer: Any = env
+    while isinstance(layer, gym.Wrapper):
+        if isinstance(layer, TLTLRewardWrapper):
+            return True
+        layer = layer.env
+    return False
 
 
 def _clip(value: Any, bound: float) -> Any:
@@ -281,7 +294,7 @@ class TLTLRewardWrapper(RewardSettingsAttributes, gym.Wrapper, gym.utils.RecordC
         check_finite("env_reward_weight", env_reward_weight)
         check_count("horizon", horizon, allow_none=True)  # checked with the view or without: it goes into the spec
         if settings.reward == "smooth":  # at construction, not at the first episode's end
-            check_smoothable_rho_max(formula, settings.beta, settings.rho_max)
+            settings.check_smoothable(formula)
         if not isinstance(env, gym.Env):
             raise TypeError(f"env must be a gymnasium.Env, got {type(env).__name__}")
         if not isinstance(end_on_violation, bool):
@@ -312,6 +325,7 @@ class TLTLRewardWrapper(RewardSettingsAttributes, gym.Wrapper, gym.utils.RecordC
         #: agents compare with a time limit outside the wrapper (`tl_gym.agents.horizon.check_time_limits`)
         self.episode_length = length
         self.settings = settings
+        self._over_a_tl_wrapper = _wraps_a_tl_wrapper(env)  # then the info's is_success is another formula's
         self.env_reward_weight = float(env_reward_weight)
         self._reader = reader
         self.monitor_view = view
@@ -423,8 +437,8 @@ class TLTLRewardWrapper(RewardSettingsAttributes, gym.Wrapper, gym.utils.RecordC
         trace = self._trace_arrays()
         if not trace:  # a formula that reads no signal still needs the trace's length
             trace = {"_": np.zeros(len(self._rows))}
-        if "is_success" in info and ENV_IS_SUCCESS not in info:  # the env's own (parking-v0's: in the slot now),
-            info[ENV_IS_SUCCESS] = info["is_success"]  # kept beside the formula's (an inner TL wrapper's kept its)
+        if "is_success" in info and not self._over_a_tl_wrapper:  # the env's own (parking-v0's: in the slot now),
+            info[ENV_IS_SUCCESS] = info["is_success"]  # kept beside the formula's; an inner TL wrapper keeps the env's
         info.update(terminal_info(self.formula, trace, self.rho_max, self.settings.smooth_beta))
         if not self._reader.names:
             info["trace"] = Trace({})
