@@ -54,15 +54,14 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from tl_gym.wrapper import MONITOR_KEY, TLTLRewardWrapper, env_info
+from tl_gym.wrapper import MONITOR_KEY, TLTLRewardWrapper, env_info, find_wrapper
 
-W = TypeVar("W", bound=gym.Wrapper)
 ACHIEVED, DESIRED = "achieved_goal", "desired_goal"
 #: How `GoalRelabeller.sample` picks the goals of an episode's relabellings.
 RELABEL_STRATEGIES = ("future", "satisfied")
@@ -269,16 +268,6 @@ class GoalRelabeller:
         picked = [satisfied[i] for i in rng.permutation(len(satisfied))[:n_goals]]
         picked += [every[i] for i in rng.integers(0, len(every), size=n_goals - len(picked))]
         return picked
-
-
-def find_wrapper(env: gym.Env, kind: type[W]) -> W | None:
-    """The outermost wrapper of type ``kind`` in ``env``'s chain of wrappers; None if there is none."""
-    layer: Any = env
-    while isinstance(layer, gym.Wrapper):
-        if isinstance(layer, kind):
-            return layer
-        layer = layer.env
-    return None
 
 
 def _base(obs: Any) -> dict[str, Any]:

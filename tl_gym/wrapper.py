@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping
-from typing import Any, SupportsFloat
+from typing import Any, SupportsFloat, TypeVar
 
 import gymnasium as gym
 import numpy as np
@@ -141,14 +141,17 @@ class RewardSettingsAttributes:
     monitor_scale = _setting("monitor_scale")
 
 
-def _wraps_a_tl_wrapper(env: gym.Env) -> bool:
-    """Whether a `TLTLRewardWrapper` lies somewhere below ``env`` (itself included)."""
+W = TypeVar("W", bound=gym.Wrapper)
+
+
+def find_wrapper(env: gym.Env, kind: type[W]) -> W | None:
+    """The outermost wrapper of type ``kind`` in ``env``'s chain of wrappers; None if there is none."""
     layer: Any = env
     while isinstance(layer, gym.Wrapper):
-        if isinstance(layer, TLTLRewardWrapper):
-            return True
+        if isinstance(layer, kind):
+            return layer
         layer = layer.env
-    return False
+    return None
 
 
 def _clip(value: Any, bound: float) -> Any:
@@ -325,7 +328,7 @@ class TLTLRewardWrapper(RewardSettingsAttributes, gym.Wrapper, gym.utils.RecordC
         #: agents compare with a time limit outside the wrapper (`tl_gym.agents.horizon.check_time_limits`)
         self.episode_length = length
         self.settings = settings
-        self._over_a_tl_wrapper = _wraps_a_tl_wrapper(env)  # then the info's is_success is another formula's
+        self._over_a_tl_wrapper = find_wrapper(env, TLTLRewardWrapper) is not None  # its is_success: another formula's
         self.env_reward_weight = float(env_reward_weight)
         self._reader = reader
         self.monitor_view = view
