@@ -371,13 +371,12 @@ class Formula:
         Every other evaluation method of a formula raises the same on the same input.
         """
         from tl_gym.tltl import exact, fused
+        from tl_gym.tltl.trace import check_backend
 
-        if backend == "numba":
+        if check_backend(backend) == "numba":
             return fused.robustness(self, trace, rho_max)
         if backend == "auto":
             return fused.auto_robustness(self, trace, rho_max)
-        if backend != "numpy":
-            raise ValueError(f"backend must be 'auto', 'numpy' or 'numba', got {backend!r}")
         return exact.robustness(self, trace, rho_max)
 
     def robustness_over_time(self, trace: Trace, rho_max: float = math.inf) -> np.ndarray:

@@ -52,13 +52,12 @@ from tl_gym.tltl import operators as ops
 from tl_gym.tltl.ast import Formula
 from tl_gym.tltl.expressions import evaluate_with_gradient, margin_bound
 from tl_gym.tltl.plan import Plan, Step, cached, chosen, compile_plan
-from tl_gym.tltl.trace import Trace, check_beta, check_rho_max, chunks, is_torch, prepare
+from tl_gym.tltl.trace import Trace, check_backend, check_beta, check_rho_max, chunks, is_torch, prepare
 
 _INF = ops.INF  # stands for +∞ in β-scaled units
 _MAX_QUADRATIC_ELEMENTS = 1 << 22  # cap on T²·N per chunk of a quadratic U/T
 FORMS = ("nested", "linear")
 _N_ARGS = 11  # non-tensor arguments of the autograd Function
-BACKENDS = ("auto", "numpy", "numba")
 
 # A step's function: (group, step, operand values) -> (value, backward, gradient factor)
 _Result = tuple[Any, Callable[[np.ndarray], Any], float]
@@ -493,8 +492,7 @@ def _check(formula: Formula, beta: float, rho_max: float, form: str, backend: st
     check_smoothable_rho_max(formula, beta, rho_max)
     if form not in FORMS:
         raise ValueError(f"form must be one of {FORMS}, got {form!r}")
-    if backend not in BACKENDS:
-        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    check_backend(backend)
     return beta, rho_max
 
 

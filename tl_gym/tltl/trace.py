@@ -34,6 +34,17 @@ def chunks(n: int, length: int) -> list[slice]:
     return [slice(start, min(start + rows, n)) for start in range(0, n, rows)] or [slice(0, 0)]
 
 
+#: The evaluators' backends: numpy's plan, numba's compiled kernel, or the first until the second pays.
+BACKENDS = ("auto", "numpy", "numba")
+
+
+def check_backend(backend: Any) -> str:
+    """A backend name, checked (`BACKENDS`)."""
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    return backend
+
+
 def check_beta(beta: Any) -> float:
     """The smoothing's β, checked: a finite real number > 0 (numpy's scalars too); booleans are refused."""
     return check_positive("beta", beta)
