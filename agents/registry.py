@@ -77,12 +77,15 @@ def check_sb3_name(name: str) -> None:
     except ValueError as exc:
         if name.lower() in SB3_CONTRIB_ALGORITHMS:  # known, but sb3-contrib does not import: its message says why
             raise
-        known = (*EPISODIC_AGENTS, *SB3_ALGORITHMS, *SB3_CONTRIB_ALGORITHMS)
-        hint = did_you_mean(name.lower(), known)
-        raise ValueError(
-            f"unknown agent {name!r}{hint}: {', '.join(EPISODIC_AGENTS)}, a stable-baselines3 algorithm "
+        raise ValueError(unknown_agent_message(name)) from exc
+
+
+def unknown_agent_message(name: str) -> str:
+    """What an unknown agent name is told: the nearest known name and every kind of name an agent takes."""
+    hint = did_you_mean(name.lower(), (*EPISODIC_AGENTS, *SB3_ALGORITHMS, *SB3_CONTRIB_ALGORITHMS))
+    return (f"unknown agent {name!r}{hint}: {', '.join(EPISODIC_AGENTS)}, a stable-baselines3 algorithm "
             f"({', '.join(SB3_ALGORITHMS)}), an sb3-contrib one ({', '.join(SB3_CONTRIB_ALGORITHMS)}) "
-            f"or 'package.module:Name'") from exc
+            f"or 'package.module:Name'")
 
 
 def is_episodic(name: str) -> bool:

@@ -166,16 +166,14 @@ def _budget(value: Any, task: int | None, where: str) -> int:
 
 
 def _check_agent(name: Any, where: str) -> str:
-    from tl_gym.agents.registry import SB3_ALGORITHMS, SB3_CONTRIB_ALGORITHMS, check_agent_name, is_known_agent
+    from tl_gym.agents.registry import check_agent_name, is_known_agent, unknown_agent_message
 
     try:
         check_agent_name(name)
     except ValueError as exc:
         raise ConfigError(f"{where}: {exc}") from None
     if not is_known_agent(name):
-        raise ConfigError(f"{where}: unknown agent {name!r}: use tlps, reps, an SB3 algorithm "
-                          f"({', '.join(SB3_ALGORITHMS)}), an sb3-contrib one ({', '.join(SB3_CONTRIB_ALGORITHMS)}) "
-                          f"or package.module:Name")
+        raise ConfigError(f"{where}: {unknown_agent_message(name)}")
     return name
 
 
