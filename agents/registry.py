@@ -22,14 +22,12 @@ from typing import Any
 
 from tl_gym.checks import did_you_mean
 
+from .sb3_settings import SB3_ALGORITHMS, SB3_CONTRIB_ALGORITHMS, check_sb3_hyperparameters, resolve_algorithm
+
 #: The episodic agents by name -> "module:class"; any other plain name is an SB3 algorithm.
 EPISODIC_AGENTS = {"tlps": "tl_gym.agents.tlps:TLPS", "reps": "tl_gym.agents.reps:REPS"}
 #: The adapter every SB3 algorithm name is trained through.
 SB3_AGENT = "tl_gym.agents.sb3:SB3Agent"
-#: The names a stable-baselines3 algorithm takes here.
-SB3_ALGORITHMS = ("a2c", "ddpg", "dqn", "ppo", "sac", "td3")
-#: The names of sb3-contrib's algorithms (``pip install sb3-contrib``; imported only for one of these names).
-SB3_CONTRIB_ALGORITHMS = ("ars", "crossq", "maskableppo", "qrdqn", "recurrentppo", "tqc", "trpo")
 
 
 def is_known_agent(name: str) -> bool:
@@ -70,8 +68,6 @@ def check_sb3_name(name: str) -> None:
         ...
         ValueError: unknown agent 'sca' (did you mean 'sac'?): tlps, reps, a stable-baselines3 algorithm ...
     """
-    from tl_gym.agents.sb3_settings import resolve_algorithm
-
     try:
         resolve_algorithm(name)
     except ValueError as exc:
@@ -137,8 +133,6 @@ def check_hyperparameters(name: str, hyperparameters: Mapping[str, Any]) -> None
     if is_episodic(name):
         agent_class(name)._make_config(dict(hyperparameters))
     else:
-        from tl_gym.agents.sb3_settings import check_sb3_hyperparameters
-
         check_sb3_hyperparameters(name, hyperparameters)
 
 

@@ -30,7 +30,10 @@ import numpy as np
 from tl_gym.checks import check_count, check_fraction, check_positive, did_you_mean
 from tl_gym.relabel import RELABEL_STRATEGIES
 
-from .registry import SB3_CONTRIB_ALGORITHMS
+#: The names a stable-baselines3 algorithm takes here.
+SB3_ALGORITHMS = ("a2c", "ddpg", "dqn", "ppo", "sac", "td3")
+#: The names of sb3-contrib's algorithms (``pip install sb3-contrib``; imported only for one of these names).
+SB3_CONTRIB_ALGORITHMS = ("ars", "crossq", "maskableppo", "qrdqn", "recurrentppo", "tqc", "trpo")
 
 #: Env steps of one TLPS iteration with the paper's settings (N = 40 episodes × T = 200).
 DEFAULT_STEPS_PER_ITERATION = 40 * 200
