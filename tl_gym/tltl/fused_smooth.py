@@ -50,6 +50,33 @@ from tl_gym.tltl import fused
 from tl_gym.tltl.expressions import postorder
 from tl_gym.tltl.operators import INF, SIGN
 from tl_gym.tltl.plan import Plan, cached, compile_plan
+from tl_gym.tltl.smooth_opcodes import (
+    ABS,
+    ADD,
+    BINARY_AT_ZERO,
+    CONST,
+    DIV,
+    EXP,
+    IMPLIES,
+    LOG,
+    MAX,
+    MIN,
+    MUL,
+    NARY,
+    NEG,
+    NEXT,
+    NOT,
+    NUM,
+    POW,
+    PRED,
+    REDUCE,
+    SQRT,
+    SQUARE,
+    SUB,
+    SUFFIX,
+    THEN_LINEAR,
+    VAR,
+)
 
 # A term more than CUT below the largest (β units) is not exponentiated: exp(-37) < 2⁻⁵³, so 1 + its weight
 # is 1 and the value does not change; its own gradient (its weight times the derivative below it) is
@@ -58,10 +85,6 @@ from tl_gym.tltl.plan import Plan, cached, compile_plan
 # any slope) the kernel exponentiates down to numpy's own floor (`tl_gym.tltl.lse`).
 CUT, EXP_FLOOR = -37.0, -700.0
 
-# step codes
-CONST, PRED, NOT, NARY, IMPLIES, NEXT, SUFFIX, REDUCE, THEN_LINEAR, BINARY_AT_ZERO = range(10)
-# expression codes
-VAR, NUM, NEG, ADD, SUB, MUL, DIV, SQUARE, POW, ABS, SQRT, EXP, LOG, MIN, MAX = range(15)
 _BINARY = {"+": ADD, "-": SUB, "*": MUL, "/": DIV, "^": POW}
 _CALLS = {"abs": ABS, "sqrt": SQRT, "exp": EXP, "log": LOG, "min": MIN, "max": MAX}
 

@@ -34,6 +34,8 @@ from tl_gym.tltl import lse
 from tl_gym.tltl.ast import Formula
 
 INF = 1e300  # stands for +∞ in β-scaled units
+#: From here on a β-scaled value cannot be told from ±∞: the smoothers refuse or read it as ±∞.
+SMOOTH_LIMIT = INF / 2
 Backward = Callable[[np.ndarray], Sequence[Any]]
 Smoothed = tuple[np.ndarray, Backward]
 

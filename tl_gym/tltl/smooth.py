@@ -55,6 +55,7 @@ from tl_gym.tltl.plan import Plan, Step, cached, chosen, compile_plan
 from tl_gym.tltl.trace import Trace, check_backend, check_beta, check_rho_max, chunks, is_torch, prepare
 
 _INF = ops.INF  # stands for +∞ in β-scaled units
+_LIMIT = ops.SMOOTH_LIMIT  # |β · value| from here on cannot be told from ±∞
 _MAX_QUADRATIC_ELEMENTS = 1 << 22  # cap on T²·N per chunk of a quadratic U/T
 FORMS = ("nested", "linear")
 _N_ARGS = 11  # non-tensor arguments of the autograd Function
@@ -163,12 +164,12 @@ class _Group:
     def check_range(self, node: nodes.Predicate, margin: np.ndarray) -> None:
         """Refuse finite predicate values too large for β units (±`_INF` stands for ±∞ there)."""
         with np.errstate(over="ignore"):
-            too_large = np.abs(margin) * self.beta >= _INF / 2
+            too_large = np.abs(margin) * self.beta >= _LIMIT
         if too_large.any():
             t, i = np.argwhere(too_large)[0]
             raise TraceError(
                 f"predicate {str(node)!r} is {margin[t, i]:.3g} at trajectory {self.first_row + i}, position {t}: "
-                f"too large to smooth (|β · value| must stay below {_INF / 2:.0e}; β = {self.beta:g})"
+                f"too large to smooth (|β · value| must stay below {_LIMIT:.0e}; β = {self.beta:g})"
             )
 
     def bad_value(self, node: nodes.Predicate, row: int, position: int) -> TraceError:
@@ -200,7 +201,7 @@ def _predicate(group: _Group, step: Step, _: list) -> _Result:
     with np.errstate(all="ignore"):
         difference = ops.margin(node.op, lhs, rhs)
     margin = np.broadcast_to(difference, (rows, group.n))
-    if group.margin_bound(node) * group.beta >= _INF / 2:  # possibly undefined or too large: look
+    if group.margin_bound(node) * group.beta >= _LIMIT:  # possibly undefined or too large: look
         with np.errstate(all="ignore"):
             suspicious = not np.isfinite(np.sum(margin))  # one cheap pass clears almost every call
         if suspicious and not np.isfinite(margin).all():
@@ -248,7 +249,7 @@ def _linear_predicate(group: _Group, step: Step, _: list) -> _Result:
     bound = group.margin_bound(node)
     low, high = (node.lhs, node.rhs) if ops.SIGN[node.op] < 0 else (node.rhs, node.lhs)  # z = β·(high − low)
     on_signal = isinstance(low, nodes.Var) or isinstance(high, nodes.Var)
-    if rows == group.length and bound * group.beta < _INF / 2 and on_signal:
+    if rows == group.length and bound * group.beta < _LIMIT and on_signal:
         # one pass: β·signal is shared by every linear predicate on the signal
         high_z, low_z = (
             group.scaled(e.name) if isinstance(e, nodes.Var) else e.value * group.beta for e in (high, low)
@@ -261,7 +262,7 @@ def _linear_predicate(group: _Group, step: Step, _: list) -> _Result:
         if not bound < 1e307 and not np.isfinite(margin).all():  # the signals are finite: only overflow is left
             t, i = np.argwhere(~np.isfinite(np.broadcast_to(margin, (rows, group.n))))[0]
             raise group.bad_value(node, i, t)
-        if bound * group.beta >= _INF / 2:
+        if bound * group.beta >= _LIMIT:
             group.check_range(node, np.broadcast_to(margin, (rows, group.n)))
         if isinstance(margin, np.ndarray):  # a fresh array: scale it in place
             margin *= group.beta
@@ -483,7 +484,7 @@ def _reductions_only(formula: Formula) -> bool:
 
 def _to_rho(z: np.ndarray, beta: float) -> np.ndarray:
     with np.errstate(invalid="ignore"):
-        return np.where(np.abs(z) >= _INF / 2, np.sign(z) * np.inf, z / beta)
+        return np.where(np.abs(z) >= _LIMIT, np.sign(z) * np.inf, z / beta)
 
 
 def _check(formula: Formula, beta: float, rho_max: float, form: str, backend: str = "numpy") -> tuple[float, float]:
@@ -506,10 +507,10 @@ def check_smoothable_rho_max(formula: Formula, beta: float, rho_max: float) -> N
     Raises:
         ValueError: naming ``rho_max`` and β.
     """
-    if (math.isfinite(rho_max) and beta * rho_max >= _INF / 2
+    if (math.isfinite(rho_max) and beta * rho_max >= _LIMIT
             and any(isinstance(node, (nodes.Constant, nodes.Next)) for node in formula.walk())):
         raise ValueError(f"rho_max={rho_max:g} is too large to smooth with β = {beta:g} (|β · rho_max| must stay "
-                         f"below {_INF / 2:.0e}); pass rho_max=inf for an unbounded ⊤")
+                         f"below {_LIMIT:.0e}); pass rho_max=inf for an unbounded ⊤")
 
 
 def _evaluate(formula: Formula, signals: dict[str, np.ndarray], n: int, length: int, beta: float, rho_max: float,
@@ -557,7 +558,7 @@ def _at_position_zero(formula: Formula, signals: dict[str, np.ndarray], n: int, 
                                      magnitudes, first_row=rows.start)
         z[:, rows] = z_part
         if jacobian:
-            unit = np.where(np.abs(z_part) >= _INF / 2, 0.0, 1.0 / beta)  # ±∞ results have zero gradient
+            unit = np.where(np.abs(z_part) >= _LIMIT, 0.0, 1.0 / beta)  # ±∞ results have zero gradient
             grads = smoother.backward(unit)
             for name in grads.keys() - jac.keys():  # not written yet: no np.zeros pass over the whole batch
                 jac[name] = np.empty((n, length))
@@ -652,7 +653,7 @@ def _autograd_function() -> Any:
             if ctx.first_only:
                 grads = _hand_over(ctx, g[0][:, None])
             else:
-                g = np.where(np.abs(ctx.z) >= _INF / 2, 0.0, g / ctx.beta)  # ±∞ results have zero gradient
+                g = np.where(np.abs(ctx.z) >= _LIMIT, 0.0, g / ctx.beta)  # ±∞ results have zero gradient
                 grads = {name: grad.T for name, grad in ctx.smoother.backward(g).items()}
             out = []
             for name, (dtype, device) in zip(ctx.names, ctx.meta):

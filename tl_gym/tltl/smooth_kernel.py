@@ -15,7 +15,8 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from tl_gym.tltl.fused_smooth import (
+from tl_gym.tltl.operators import INF, SMOOTH_LIMIT
+from tl_gym.tltl.smooth_opcodes import (
     ABS,
     ADD,
     BINARY_AT_ZERO,
@@ -42,9 +43,8 @@ from tl_gym.tltl.fused_smooth import (
     THEN_LINEAR,
     VAR,
 )
-from tl_gym.tltl.operators import INF
 
-HALF = INF / 2  # |β·margin| from here on cannot be told from ±∞
+HALF = SMOOTH_LIMIT  # |β·margin| from here on cannot be told from ±∞
 
 @njit(cache=True, error_model="numpy")
 def expression(code: Any, numbers: Any, start: int, stop: int, X: Any, sigs: Any, i: int, nt: int) -> None:
