@@ -403,6 +403,17 @@ def describe_env_source(env: Any, env_kwargs: dict[str, Any]) -> dict[str, Any]:
         return recorded if unrebuildable else {"id": spec.id, "kwargs": None, "spec_json": None}
 
 
+def _is_the_ids_own(spec: gym.envs.registration.EnvSpec) -> bool:
+    """Whether ``spec`` is what its id makes with its kwargs (the entry point's own wrappers and time limit)."""
+    try:
+        made = gym.make(spec.id, **spec.kwargs)
+    except Exception:  # noqa: BLE001 - an id that no longer makes: the spec rebuilds it
+        return False
+    own = made.spec
+    made.close()
+    return own.additional_wrappers == spec.additional_wrappers and own.max_episode_steps == spec.max_episode_steps
+
+
 def _registered_steps(env_id: str) -> int | None:
     """The ``max_episode_steps`` the registry gives ``env_id`` (None when it is not registered)."""
     try:
@@ -424,6 +435,8 @@ def _env_from_source(source: Mapping[str, Any], path: Any, *, by_id: bool = Fals
             f"{path} was saved on a {source.get('id')} wrapped in {', '.join(unrebuildable)}, which Gymnasium cannot "
             f"rebuild; pass env= (the env wrapped again, or env={source.get('id')!r} for it without them)"
         )
+    if spec is not None and unrebuildable and source.get("kwargs") is not None and _is_the_ids_own(spec):
+        return source["id"], dict(source["kwargs"])  # the id's own vector env (the batched car) rather than copies
     if spec is not None:
         return gym.make(spec), None
     if source.get("id") is not None and source.get("kwargs") is not None:

@@ -531,7 +531,8 @@ def check_sb3_hyperparameters(algo: Any, hyperparameters: Mapping[str, Any]) -> 
 def check_tensorboard(algo_kwargs: Mapping[str, Any]) -> None:
     """Refuse ``tensorboard_log`` without the tensorboard package, which SB3 needs only at its first ``learn()``.
 
-    Checked for an agent being built, not one being loaded: a saved agent acts and evaluates without it.
+    Checked for an agent being built and when an agent learns, not when one is loaded: a saved agent acts and
+    evaluates without it.
     """
     value = algo_kwargs.get("tensorboard_log")
     if value is not None and importlib.util.find_spec("tensorboard") is None:

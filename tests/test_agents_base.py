@@ -418,6 +418,11 @@ def test_load_asks_for_the_env_when_a_wrapper_cannot_be_rebuilt_and_the_saved_id
 
 
 
+def test_a_car_saved_in_a_monitor_like_wrapper_loads_by_id_on_the_batched_car(tmp_path):
+    path = REPS(Watched(gym.make("TLCarNav-v0")), seed=0, n_episodes=2).learn(1).save(tmp_path / "car.zip")
+    assert type(Agent.load(path, env="TLCarNav-v0").env).__name__ == "CarNavVectorEnv"  # not SyncVectorEnv copies
+
+
 def test_the_saved_id_keeps_the_wrappers_gymnasium_can_rebuild_and_the_time_limit(tmp_path):
     """Only the Monitor-like wrapper is left out: the TL wrapper and the time limit around Pendulum were dropped too."""
     def wrapped():

@@ -445,6 +445,10 @@ def test_env_info_gives_the_envs_own_info_back_with_stacked_wrappers_and_violati
                                signals={"b": 2})  # an env with no is_success of its own: none comes back
     _, info = run(silent)
     assert "env_is_success" not in info and "is_success" not in env_info(info)
+    early = TLTLRewardWrapper(TLTLRewardWrapper(ClaimsSuccess(Scripted()), "F(a > 0.5)", signals={"a": 0}),
+                              "G(b < 0.5)", signals={"b": 2}, end_on_violation=True)  # the outer ends first, at s_3
+    _, info = run(early)
+    assert info["env_is_success"] is True and env_info(info) == {"t": 3, "is_success": True}
     broken = TLTLRewardWrapper(ClaimsSuccess(Scripted()), "G(b < 0.5)", signals={"b": 2}, end_on_violation=True)
     _, info = run(broken)  # b reaches 0.65 at s_3
     assert info["violated"] == "G b < 0.5" and info["is_success"] is False

@@ -440,8 +440,11 @@ class TLTLRewardWrapper(RewardSettingsAttributes, gym.Wrapper, gym.utils.RecordC
         trace = self._trace_arrays()
         if not trace:  # a formula that reads no signal still needs the trace's length
             trace = {"_": np.zeros(len(self._rows))}
-        if "is_success" in info and not self._over_a_tl_wrapper:  # the env's own (parking-v0's: in the slot now),
-            info[ENV_IS_SUCCESS] = info["is_success"]  # kept beside the formula's; an inner TL wrapper keeps the env's
+        # the env's own (parking-v0's: in the slot now), kept beside the formula's; an inner TL wrapper that ended
+        # its episode on this step has kept it already, and its is_success is its formula's
+        inner_ended = self._over_a_tl_wrapper and "satisfied" in info
+        if "is_success" in info and ENV_IS_SUCCESS not in info and not inner_ended:
+            info[ENV_IS_SUCCESS] = info["is_success"]
         info.update(terminal_info(self.formula, trace, self.rho_max, self.settings.smooth_beta))
         if not self._reader.names:
             info["trace"] = Trace({})
