@@ -21,7 +21,7 @@ from tl_gym.envs.tasks import task_formula
 from tests import strategies as S
 from tl_gym import TraceError, parse
 from tl_gym.tltl import ast as nodes
-from tl_gym.tltl import fused, fused_smooth, smooth
+from tl_gym.tltl import fused, fused_smooth, smooth, smooth_opcodes
 from tl_gym.tltl.trace import prepare
 
 pytest.importorskip("numba")
@@ -83,7 +83,7 @@ def test_task_formulas_on_random_paths(form):
 def test_goal_boxes_are_smoothed_once():
     """``g & X !g`` with g a four-predicate box reads g's value (log-sum-exp is associative)."""
     program = fused_smooth.program_for(task_formula(2, "leave"), "linear")
-    counts = program.steps[:, 4][program.steps[:, 0] == fused_smooth.NARY]
+    counts = program.steps[:, 4][program.steps[:, 0] == smooth_opcodes.NARY]
     assert sorted(counts.tolist()) == [2, 2, 2, 2, 4, 4, 4, 7]
 
 

@@ -47,36 +47,10 @@ import numpy as np
 
 from tl_gym.tltl import ast as nodes
 from tl_gym.tltl import fused
+from tl_gym.tltl import smooth_opcodes as op
 from tl_gym.tltl.expressions import postorder
 from tl_gym.tltl.operators import INF, SIGN
 from tl_gym.tltl.plan import Plan, cached, compile_plan
-from tl_gym.tltl.smooth_opcodes import (
-    ABS,
-    ADD,
-    BINARY_AT_ZERO,
-    CONST,
-    DIV,
-    EXP,
-    IMPLIES,
-    LOG,
-    MAX,
-    MIN,
-    MUL,
-    NARY,
-    NEG,
-    NEXT,
-    NOT,
-    NUM,
-    POW,
-    PRED,
-    REDUCE,
-    SQRT,
-    SQUARE,
-    SUB,
-    SUFFIX,
-    THEN_LINEAR,
-    VAR,
-)
 
 # A term more than CUT below the largest (β units) is not exponentiated: exp(-37) < 2⁻⁵³, so 1 + its weight
 # is 1 and the value does not change; its own gradient (its weight times the derivative below it) is
@@ -85,8 +59,8 @@ from tl_gym.tltl.smooth_opcodes import (
 # any slope) the kernel exponentiates down to numpy's own floor (`tl_gym.tltl.lse`).
 CUT, EXP_FLOOR = -37.0, -700.0
 
-_BINARY = {"+": ADD, "-": SUB, "*": MUL, "/": DIV, "^": POW}
-_CALLS = {"abs": ABS, "sqrt": SQRT, "exp": EXP, "log": LOG, "min": MIN, "max": MAX}
+_BINARY = {"+": op.ADD, "-": op.SUB, "*": op.MUL, "/": op.DIV, "^": op.POW}
+_CALLS = {"abs": op.ABS, "sqrt": op.SQRT, "exp": op.EXP, "log": op.LOG, "min": op.MIN, "max": op.MAX}
 
 
 @dataclass(frozen=True)
@@ -179,9 +153,9 @@ def encode(plan: Plan, names: tuple[str, ...], form: str) -> Program | None:
                 isinstance(node, nodes.Then) and not step.first and form != "linear"):
             return None
         if isinstance(node, nodes.Constant):
-            kind, sign = CONST, 1 if node.value else -1
+            kind, sign = op.CONST, 1 if node.value else -1
         elif isinstance(node, nodes.Predicate):
-            kind, sign = PRED, int(SIGN[node.op])
+            kind, sign = op.PRED, int(SIGN[node.op])
             start = len(code)  # a signal or a number is read directly (kind 1 or 2), arithmetic from its row (0)
             sides = [(1, names.index(side.name)) if isinstance(side, nodes.Var) else
                      (0, _expression(side, names, code, numbers)) if not isinstance(side, nodes.Num) else (2, -1)
@@ -189,31 +163,31 @@ def encode(plan: Plan, names: tuple[str, ...], form: str) -> Program | None:
             stop = len(code)
             for m, (side_kind, _) in enumerate(sides):
                 if side_kind == 2:
-                    code.append([NUM, 0, 0])
+                    code.append([op.NUM, 0, 0])
                     numbers.append((node.lhs, node.rhs)[m].value)  # type: ignore[attr-defined]
                     sides[m] = (2, len(code) - 1)
             expression = [start, stop, sides[0][1], sides[1][1], sides[0][0], sides[1][0]]
         elif isinstance(node, nodes.Not):
-            kind = NOT
+            kind = op.NOT
         elif isinstance(node, (nodes.And, nodes.Or)):
-            kind, sign = NARY, -1 if isinstance(node, nodes.And) else 1
+            kind, sign = op.NARY, -1 if isinstance(node, nodes.And) else 1
             ins = _reuse(ins, type(node), nary, step.first, plan)
             nary.append((k, type(node), tuple(step.inputs)))
             size = len(ins)
         elif isinstance(node, nodes.Implies):
-            kind, size = IMPLIES, 2
+            kind, size = op.IMPLIES, 2
         elif isinstance(node, nodes.Next):
-            kind = NEXT
+            kind = op.NEXT
         elif isinstance(node, (nodes.Eventually, nodes.Always)):
-            kind, sign = (REDUCE if step.first else SUFFIX), (1 if isinstance(node, nodes.Eventually) else -1)
+            kind, sign = (op.REDUCE if step.first else op.SUFFIX), (1 if isinstance(node, nodes.Eventually) else -1)
             size = 1 if step.first else 2
         elif isinstance(node, nodes.Then) and not step.first:
-            kind, size = THEN_LINEAR, 6
+            kind, size = op.THEN_LINEAR, 6
         elif isinstance(node, (nodes.Until, nodes.Then)):
-            kind, sign, size = BINARY_AT_ZERO, (-1 if isinstance(node, nodes.Until) else 1), 5
+            kind, sign, size = op.BINARY_AT_ZERO, (-1 if isinstance(node, nodes.Until) else 1), 5
         else:
             return None
-        linear.append(all(linear[j] for j in step.inputs) and (kind != PRED or 0 not in expression[4:]))
+        linear.append(all(linear[j] for j in step.inputs) and (kind != op.PRED or 0 not in expression[4:]))
         steps.append([kind, int(step.first), sign, len(operands), len(ins), weights])
         operands += ins
         predicates.append(expression)
@@ -252,15 +226,15 @@ def _expression(expr: nodes.Expr, names: tuple[str, ...], code: list[list[int]],
     stack: list[int] = []
     for e in postorder(expr):
         if isinstance(e, nodes.Var):
-            row = [VAR, names.index(e.name), 0]
+            row = [op.VAR, names.index(e.name), 0]
         elif isinstance(e, nodes.Num):
-            row = [NUM, 0, 0]
+            row = [op.NUM, 0, 0]
         elif isinstance(e, nodes.Neg):
-            row = [NEG, stack.pop(), 0]
+            row = [op.NEG, stack.pop(), 0]
         elif isinstance(e, nodes.BinOp):
             b, a = stack.pop(), stack.pop()
             square = e.op == "^" and isinstance(e.right, nodes.Num) and e.right.value == 2.0
-            row = [SQUARE if square else _BINARY[e.op], a, b]
+            row = [op.SQUARE if square else _BINARY[e.op], a, b]
         elif isinstance(e, nodes.Call):
             args = stack[len(stack) - len(e.args):]
             del stack[len(stack) - len(e.args):]
