@@ -387,20 +387,25 @@ def describe_env_source(env: Any, env_kwargs: dict[str, Any]) -> dict[str, Any]:
         return {"id": None, "kwargs": None, "spec_json": None}
     kwargs = {k: v for k, v in spec.kwargs.items() if k not in _VECTOR_KEYS}
     recorded = {"id": spec.id, "kwargs": to_json(kwargs) if is_jsonable(kwargs) else None, "spec_json": None}
-    wrappers = getattr(spec, "additional_wrappers", ())
-    if not wrappers and spec.max_episode_steps == _registered_steps(spec.id):
-        return recorded
-    unrebuildable = [wrapper.name for wrapper in wrappers if wrapper.kwargs is None]
+    spec, unrebuildable = _without_unrebuildable(spec)
     if unrebuildable:
         recorded["unrebuildable_wrappers"] = unrebuildable
-        spec = dataclasses.replace(spec, additional_wrappers=tuple(w for w in wrappers if w.kwargs is not None))
-        if not spec.additional_wrappers and spec.max_episode_steps == _registered_steps(spec.id):
-            return recorded  # the id and its kwargs are the env: the id's own vector env (the batched car) is kept
+    if not spec.additional_wrappers and spec.max_episode_steps == _registered_steps(spec.id):
+        return recorded  # the id and its kwargs are the env (its own vector env, the batched car, is kept)
     try:
         return {**recorded, "spec_json": spec.to_json()}
     except Exception:  # noqa: BLE001 - callables in kwargs or the entry point: then the user passes env= on load
         # (the saved id named as env= then makes the id with its kwargs, when those could be written)
         return recorded if unrebuildable else {"id": spec.id, "kwargs": None, "spec_json": None}
+
+
+def _without_unrebuildable(spec: gym.envs.registration.EnvSpec) -> tuple[gym.envs.registration.EnvSpec, list[str]]:
+    """``spec`` without the wrappers Gymnasium cannot recreate (no arguments recorded: SB3's Monitor); their names."""
+    names = [wrapper.name for wrapper in spec.additional_wrappers if wrapper.kwargs is None]
+    if not names:
+        return spec, []
+    kept = tuple(wrapper for wrapper in spec.additional_wrappers if wrapper.kwargs is not None)
+    return dataclasses.replace(spec, additional_wrappers=kept), names
 
 
 def _is_the_ids_own(spec: gym.envs.registration.EnvSpec) -> bool:
@@ -426,10 +431,9 @@ def _env_from_source(source: Mapping[str, Any], path: Any, *, by_id: bool = Fals
     """The env (or id and kwargs) a file records; ``by_id``: the user named the saved id as ``env``."""
     spec = gym.envs.registration.EnvSpec.from_json(source["spec_json"]) if source.get("spec_json") else None
     unrebuildable = list(source.get("unrebuildable_wrappers", ()))
-    if spec is not None and any(w.kwargs is None for w in spec.additional_wrappers):  # a file saved before they were
-        unrebuildable = [w.name for w in spec.additional_wrappers if w.kwargs is None]
-        spec = dataclasses.replace(spec, additional_wrappers=tuple(w for w in spec.additional_wrappers
-                                                                   if w.kwargs is not None))
+    if spec is not None:  # a file saved before they were left out keeps them in its spec
+        spec, left_out = _without_unrebuildable(spec)
+        unrebuildable = unrebuildable or left_out
     if unrebuildable and not by_id:
         raise IncompatibleSaveError(
             f"{path} was saved on a {source.get('id')} wrapped in {', '.join(unrebuildable)}, which Gymnasium cannot "
