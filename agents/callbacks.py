@@ -24,6 +24,12 @@ from tl_gym.checks import check_count, check_finite
 
 from .serialization import write_atomic
 
+#: Reset seed of the first episode of each evaluation along training (`EvalCallback`; the benchmark runner's
+#: evaluations, plus the run's seed there): far above the training episodes' seeds (0, 1, …) and apart from the
+#: runner's final evaluation (``FINAL_EVAL_SEED``) and the CLI's ``eval`` default (12345), so that no evaluation
+#: replays an episode the agent trained on or one reported elsewhere.
+ALONG_TRAINING_EVAL_SEED = 20_000_033
+
 Row = dict[str, Any]
 
 
@@ -111,7 +117,8 @@ class EvalCallback(AbstractCallback):
     ``EvalCallback(log_path=...)`` writes ``evaluations.npz``: a long run can be watched.
     """
 
-    def __init__(self, every: int, n_episodes: int = 100, best_path: str | Path | None = None, seed: int = 20_000_033,
+    def __init__(self, every: int, n_episodes: int = 100, best_path: str | Path | None = None,
+                 seed: int = ALONG_TRAINING_EVAL_SEED,
                  log_path: str | Path | None = None):
         self.every, self.n_episodes = check_count("every", every), check_count("n_episodes", n_episodes)
         self.seed = seed

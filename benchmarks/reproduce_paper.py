@@ -99,7 +99,8 @@ HOW_TO_READ = (
     "Columns: *final mean ρ* is the exact robustness averaged over the episodes sampled for the last update, "
     "then over seeds (± the 95% Student-t half-width); *final success* the share of those episodes with ρ > 0; "
     "*eval success* the final policy's mean action on 200 fresh episodes (deterministic); *first it.* columns "
-    "give the median first iteration over the seeds that got there and how many did; *env steps* and *wall time* "
+    "give the median first iteration over all the seeds (a seed that never got there counting as later than any; "
+    "*never* where the median seed did not) and how many got there; *env steps* and *wall time* "
     "(training only, one process, one torch thread) are per run, averaged over seeds. The machine was shared with "
     "other jobs, so wall times are upper bounds."
 )
@@ -158,7 +159,7 @@ def claims(task: Any, rows: Sequence[results.GroupSummary]) -> str:
         firsts = getattr(tlps, key)
         median, share = results.median_first(firsts), f"{sum(f is not None for f in firsts)}/{len(firsts)} seeds"
         if median is None:
-            verdict = f"**not reproduced**: no seed reached {what}"
+            verdict = f"**not reproduced**: the median seed never reached {what} ({share})"
         else:
             verdict = (f"**agrees** ({share}, median iteration {median:g} ≤ {paper})" if median <= paper
                        else f"**slower than the paper** ({share}, median iteration {median:g} > {paper})")
@@ -171,14 +172,15 @@ def claims(task: Any, rows: Sequence[results.GroupSummary]) -> str:
                  for beta, row in betas]
         medians = [results.median_first(getattr(row, key)) for _, row in betas]
         if any(m is None for m in medians):
-            verdict = "not every β got there"
+            verdict = "the median seed of some β never got there"
         elif all(b <= a for a, b in zip(medians, medians[1:])) and medians[-1] <= 0.8 * medians[0]:
             verdict = "**agrees**: the medians fall as β grows"
         else:
             verdict = (f"**not reproduced here**: the medians range {min(medians):g}–{max(medians):g} "
                        "with no consistent decrease as β grows")
         lines.append(f"- *Larger β converges faster, with diminishing returns.* First iteration with {what} "
-                     f"(median, seeds that got there): " + "; ".join(parts) + f". {verdict}.")
+                     "(median over the seeds, a seed that never got there later than any): " + "; ".join(parts)
+                     + f". {verdict}.")
     if task == 2 and tlps is not None and reps is not None:
         ahead = _ahead(tlps, reps)
         lines.append(

@@ -143,16 +143,22 @@ def summarise(task: Any, label: str, runs: Sequence[RunResult]) -> GroupSummary:
 
 
 def median_first(firsts: Sequence[float | None]) -> float | None:
-    """Median over the seeds that got there of when they first did (iteration, env steps); None: no seed did."""
-    reached = [f for f in firsts if f is not None]
-    return float(np.median(reached)) if reached else None
+    """Median over all the seeds of when each first got there (iteration, env steps); None: the median seed never did.
+
+    A seed that never got there (None) counts as later than any that did, so the median speaks for the seeds run,
+    not for the lucky ones: with 2 of 5 seeds there, the median seed is not, and the result is None.
+    """
+    if not firsts:
+        return None
+    median = float(np.median([math.inf if f is None else f for f in firsts]))
+    return None if math.isinf(median) or math.isnan(median) else median
 
 
 def first_text(firsts: Sequence[float | None], number: str = "g") -> str:
-    """Median first iteration (or env steps, ...) over the seeds that got there, and how many did."""
+    """Median first iteration (or env steps, ...) over all the seeds (`median_first`), and how many got there."""
     median = median_first(firsts)
     reached = sum(f is not None for f in firsts)
-    return f"never (0/{len(firsts)})" if median is None else f"{median:{number}} ({reached}/{len(firsts)})"
+    return f"never ({reached}/{len(firsts)})" if median is None else f"{median:{number}} ({reached}/{len(firsts)})"
 
 
 def notes(runs: Iterable[RunResult]) -> str:
@@ -195,17 +201,18 @@ def per_seed_table(rows: Sequence[Mapping[str, Any]], task: Any) -> str:
     """Per-label markdown table of ``task``: each seed's first iteration at the target, their median, final evaluation.
 
     ``rows`` are `per_seed_rows`'. The target is mean ρ > 0 on task 1 and success ≥ 80 % otherwise; the median
-    counts a seed that never got there as infinite (shown "–"). Evaluation columns are the stochastic policy's.
+    (`median_first`) counts a seed that never got there as later than any (shown "–" where the median seed never
+    did). Evaluation columns are the stochastic policy's.
     """
     key, what = ("first_rho_positive", "mean ρ > 0 at") if task == 1 else ("first_success_80", "80 % at")
     lines = []
     for label, members in group_by((row for row in rows if row["task"] == task), lambda row: row["variant"]).items():
         members = sorted(members, key=lambda row: row["seed"])
         firsts = [row[key] for row in members]
-        median = float(np.median([math.inf if f is None else f for f in firsts]))
+        median = median_first(firsts)
         success = [row["eval_success_stochastic"] for row in members]
         lines.append([label, len(members), ", ".join("–" if f is None else str(f) for f in firsts),
-                      "–" if math.isinf(median) else f"{median:g}", f"{min(success):.1%}–{max(success):.1%}",
+                      "–" if median is None else f"{median:g}", f"{min(success):.1%}–{max(success):.1%}",
                       f"{np.median(success):.1%}", f"{np.mean([row['eval_rho_stochastic'] for row in members]):.2f}"])
     header = ["variant", "seeds", f"{what} (per seed)", "median", "eval success", "median eval success", "eval mean ρ"]
     return table(header, lines)

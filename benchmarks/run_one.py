@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tl_gym.agents.callbacks import ALONG_TRAINING_EVAL_SEED
 from tl_gym.agents.run_folder import AGENT_FILE, HISTORY_FILE, RUNNER_DONE_FILE, RUNNER_SPEC_FILE
 from tl_gym.agents.serialization import write_atomic
 
@@ -38,6 +39,13 @@ from benchmarks.sweep_config import RunSpec
 
 DONE, SPEC, HISTORY, AGENT = RUNNER_DONE_FILE, RUNNER_SPEC_FILE, HISTORY_FILE, AGENT_FILE
 TRAJECTORIES = "trajectories.npz"
+#: Reset seed of the first of the final evaluation's fresh episodes (``done.json``), plus the run's seed: apart from
+#: the evaluations along training (`ALONG_TRAINING_EVAL_SEED`) and from the training episodes.
+FINAL_EVAL_SEED = 10_000_019
+#: The trajectory snapshot of iteration ``i`` resets with seeds from ``TRAJECTORY_SEED_STRIDE * (i + 1)`` (plus the
+#: run's seed): each snapshot its own episodes, none trained on. Snapshots of iterations 9 and 19 would share seeds
+#: with the final evaluation and the evaluations along training (pictures only, no number; no config asks for them).
+TRAJECTORY_SEED_STRIDE = 1_000_003
 #: A run's latest checkpoint: a folder of the agent (written last: it marks a whole checkpoint), the replay buffer
 #: of an off-policy agent, the trajectories sampled so far and STATE; removed once the run is done.
 CHECKPOINT, REPLAY_BUFFER, STATE = "checkpoint", "replay_buffer.pkl", "state.json"
@@ -132,7 +140,7 @@ def _execute_locked(spec: RunSpec, run_dir: Path, checkpoint_every: int,
         row = {**row, "eval_success_rate": np.nan, "eval_mean_robustness": np.nan}
         every, iteration = spec.evaluate_every, row["iteration"]
         if every and spec.evaluate_episodes and (iteration % every == 0 or iteration == spec.iterations):
-            result = agent.evaluate(n_episodes=spec.evaluate_episodes, seed=20_000_033 + spec.seed)
+            result = agent.evaluate(n_episodes=spec.evaluate_episodes, seed=ALONG_TRAINING_EVAL_SEED + spec.seed)
             row.update(eval_success_rate=float(result["success_rate"]),
                        eval_mean_robustness=float(result["mean_robustness"]))
         history.on_iteration(agent, row)
@@ -258,7 +266,7 @@ def sample_traces(agent: Any, spec: RunSpec, iteration: int) -> dict[str, np.nda
 
     n = spec.trajectory_episodes
     with contextlib.closing(make_vector_env(spec.env, n, getattr(agent, "env_kwargs", spec.env_kwargs))) as venv:
-        robustness, traces = collect_episodes(agent, venv, n, seed=1_000_003 * (iteration + 1) + spec.seed)
+        robustness, traces = collect_episodes(agent, venv, n, seed=TRAJECTORY_SEED_STRIDE * (iteration + 1) + spec.seed)
     out = {f"it{iteration}_robustness": robustness}
     for name, episodes in traces.items():
         padded = np.full((n, max(len(e) for e in episodes)), np.nan)
@@ -277,7 +285,7 @@ def _summarise(spec: RunSpec, agent: Any, elapsed: float, code: str) -> dict[str
         "final_success_rate": float(last.get("success_rate", np.nan)), "note": spec.note, "code": code,
     }
     for deterministic in (True, False) if spec.evaluate_episodes > 0 else ():
-        result = agent.evaluate(n_episodes=spec.evaluate_episodes, seed=10_000_019 + spec.seed,
+        result = agent.evaluate(n_episodes=spec.evaluate_episodes, seed=FINAL_EVAL_SEED + spec.seed,
                                 deterministic=deterministic)
         summary["eval_deterministic" if deterministic else "eval_stochastic"] = {
             "mean_robustness": float(result["mean_robustness"]), "success_rate": float(result["success_rate"]),

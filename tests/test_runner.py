@@ -464,8 +464,12 @@ def test_aggregation_helpers_and_run_folder_names():
     mean, low, high = results.mean_band(np.array([[0.0, 1.0], [2.0, 3.0]]))
     assert mean.tolist() == [1.0, 2.0] and low[0] < 1.0 < high[0]
     assert results.first_iteration(np.array([1, 2, 3]), np.array([-1.0, 0.5, 2.0]), 0.0) == 2
-    assert results.median_first([4, None, 8]) == 6.0
-    assert (results.first_text([4, None, 8]), results.first_text([None])) == ("6 (2/3)", "never (0/1)")
+    # a seed that never got there counts as later than any: the median speaks for every seed run
+    assert results.median_first([4, None, 8]) == 8.0
+    assert results.median_first([4, None]) is None and results.median_first([]) is None  # the median seed: never
+    assert results.median_first([4, 6, 8, None, None]) == 8.0 and results.median_first([4, 8]) == 6.0
+    assert (results.first_text([4, None, 8]), results.first_text([None])) == ("8 (2/3)", "never (0/1)")
+    assert results.first_text([4, None, None]) == "never (1/3)"
     assert results.first_text([1500.0, 2500.0], ",.0f") == "2,000 (2/2)"
     assert results.table(["a", "b"], [[1, ""]]) == "| a | b |\n|---|---|\n| 1 |  |"
 

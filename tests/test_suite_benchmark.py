@@ -58,7 +58,7 @@ def test_runs_evaluate_along_training_and_the_report_reads_them(tmp_path):
     table, rows = suite.task_table(runs)
     assert "| fast | 2 | 500 | 100% (100%–100%) | 300 (2/2) |" in table
     assert rows[1][0] == "slow" and rows[1][2] is None  # ρ = 0.1 m − 1 stays below 0: never solved
-    assert suite.headline("tiny", rows) == "| tiny | fast | 300 env steps (median, 2/2 seeds) |"
+    assert suite.headline("tiny", rows) == "| tiny | fast | 300 env steps (median over 2 seeds, 2 got there) |"
     assert "none solved it" in suite.headline("tiny", rows[1:])
     planned = ["fast", "slow", "SAC", "PPO, terminal"]
     page = suite.write_report({"tiny": ("tiny", runs, planned), "empty": ("empty", [], [])},
@@ -136,14 +136,26 @@ def test_a_report_elsewhere_leaves_docs_results_alone_and_keeps_the_notes_of_tas
     assert "No finished run for this report." in text and "A note written by hand." in text
 
 
-def _evaluated_run(seed: int, steps: list[float], success: list[float], label: str = "agent") -> results.RunResult:
+def _evaluated_run(seed: int, steps: list[float], success: list[float], label: str = "agent",
+                   done: dict | None = None) -> results.RunResult:
     """A finished run whose every row evaluated, at its own env steps (episodes that end early: uneven steps)."""
     spec = RunSpec(env="TLMountainCar-v0", env_kwargs={}, agent="reps", label=label, hyperparameters={},
                    seed=seed, iterations=len(steps), evaluate_episodes=100, evaluate_every=1)
     history = {"iteration": np.arange(1.0, len(steps) + 1), "env_steps": np.array(steps, dtype=float),
                "eval_success_rate": np.array(success, dtype=float),
                "eval_mean_robustness": np.array(success, dtype=float) - 0.5}
-    return results.RunResult(spec, history, {}, Path("."))
+    return results.RunResult(spec, history, done or {}, Path("."))
+
+
+def test_final_success_pools_the_last_evaluation_with_the_final_one():
+    """100 episodes at 100 % along training and 100 other ones at 80 % at the end: 90 %, the verdict's line."""
+    done = {"eval_deterministic": {"success_rate": 0.8, "mean_robustness": 0.1, "episodes": 100}}
+    runs = [_evaluated_run(seed, [100, 200], [0.5, 1.0], done=done) for seed in range(3)]
+    assert suite.final_success(runs[0]) == pytest.approx(0.9)
+    table, rows = suite.task_table(runs)
+    assert rows[0][1] == pytest.approx(0.9) and "| 90% (90%–90%) |" in table
+    uneven = {"eval_deterministic": {"success_rate": 0.7, "episodes": 300}}  # weighed by episodes
+    assert suite.final_success(_evaluated_run(0, [100], [1.0], done=uneven)) == pytest.approx((100 + 210) / 400)
 
 
 def test_steps_to_solve_and_final_success_are_each_seeds_own_on_uneven_env_steps():
@@ -157,7 +169,8 @@ def test_steps_to_solve_and_final_success_are_each_seeds_own_on_uneven_env_steps
     longer = [_evaluated_run(0, [100, 200, 300, 400], [0.0, 0.0, 0.0, 1.0]),
               _evaluated_run(1, [100, 200, 300], [0.0, 0.0, 0.0])]
     table, rows = suite.task_table(longer)
-    assert "| 50% (0%–100%) | 400 (1/2) |" in table, table  # seed 0's last evaluation, at 400
+    # seed 0's last evaluation, at 400; seed 1 never got there, so the median seed never did
+    assert "| 50% (0%–100%) | never (1/2) |" in table, table
     success_ax = suite.plot_task("uneven", runs, None).axes[0]
     assert [line.get_xdata().tolist() for line in success_ax.lines[:2]] == [[100, 200, 300], [50, 60, 70]]
 
