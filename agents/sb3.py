@@ -57,9 +57,12 @@ from .horizon import env_attribute
 from .sampling import require_robustness
 from .sb3_settings import (
     DEFAULT_TL_REWARD,
+    EXPLORATION_FRACTION,
     HYPERPARAMS_FILE,
     MARKOV_ENV_KWARGS,
+    SCHEDULE_KEYS,
     TL_REWARD_ENV_KWARGS,
+    BudgetSchedule,
     LinearSchedule,  # here too for agents saved before sb3_settings: they pickle tl_gym.agents.sb3.LinearSchedule
     SB3Config,
     activation_class,
@@ -70,6 +73,7 @@ from .sb3_settings import (
     check_tl_reward,
     find_hyperparams,
     is_linear_schedule,
+    is_schedule,
     linear_start,
     load_hyperparams,
     merge_hyperparameters,
@@ -174,6 +178,8 @@ class SB3Agent(Agent):
         explicit = canonical_settings({**explicit, **algo_kwargs})
         hyperparams = hyperparams.hyperparams if saved else check_hyperparams_source(hyperparams)
         entry = {} if saved else _task_entry(self.algo_class, env, env_kwargs, hyperparams)
+        if not isinstance(env, str) and not _policy_fits(entry.get("policy"), env.observation_space):
+            entry.pop("policy")  # the entry's is for the id's own observation, which this env object changed
         # where each keyword the agent adds comes from, for the message of an env that does not take it
         sources = dict.fromkeys(TL_REWARD_ENV_KWARGS[tl_reward], f"tl_reward={tl_reward!r}")
         task_shaping = entry.pop(MARKOV_ENV_KWARGS, {})  # only an entry the file gave has any
@@ -232,9 +238,15 @@ class SB3Agent(Agent):
         from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
         kwargs = dict(self.config.algo_kwargs)
-        self._schedules = {key: LinearSchedule(linear_start(key, value), self.config.n_timesteps)  # type: ignore[arg-type]
-                           for key, value in kwargs.items() if is_linear_schedule(value)}
-        kwargs.update({key: schedule.start for key, schedule in self._schedules.items()})  # installed after
+        budget = self.config.n_timesteps  # set wherever a schedule is (SB3Config checks)
+        self._schedules: dict[str, BudgetSchedule] = {
+            key: LinearSchedule(linear_start(key, value), budget) if is_linear_schedule(value)  # type: ignore[arg-type]
+            else BudgetSchedule(value, budget)  # type: ignore[arg-type]
+            for key, value in kwargs.items() if is_schedule(key, value)}
+        # the zoo's 'lin_' go in as their start values, installed after (SB3 rebuilds constant ones on load and the
+        # config holds the string); a callable goes in as its budget schedule, which SB3's own file keeps
+        kwargs.update({key: schedule(1.0) if isinstance(schedule, LinearSchedule) else schedule
+                       for key, schedule in self._schedules.items()})
         on_policy = issubclass(self.algo_class, OnPolicyAlgorithm)
         if on_policy:
             kwargs.setdefault("n_steps", max(1, self.config.steps_per_iteration // self.config.n_envs))
@@ -286,11 +298,22 @@ class SB3Agent(Agent):
                                          **kwargs)
         except AssertionError as error:  # SB3 asserts what it supports (DQN: Discrete actions only, batch_size > 1)
             raise ValueError(f"{self.algo_class.__name__} refused this env or these settings: {error}") from error
+        if EXPLORATION_FRACTION in algorithm_parameters(self.algo_class):  # DQN's ε, over the budget too
+            self._schedules["exploration_schedule"] = BudgetSchedule(self.model.exploration_schedule, budget)
         self._install_schedules()
         self._quiet_logger()
 
+    def _adopt_saved_schedules(self) -> None:
+        """Register the callable schedules a loaded model holds (SB3's file keeps them; the JSON config cannot)."""
+        for key in SCHEDULE_KEYS:
+            value = getattr(self.model, key, None)
+            while value is not None and not isinstance(value, BudgetSchedule):  # SB3 wraps it in FloatSchedule
+                value = getattr(value, "value_schedule", None)
+            if value is not None:
+                self._schedules.setdefault(key, value)
+
     def _install_schedules(self) -> None:
-        """Put the ``lin_`` schedules where SB3 reads them (it rebuilds constant ones from the start values on load)."""
+        """Put the budget's schedules where SB3 reads them (it rebuilds constant ones from the start values on load)."""
         for key, schedule in self._schedules.items():
             setattr(self.model, "lr_schedule" if key == "learning_rate" else key, schedule)
 
@@ -321,8 +344,8 @@ class SB3Agent(Agent):
         for schedule in self._schedules.values():  # the env step SB3 counts this call's progress against
             schedule.span = before + self.config.steps_per_iteration
         if self._schedules and before >= self.config.n_timesteps:  # type: ignore[operator]  # a whole iteration at 0
-            warnings.warn(f"the 'lin_' schedules of {sorted(self._schedules)} end at n_timesteps: past it they are 0 "
-                          "(a learning rate of 0 leaves the policy as it is)", stacklevel=2)
+            warnings.warn(f"the schedules of {sorted(self._schedules)} end at n_timesteps: past it they stay at their "
+                          "end values (a 'lin_' learning rate at 0 leaves the policy as it is)", stacklevel=2)
         with one_torch_thread():
             callbacks = [collector] if self._hindsight is None else [collector, self._hindsight]
             self.model.learn(total_timesteps=self.config.steps_per_iteration, reset_num_timesteps=False,
@@ -413,6 +436,7 @@ class SB3Agent(Agent):
             loaded.set_venv(self.sb3_env)
             self.vec_normalize = loaded
         self.model = self.algo_class.load(io.BytesIO(files[SB3_MEMBER]), env=self._training_env(), device="cpu")
+        self._adopt_saved_schedules()
         self._install_schedules()
         self._quiet_logger()
 
@@ -688,7 +712,20 @@ def _default_policy(algo_class: type, observation_space: gym.Space) -> str:
     aliases = list(getattr(algo_class, "policy_aliases", {}))
     if f"{kind}Policy" in aliases or not aliases:
         return f"{kind}Policy"
-    return next((alias for alias in aliases if alias.startswith(kind)), f"{kind}Policy")
+    policy = next((alias for alias in aliases if alias.startswith(kind)), None)
+    if policy is None and kind == "MultiInput":
+        raise ValueError(
+            f"{algo_class.__name__} has no policy for Dict observations (its policies: {', '.join(aliases)}): flatten "
+            "the observation, SB3Agent(gymnasium.wrappers.FlattenObservation(gym.make(...)), ...), or use an "
+            "algorithm with a MultiInputPolicy (SAC, TD3, TQC, PPO)")
+    return policy or f"{kind}Policy"
+
+
+def _policy_fits(policy: Any, observation_space: gym.Space) -> bool:
+    """Whether a policy named by a hyperparameter entry is of the kind ``observation_space`` needs (a class: yes)."""
+    if not isinstance(policy, str):
+        return True
+    return policy.startswith("MultiInput") == isinstance(observation_space, gym.spaces.Dict)
 
 
 def _single_env_factories(env: Any, env_kwargs: dict[str, Any], n_envs: int) -> list[Any]:

@@ -20,7 +20,7 @@ import inspect
 import math
 import os
 import re
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,10 +35,21 @@ SB3_ALGORITHMS = ("a2c", "ddpg", "dqn", "ppo", "sac", "td3")
 #: The names of sb3-contrib's algorithms (``pip install sb3-contrib``; imported only for one of these names).
 SB3_CONTRIB_ALGORITHMS = ("ars", "crossq", "maskableppo", "qrdqn", "recurrentppo", "tqc", "trpo")
 
+#: Algorithms that resolve but that the agent refuses, and why (named at construction).
+REFUSED_ALGORITHMS = {
+    "ARS": "ARS updates from whole evaluation episodes of perturbed policies (2 × n_delta × n_eval_episodes of "
+           "them an update), not from env steps, so it fits neither the agent's iterations of steps_per_iteration "
+           "nor its episode statistics; for episodic policy search use tl_gym's REPS or TLPS",
+    "MaskablePPO": "MaskablePPO needs the env's action masks at every prediction, which the agent's predict and "
+                   "evaluate do not pass (a stochastic policy would take masked actions); use PPO, or sb3-contrib's "
+                   "MaskablePPO directly on the wrapped env",
+}
+
 #: Env steps of one TLPS iteration with the paper's settings (N = 40 episodes × T = 200).
 DEFAULT_STEPS_PER_ITERATION = 40 * 200
 
-#: Parallel training envs when neither the user nor the task's hyperparameters say.
+#: Parallel training envs of on-policy algorithms when neither the user nor the task's hyperparameters say; an
+#: off-policy one gets 1 (the zoo's default: one gradient step per env step; 8 envs made it one per 8 steps).
 DEFAULT_N_ENVS = 8
 
 #: Env keywords each ``tl_reward`` adds to an env id's ``env_kwargs`` (the user's own win).
@@ -69,8 +80,12 @@ ENTRY_KEYS = ("n_envs", "policy", "n_timesteps", "normalize", "noise_type", "noi
 #: Exploration noise of off-policy algorithms, by the zoo's ``noise_type`` names.
 NOISE_TYPES = ("normal", "ornstein-uhlenbeck")
 
-#: Constructor arguments that may be the zoo's ``"lin_<x>"``, a value decaying linearly to 0 over ``n_timesteps``.
-SCHEDULE_KEYS = ("learning_rate", "clip_range")
+#: Constructor arguments that may be a schedule of the training's progress: the zoo's ``"lin_<x>"`` (a value decaying
+#: linearly to 0) or SB3's callable ``f(progress_remaining)``, both run over ``n_timesteps`` (`BudgetSchedule`).
+SCHEDULE_KEYS = ("learning_rate", "clip_range", "clip_range_vf")
+
+#: The constructor argument of algorithms whose exploration decays over a share of the training (DQN's ε).
+EXPLORATION_FRACTION = "exploration_fraction"
 
 _ALGO_MODULES = ("stable_baselines3", "sb3_contrib")
 # constructor arguments that SB3Agent sets itself
@@ -295,8 +310,9 @@ class SB3Config:
     """Algorithm class name, e.g. ``"PPO"``."""
     steps_per_iteration: int = DEFAULT_STEPS_PER_ITERATION
     """Env steps per iteration; on-policy algorithms get ``n_steps = steps_per_iteration // n_envs`` by default."""
-    n_envs: int = DEFAULT_N_ENVS
-    """Parallel envs of SB3's ``DummyVecEnv``."""
+    n_envs: int | None = None
+    """Parallel envs of SB3's ``DummyVecEnv``; ``None``: `DEFAULT_N_ENVS` for on-policy algorithms, 1 for off-policy
+    ones (set at construction)."""
     policy: str | None = None
     """SB3 policy name; ``None`` picks ``"MultiInputPolicy"`` for Dict observations, else ``"MlpPolicy"``."""
     tl_reward: str = DEFAULT_TL_REWARD
@@ -328,6 +344,11 @@ class SB3Config:
 
     def __post_init__(self) -> None:
         check_count("steps_per_iteration", self.steps_per_iteration)
+        if self.n_envs is None:
+            from stable_baselines3.common.on_policy_algorithm import OnPolicyAlgorithm
+
+            on_policy = issubclass(resolve_algorithm(self.algo), OnPolicyAlgorithm)
+            object.__setattr__(self, "n_envs", DEFAULT_N_ENVS if on_policy else 1)
         check_count("n_envs", self.n_envs)
         check_tl_reward(self.tl_reward)
         if not (isinstance(self.normalize, bool) or isinstance(self.normalize, Mapping)):
@@ -347,17 +368,25 @@ class SB3Config:
             raise ValueError(f"noise_type must be None or one of {NOISE_TYPES}, got {self.noise_type!r}")
         check_positive("noise_std", self.noise_std, allow_zero=True)
         algo_class = resolve_algorithm(self.algo)
+        if algo_class.__name__ in REFUSED_ALGORITHMS:
+            raise ValueError(REFUSED_ALGORITHMS[algo_class.__name__])
         check_algorithm_arguments(algo_class, self.algo_kwargs, setting_names())
         if self.noise_type is not None and "action_noise" not in algorithm_parameters(algo_class):
             raise ValueError(f"noise_type={self.noise_type!r}: {algo_class.__name__} takes no action noise (it "
                              f"explores through its own policy); noise_type is for off-policy algorithms such as TD3")
         for key, value in self.algo_kwargs.items():
-            if is_linear_schedule(value):
-                linear_start(key, value)
+            if is_schedule(key, value):
+                if is_linear_schedule(value):
+                    linear_start(key, value)
                 if self.n_timesteps is None:
-                    raise ValueError(f"{key}={value!r} decays over n_timesteps, which is not set; give n_timesteps")
+                    raise ValueError(f"{key}={value!r} is a schedule of the training's progress, which runs over "
+                                     f"n_timesteps here (each iteration is its own SB3 learn call); give n_timesteps")
             else:
                 check_algorithm_value(key, value)
+        if EXPLORATION_FRACTION in algorithm_parameters(algo_class) and self.n_timesteps is None:
+            raise ValueError(f"{algo_class.__name__} decays its exploration over {EXPLORATION_FRACTION} × n_timesteps "
+                             "env steps, as in rl-baselines3-zoo (each iteration is its own SB3 learn call, so without "
+                             "a budget it would decay anew in every one); give n_timesteps")
 
 
 def setting_names() -> tuple[str, ...]:
@@ -649,6 +678,11 @@ def is_linear_schedule(value: Any) -> bool:
     return isinstance(value, str) and value.startswith("lin_")
 
 
+def is_schedule(key: str, value: Any) -> bool:
+    """Whether ``key``'s value is run over ``n_timesteps``: ``"lin_<x>"``, or a callable for a `SCHEDULE_KEYS` key."""
+    return is_linear_schedule(value) or (key in SCHEDULE_KEYS and callable(value))
+
+
 def linear_start(key: str, value: str) -> float:
     """The start value of the zoo's ``"lin_<x>"`` schedule ``value`` given for ``key``.
 
@@ -670,14 +704,37 @@ def linear_start(key: str, value: str) -> float:
     return start
 
 
-class LinearSchedule:
-    """rl-baselines3-zoo's ``lin_<start>``: ``start`` decaying linearly to 0 over ``budget`` env steps.
+class BudgetSchedule:
+    """SB3's schedule ``f(progress_remaining)`` run over ``budget`` env steps instead of one ``learn`` call.
 
     SB3 calls a schedule with the progress remaining of the current ``learn`` call, counted
     against the call's last env step. The agent learns in iterations (a ``learn`` call each), so
     it sets `span` to that step before each call, and the schedule turns SB3's progress back into
-    the budget's: ``start * (1 - steps / budget)``, the zoo's decay over its ``n_timesteps``, 0
-    after the budget.
+    the budget's, ``1 - steps / budget`` (0 after the budget): a schedule falls once over the
+    zoo's ``n_timesteps``, as ``model.learn(n_timesteps)`` would have it, instead of restarting
+    in every iteration (a learning rate that fell to 0 at each iteration's end).
+
+    Example:
+        >>> schedule = BudgetSchedule(lambda progress: 1e-3 * progress, budget=1000)
+        >>> schedule.span = 500  # a learn call from step 0 to step 500
+        >>> schedule(1.0), schedule(0.0)  # at its start, and at its end (step 500: half the budget)
+        (0.001, 0.0005)
+    """
+
+    def __init__(self, schedule: Callable[[float], float], budget: int):
+        self.schedule, self.budget, self.span = schedule, int(budget), int(budget)
+
+    def remaining(self, progress_remaining: float) -> float:
+        """The budget's progress remaining, from SB3's progress remaining of the current ``learn`` call."""
+        steps = (1.0 - progress_remaining) * self.span
+        return max(0.0, 1.0 - steps / self.budget)
+
+    def __call__(self, progress_remaining: float) -> float:
+        return self.schedule(self.remaining(progress_remaining))
+
+
+class LinearSchedule(BudgetSchedule):
+    """rl-baselines3-zoo's ``lin_<start>``: ``start`` decaying linearly to 0 over ``budget`` env steps.
 
     Example:
         >>> schedule = LinearSchedule(1e-3, budget=1000)
@@ -686,9 +743,8 @@ class LinearSchedule:
         (0.001, 0.0005)
     """
 
-    def __init__(self, start: float, budget: int):
+    def __init__(self, start: float, budget: int):  # its attributes are those agents saved with it pickle
         self.start, self.budget, self.span = float(start), int(budget), int(budget)
 
     def __call__(self, progress_remaining: float) -> float:
-        steps = (1.0 - progress_remaining) * self.span
-        return self.start * max(0.0, 1.0 - steps / self.budget)
+        return self.start * self.remaining(progress_remaining)

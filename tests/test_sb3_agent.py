@@ -598,13 +598,57 @@ def test_zoo_linear_schedules_decay_over_the_budget_and_survive_save_load(tmp_pa
     assert loaded.config.algo_kwargs["learning_rate"] == "lin_1e-3"
     loaded.learn(1)  # the budget's last rollout
     assert rates(loaded) == (0.0, 0.0)
-    with pytest.warns(UserWarning, match="past it they are 0"):
+    with pytest.warns(UserWarning, match="past it they stay at their end values"):
         loaded.learn(1)
 
 
-def test_a_linear_schedule_needs_a_budget():
-    with pytest.raises(ValueError, match="learning_rate='lin_1e-3' decays over n_timesteps, which is not set"):
-        SB3Agent("TLCarNav-v0", "ppo", hyperparams=False, learning_rate="lin_1e-3", **TINY)
+def _halving(start: float):
+    """An SB3-style schedule that is not linear: ``start`` at the beginning, half of it at the end."""
+    return lambda progress_remaining: start * (0.5 + 0.5 * progress_remaining)
+
+
+def test_callable_schedules_run_over_the_budget_not_each_iteration_and_survive_save_load(tmp_path):
+    """SB3 counts a schedule's progress against one learn call; each iteration is one, so a callable learning rate
+    restarted every iteration and fell to its end value in each (a learning rate of 0 with SB3's linear example)."""
+    agent = SB3Agent("TLCarNav-v0", "ppo", seed=0, n_timesteps=256, learning_rate=_halving(1e-3),
+                     clip_range=_halving(0.2), **TINY)
+
+    def rates(agent):
+        model = agent.model
+        return model.policy.optimizer.param_groups[0]["lr"], model.clip_range(model._current_progress_remaining)
+
+    agent.learn(1)
+    agent.learn(1)
+    # the second rollout trains at 128 of the 256 steps: half the budget's progress left
+    np.testing.assert_allclose(rates(agent), (1e-3 * 0.75, 0.2 * 0.75))
+    loaded = Agent.load(agent.save(tmp_path / "callable.zip"))
+    loaded.learn(1)  # at 192 of 256: a quarter left
+    np.testing.assert_allclose(rates(loaded), (1e-3 * 0.625, 0.2 * 0.625))
+
+
+@pytest.mark.parametrize("value", ["lin_1e-3", _halving(1e-3)])
+def test_a_schedule_needs_a_budget(value):
+    with pytest.raises(ValueError, match=r"learning_rate=.* is a schedule of the training's progress, which runs "
+                                         r"over n_timesteps here .* give n_timesteps"):
+        SB3Agent("TLCarNav-v0", "ppo", hyperparams=False, learning_rate=value, **TINY)
+
+
+def test_dqn_exploration_decays_over_the_budget():
+    """DQN's ε falls over exploration_fraction × n_timesteps, as the zoo has it; without a budget it fell within
+    each iteration's learn call, so after the first iteration the agent barely explored."""
+    import tl_gym
+
+    env = tl_gym.TLTLRewardWrapper(gym.make("CartPole-v1", max_episode_steps=20), "G(x < 2)", {"x": 0})
+    with pytest.raises(ValueError, match=r"DQN decays its exploration over exploration_fraction × n_timesteps"):
+        SB3Agent(env, "dqn", seed=0, steps_per_iteration=32, n_envs=1)
+    agent = SB3Agent(env, "dqn", seed=0, steps_per_iteration=32, n_envs=1, n_timesteps=128, exploration_fraction=0.5,
+                     exploration_initial_eps=1.0, exploration_final_eps=0.1, learning_starts=16, batch_size=8)
+    epsilons = []
+    for _ in range(3):
+        agent.learn(1)
+        epsilons.append(agent.model.exploration_rate)
+    # ε falls from 1 to 0.1 over the first 64 steps: 0.55 at 32, 0.1 from 64 on
+    np.testing.assert_allclose(epsilons, [0.55, 0.1, 0.1])
 
 
 @pytest.mark.parametrize("end_is_terminal", [True, False])
@@ -696,7 +740,7 @@ def test_epsilon_greedy_sampling_leaves_numpy_and_torch_global_generators_alone(
 
     env = tl_gym.TLTLRewardWrapper(gym.make("CartPole-v1", max_episode_steps=20), "G(x < 2)", {"x": 0})
     agent = SB3Agent(env, "dqn", seed=0, steps_per_iteration=32, n_envs=1, learning_starts=16, batch_size=8,
-                     buffer_size=100)
+                     buffer_size=100, n_timesteps=1000)
     agent.model.exploration_rate = 1.0  # every stochastic action a random one
     numpy_state, torch_state = np.random.get_state()[1].copy(), torch.get_rng_state().clone()
     space_state = agent.model.action_space.np_random.bit_generator.state
@@ -721,7 +765,7 @@ def test_an_algorithm_that_cannot_take_the_env_says_so_and_recurrent_ppo_gets_it
     """SB3's AssertionError (DQN on Box actions) is a ValueError naming the algorithm; RecurrentPPO has no
     MlpPolicy, so its own MlpLstmPolicy is the default (it failed with "Policy MlpPolicy unknown")."""
     with pytest.raises(ValueError, match=r"DQN refused this env or these settings: The algorithm only supports"):
-        SB3Agent("TLCarNav-v0", "dqn")
+        SB3Agent("TLCarNav-v0", "dqn", n_timesteps=1000)
     pytest.importorskip("sb3_contrib")
     agent = SB3Agent("TLPendulum-v0", "recurrentppo", n_envs=1, n_steps=64, batch_size=32, steps_per_iteration=64)
     assert type(agent.model.policy).__name__ == "RecurrentActorCriticPolicy"
@@ -754,3 +798,39 @@ def test_the_default_normalisation_scales_the_box_entries_of_a_dict_with_other_e
     obs, _ = env.reset(seed=0)
     action, _ = agent.predict(obs)
     assert agent.action_space.contains(action)
+
+
+@pytest.mark.parametrize("algo, reason", [("ars", "whole evaluation episodes of perturbed policies"),
+                                          ("maskableppo", "needs the env's action masks")])
+def test_algorithms_that_do_not_fit_the_agent_are_refused_at_construction_with_the_reason(algo, reason):
+    """ARS crashed at its first learn (its callback steps carry no dones); MaskablePPO acted without its masks."""
+    pytest.importorskip("sb3_contrib")
+    with pytest.raises(ValueError, match=reason):
+        SB3Agent("TLPendulum-v0", algo)
+
+
+def test_a_dict_observation_with_an_algorithm_without_a_multi_input_policy_names_the_fix():
+    pytest.importorskip("sb3_contrib")
+    pytest.importorskip("highway_env")
+    with pytest.raises(ValueError, match=r"CrossQ has no policy for Dict observations \(its policies: MlpPolicy\): "
+                                         r"flatten the observation, .*FlattenObservation"):
+        SB3Agent("TLParking-v0", "crossq", n_timesteps=100)
+
+
+def test_an_env_object_that_flattens_a_dict_task_gets_a_policy_for_its_own_observation():
+    """The task's entry (found by the env's spec id) names MultiInputPolicy for parking's Dict; a flattened env
+    object gets the default policy for its Box (it crashed in SB3's CombinedExtractor), the rest of the entry kept."""
+    pytest.importorskip("highway_env")
+    env = gym.wrappers.FlattenObservation(gym.make("TLParking-v0", observe_monitor=True, reward_mode="dense"))
+    with pytest.warns(UserWarning, match="markov_env_kwargs"):  # the entry's env keywords cannot reach an object
+        agent = SB3Agent(env, "sac", seed=0, steps_per_iteration=100, learning_starts=50, batch_size=16)
+    assert type(agent.model.policy).__name__ == "SACPolicy" and agent.config.policy is None
+    assert agent.model.gamma == 0.99  # the parking entry's, not SB3's 0.99 by chance: its tau too
+    assert agent.model.tau == 0.05
+
+
+@pytest.mark.parametrize("algo, n_envs", [("ppo", 8), ("a2c", 8), ("sac", 1), ("td3", 1), ("ddpg", 1)])
+def test_default_n_envs_is_one_for_off_policy_algorithms(algo, n_envs):
+    """With 8 envs an off-policy algorithm took one gradient step per 8 env steps; the zoo's default is 1."""
+    agent = SB3Agent("TLPendulum-v0", algo, hyperparams=False, steps_per_iteration=1024)
+    assert agent.config.n_envs == agent.model.n_envs == n_envs
