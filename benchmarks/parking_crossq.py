@@ -25,8 +25,7 @@ import dataclasses
 
 from tl_gym.agents import sb3_settings
 
-from benchmarks.parking_nstep import FLAT_ID, register_flat_parking
-from benchmarks.run_one import execute_run
+from benchmarks.parking_nstep import FLAT_ID, run_flat_trial
 from benchmarks.suite import suite_run
 from benchmarks.sweep_config import RunSpec
 
@@ -54,10 +53,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--critic-width", type=int, default=1024, help="the critic's two layers' width (default 1024)")
     parser.add_argument("--seed", type=int, default=100, help="the tuning seed (default 100)")
     args = parser.parse_args(argv)
-    register_flat_parking()
-    spec = trial_spec(args.critic_width, args.seed)
-    print(spec.run_id, flush=True)
-    print(execute_run(spec, f"{args.out}/{spec.run_id}", checkpoint_every=5))
+    run_flat_trial(trial_spec(args.critic_width, args.seed), args.out)
 
 
 if __name__ == "__main__":

@@ -60,10 +60,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("out", help="results folder; a rerun resumes the run's checkpoint there")
     parser.add_argument("--seed", type=int, default=100, help="the tuning seed (default 100)")
     args = parser.parse_args(argv)
+    run_flat_trial(trial_spec(args.n_steps, args.seed), args.out)
+
+
+def run_flat_trial(spec: RunSpec, out: str) -> None:
+    """Register the flattened id, then run ``spec`` into ``out`` (resuming its checkpoint there)."""
     register_flat_parking()
-    spec = trial_spec(args.n_steps, args.seed)
     print(spec.run_id, flush=True)
-    print(execute_run(spec, f"{args.out}/{spec.run_id}", checkpoint_every=5))
+    print(execute_run(spec, f"{out}/{spec.run_id}", checkpoint_every=5))
 
 
 if __name__ == "__main__":
