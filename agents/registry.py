@@ -22,7 +22,13 @@ from typing import Any
 
 from tl_gym.checks import did_you_mean
 
-from .sb3_settings import SB3_ALGORITHMS, SB3_CONTRIB_ALGORITHMS, check_sb3_hyperparameters, resolve_algorithm
+from .sb3_settings import (
+    REFUSED_ALGORITHMS,
+    SB3_ALGORITHMS,
+    SB3_CONTRIB_ALGORITHMS,
+    check_sb3_hyperparameters,
+    resolve_algorithm,
+)
 
 #: The episodic agents by name -> "module:class"; any other plain name is an SB3 algorithm.
 EPISODIC_AGENTS = {"tlps": "tl_gym.agents.tlps:TLPS", "reps": "tl_gym.agents.reps:REPS"}
@@ -78,10 +84,11 @@ def check_sb3_name(name: str) -> None:
 
 def unknown_agent_message(name: str) -> str:
     """What an unknown agent name is told: the nearest known name and every kind of name an agent takes."""
-    hint = did_you_mean(name.lower(), (*EPISODIC_AGENTS, *SB3_ALGORITHMS, *SB3_CONTRIB_ALGORITHMS))
+    refused = {algo.lower() for algo in REFUSED_ALGORITHMS}
+    contrib = [algo for algo in SB3_CONTRIB_ALGORITHMS if algo not in refused]
+    hint = did_you_mean(name.lower(), (*EPISODIC_AGENTS, *SB3_ALGORITHMS, *contrib))
     return (f"unknown agent {name!r}{hint}: {', '.join(EPISODIC_AGENTS)}, a stable-baselines3 algorithm "
-            f"({', '.join(SB3_ALGORITHMS)}), an sb3-contrib one ({', '.join(SB3_CONTRIB_ALGORITHMS)}) "
-            f"or 'package.module:Name'")
+            f"({', '.join(SB3_ALGORITHMS)}), an sb3-contrib one ({', '.join(contrib)}) or 'package.module:Name'")
 
 
 def is_episodic(name: str) -> bool:

@@ -1,6 +1,6 @@
 """stable-baselines3 algorithms behind the tl_gym agent interface, set up as rl-baselines3-zoo does.
 
-`SB3Agent("TLCarNav-v0", "PPO")` trains any stable-baselines3 (or sb3-contrib)
+`SB3Agent("TLCarNav-v0", "PPO")` trains a stable-baselines3 (or sb3-contrib)
 algorithm on a TLTL-rewarded env and reports on the same axes as TLPS and REPS:
 one iteration is ``steps_per_iteration`` env steps (40 episodes × 200 steps by
 default, a TLPS iteration's budget), and each history row holds the mean exact
@@ -68,6 +68,7 @@ from .sb3_settings import (
     activation_class,
     algorithm_parameters,
     canonical_settings,
+    check_exploration_budget,
     check_hyperparams_source,
     check_tensorboard,
     check_tl_reward,
@@ -202,8 +203,9 @@ class SB3Agent(Agent):
         hyperparameters.update(algo=self.algo_class.__name__, tl_reward=tl_reward, hyperparams=hyperparams,
                                algo_kwargs=algo_kwargs)
         config = self._config_for(env, hyperparameters, given=settings)  # checked before any env is built
-        if not saved:  # a saved agent loads and acts without it; it is checked again when it learns
+        if not saved:  # a saved agent loads and acts without them; tensorboard is checked again when it learns
             check_tensorboard(algo_kwargs)
+            check_exploration_budget(self.algo_class, config.n_timesteps)
         self._env_argument = env
         self._train_env_kwargs = dict(env_kwargs or {})  # read by _setup, which runs inside Agent.__init__
         if isinstance(env, str):
@@ -298,8 +300,9 @@ class SB3Agent(Agent):
                                          **kwargs)
         except AssertionError as error:  # SB3 asserts what it supports (DQN: Discrete actions only, batch_size > 1)
             raise ValueError(f"{self.algo_class.__name__} refused this env or these settings: {error}") from error
-        if EXPLORATION_FRACTION in algorithm_parameters(self.algo_class):  # DQN's ε, over the budget too
+        if EXPLORATION_FRACTION in algorithm_parameters(self.algo_class) and budget is not None:  # DQN's ε too
             self._schedules["exploration_schedule"] = BudgetSchedule(self.model.exploration_schedule, budget)
+        # (no budget: a DQN saved before the rule, which keeps the decay it trained with: anew in every iteration)
         self._install_schedules()
         self._quiet_logger()
 

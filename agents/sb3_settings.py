@@ -380,13 +380,10 @@ class SB3Config:
                     linear_start(key, value)
                 if self.n_timesteps is None:
                     raise ValueError(f"{key}={value!r} is a schedule of the training's progress, which runs over "
-                                     f"n_timesteps here (each iteration is its own SB3 learn call); give n_timesteps")
+                                     "n_timesteps here (each iteration is its own SB3 learn call); give n_timesteps "
+                                     "(tl-gym train: --n-timesteps)")
             else:
                 check_algorithm_value(key, value)
-        if EXPLORATION_FRACTION in algorithm_parameters(algo_class) and self.n_timesteps is None:
-            raise ValueError(f"{algo_class.__name__} decays its exploration over {EXPLORATION_FRACTION} × n_timesteps "
-                             "env steps, as in rl-baselines3-zoo (each iteration is its own SB3 learn call, so without "
-                             "a budget it would decay anew in every one); give n_timesteps")
 
 
 def setting_names() -> tuple[str, ...]:
@@ -539,6 +536,21 @@ def _check_entry(settings: dict[str, Any], algo_class: type, where: str) -> dict
         return canonical_settings(settings)
     except ValueError as error:
         raise ValueError(f"{where}: {error}") from None
+
+
+def check_exploration_budget(algo_class: type, n_timesteps: int | None) -> None:
+    """Refuse an algorithm whose exploration decays over a share of the training (DQN's ε) without a budget.
+
+    Each iteration is its own SB3 ``learn`` call, so without ``n_timesteps`` the decay would start anew in every
+    one. Checked when an agent is built, not when one is loaded (one saved before the rule keeps its own decay).
+
+    Raises:
+        ValueError: naming the algorithm and ``n_timesteps`` (``--n-timesteps`` of ``tl-gym train``).
+    """
+    if EXPLORATION_FRACTION in algorithm_parameters(algo_class) and n_timesteps is None:
+        raise ValueError(f"{algo_class.__name__} decays its exploration over {EXPLORATION_FRACTION} × n_timesteps "
+                         "env steps, as in rl-baselines3-zoo (each iteration is its own SB3 learn call, so without a "
+                         "budget it would decay anew in every one); give n_timesteps (tl-gym train: --n-timesteps)")
 
 
 def check_sb3_hyperparameters(algo: Any, hyperparameters: Mapping[str, Any]) -> None:

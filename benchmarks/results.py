@@ -150,14 +150,14 @@ def median_first(firsts: Sequence[float | None]) -> float | None:
     """
     if not firsts:
         return None
-    median = float(np.median([math.inf if f is None else f for f in firsts]))
+    median = float(np.median([math.inf if f is None or math.isnan(f) else f for f in firsts]))
     return None if math.isinf(median) or math.isnan(median) else median
 
 
 def first_text(firsts: Sequence[float | None], number: str = "g") -> str:
     """Median first iteration (or env steps, ...) over all the seeds (`median_first`), and how many got there."""
     median = median_first(firsts)
-    reached = sum(f is not None for f in firsts)
+    reached = sum(f is not None and not math.isnan(f) for f in firsts)
     return f"never ({reached}/{len(firsts)})" if median is None else f"{median:{number}} ({reached}/{len(firsts)})"
 
 

@@ -1,6 +1,6 @@
 r"""The ``tl-gym`` command line: train an agent on a TLTL task, evaluate it, watch it.
 
-``tl-gym train`` trains TLPS, REPS or any stable-baselines3 algorithm and writes a run
+``tl-gym train`` trains TLPS, REPS or a stable-baselines3 / sb3-contrib algorithm and writes a run
 folder::
 
     runs/NAME/

@@ -470,6 +470,7 @@ def test_aggregation_helpers_and_run_folder_names():
     assert results.median_first([4, 6, 8, None, None]) == 8.0 and results.median_first([4, 8]) == 6.0
     assert (results.first_text([4, None, 8]), results.first_text([None])) == ("8 (2/3)", "never (0/1)")
     assert results.first_text([4, None, None]) == "never (1/3)"
+    assert results.first_text([4, float("nan"), None]) == "never (1/3)"  # NaN is never, as None
     assert results.first_text([1500.0, 2500.0], ",.0f") == "2,000 (2/2)"
     assert results.table(["a", "b"], [[1, ""]]) == "| a | b |\n|---|---|\n| 1 |  |"
 

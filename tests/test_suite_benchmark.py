@@ -156,6 +156,18 @@ def test_final_success_pools_the_last_evaluation_with_the_final_one():
     assert rows[0][1] == pytest.approx(0.9) and "| 90% (90%–90%) |" in table
     uneven = {"eval_deterministic": {"success_rate": 0.7, "episodes": 300}}  # weighed by episodes
     assert suite.final_success(_evaluated_run(0, [100], [1.0], done=uneven)) == pytest.approx((100 + 210) / 400)
+    assert suite.final_success(_evaluated_run(0, [100], [1.0])) == 1.0  # no final evaluation: the last one alone
+
+
+def test_a_task_solved_only_with_the_final_evaluation_says_so():
+    """Pooled with done.json's, the final success can reach 90 % where no evaluation along training did: the task
+    is solved (the final success decides), at no evaluation's step (it said "none solved it" beside "90%")."""
+    done = {"eval_deterministic": {"success_rate": 0.93, "mean_robustness": 0.1, "episodes": 100}}
+    runs = [_evaluated_run(seed, [100, 200], [0.5, 0.88], done=done) for seed in range(3)]
+    _, rows = suite.task_table(runs)
+    assert rows[0][1] == pytest.approx(0.905) and rows[0][2] is None
+    assert suite.headline("tiny", rows) == (
+        "| tiny | agent | never at an evaluation along training (median over 3 seeds, 0 got there) |")
 
 
 def test_steps_to_solve_and_final_success_are_each_seeds_own_on_uneven_env_steps():
