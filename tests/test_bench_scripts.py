@@ -190,3 +190,16 @@ def test_paper_claims_judge_the_median_over_every_seed():
     assert "median iteration 40 > 30" in three_of_five  # the third seed's 40, not the 20 of the three that got there
     betas = reproduce_paper.claims(1, [_group("TLPS β=3", [12, 12, 12]), _group("TLPS β=9", [5, None, None])])
     assert "the median seed of some β never got there" in betas and "β = 9: never (1/3)" in betas
+
+
+def test_bench_gradient_times_all_four_calls_on_a_car_batch(capsys):
+    """benchmarks/bench_gradient.py, whose ratios docs/engine.md quotes, runs on a tiny batch."""
+    from benchmarks import bench_gradient
+
+    trace = bench_gradient.car_batch(2)
+    assert set(trace) == {"x", "y"} and trace["x"].shape == (2, 201)
+    timings = bench_gradient.measure(trace, "numpy", "linear", repeats=1)
+    assert set(timings) == {"values", "and_gradient", "autograd", "forward_with_grad"}
+    assert all(t > 0 for t in timings.values())
+    bench_gradient.main(["--n", "2", "--repeats", "1", "--backends", "numpy"])
+    assert "numpy: values" in capsys.readouterr().out

@@ -206,6 +206,20 @@ def test_trace_property_is_read_only_and_grows():
         env.trace = {}
 
 
+def test_the_terminal_infos_trace_cannot_be_written_either():
+    """docs/wrapper.md calls info["trace"] read-only: its arrays were writable (env.trace's were not)."""
+    env = TLTLRewardWrapper(Scripted(), SPEC, signals={"a": 0, "b": 2})
+    env.reset()
+    done, info = False, {}
+    while not done:
+        _, _, terminated, truncated, info = env.step(np.zeros(1))
+        done = terminated or truncated
+    with pytest.raises(ValueError, match="read-only"):
+        info["trace"]["a"][0] = 1.0
+    with pytest.raises(TypeError):
+        info["trace"]["a"] = np.zeros(3)  # a Mapping, not a dict
+
+
 @pytest.mark.parametrize(
     ("kwargs", "error", "match"),
     [

@@ -557,7 +557,7 @@ class Trace(Mapping):
     """
 
     def __init__(self, arrays: Mapping[str, np.ndarray]):
-        self._arrays = dict(arrays)
+        self._arrays = {name: _read_only_view(values) for name, values in arrays.items()}
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self._arrays[name]
@@ -570,6 +570,13 @@ class Trace(Mapping):
 
     def __repr__(self) -> str:
         return f"Trace({self._arrays!r})"
+
+
+def _read_only_view(values: np.ndarray) -> np.ndarray:
+    """A view of ``values`` that cannot be written (the array itself keeps its flags)."""
+    view = np.asarray(values).view()
+    view.flags.writeable = False
+    return view
 
 
 # --------------------------------------------------------------------------- argument checks

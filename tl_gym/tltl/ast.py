@@ -424,8 +424,8 @@ class Formula:
         or ``(N,)`` for a batch) and, per signal the formula reads, the gradient of each value
         with respect to its own trajectory (the signal's shape; zero where a value is ±∞). The
         same numbers as torch's autograd through `smooth_robustness` (tested), without a
-        tensor round trip: about 3× faster on the car's task-2 batch of 40 × 201 steps, where
-        TLPS's trust region asks for it 21 times an iteration.
+        tensor round trip: about 10 % faster on the car's task-2 batch of 40 × 201 steps, where
+        TLPS's trust region asks for it 21 times an iteration (``python -m benchmarks.bench_gradient``).
 
         Example:
             >>> import numpy as np

@@ -109,18 +109,32 @@ def _expression_closure(expr: Expr) -> StateFn:
 
 
 def _compile_predicate(node: nodes.Predicate) -> StateFn:
+    """The predicate's margin on one state, with the offline evaluators' arithmetic.
+
+    Python's floats raise where numpy's give ±inf or NaN (``log(0)``, ``1 / 0``, ``exp(1000)``, ``(-8) ^ (1/3)``);
+    on such a state the margin is recomputed with numpy, so that an operand may pass through ±inf on its way to a
+    finite value (``max(log(x), -20)`` at ``x = 0``) and only a margin that ends NaN or infinite raises, as offline.
+    """
     lhs, rhs = _compile_expr(node.lhs), _compile_expr(node.rhs)
     op = node.op
     checked = can_be_non_finite(node.lhs) or can_be_non_finite(node.rhs)
-    text = str(node)
+    numpy_lhs, numpy_rhs = _expression_loop(node.lhs), _expression_loop(node.rhs)
+    not_finite = f"predicate {str(node)!r} is NaN or infinite at this state"
+
+    def numpy_margin(s: State) -> float:  # checked whatever the arithmetic (a Python int beyond a float's range)
+        with np.errstate(all="ignore"):
+            v = float(operators.margin(op, numpy_lhs(s), numpy_rhs(s)))
+        if not math.isfinite(v):
+            raise TraceError(not_finite)
+        return v
 
     def value(s: State) -> float:
         try:
             v = operators.margin(op, lhs(s), rhs(s))
-        except (ValueError, ZeroDivisionError, OverflowError) as exc:
-            raise TraceError(f"predicate {text!r} is undefined at this state ({exc})") from None
+        except (ValueError, ZeroDivisionError, OverflowError):  # rare: costs nothing until raised
+            return numpy_margin(s)
         if checked and not math.isfinite(v):
-            raise TraceError(f"predicate {text!r} is NaN or infinite at this state")
+            raise TraceError(not_finite)
         return v
 
     return value
