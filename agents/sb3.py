@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import inspect
 import io
 import os
@@ -78,11 +79,13 @@ from .sb3_settings import (
     linear_start,
     load_hyperparams,
     merge_hyperparameters,
+    parse_env_wrappers,
     parse_normalize,
     resolve_algorithm,
     split_settings,
     tl_reward_of_env_kwargs,
     tl_reward_of_view,
+    wrap_env,
 )
 from .serialization import atomic_path, is_jsonable
 
@@ -206,10 +209,16 @@ class SB3Agent(Agent):
         if not saved:  # a saved agent loads and acts without them; tensorboard is checked again when it learns
             check_tensorboard(algo_kwargs)
             check_exploration_budget(self.algo_class, config.n_timesteps)
+        self._env_wrappers = parse_env_wrappers(config.env_wrapper)  # the zoo's env_wrapper, innermost first
+        if self._env_wrappers and not isinstance(env, str):
+            if isinstance(env, gym.vector.VectorEnv):
+                raise TypeError(f"env_wrapper={config.env_wrapper!r} wraps single envs: pass an env id or an Env, "
+                                f"not a {type(env).__name__}")
+            env = wrap_env(env, self._env_wrappers)  # its copies, the envs SB3 trains on, are wrapped too
         self._env_argument = env
         self._train_env_kwargs = dict(env_kwargs or {})  # read by _setup, which runs inside Agent.__init__
         if isinstance(env, str):
-            venv = _make_sync_vec(env, config.n_envs, self._train_env_kwargs, sources)
+            venv = _make_sync_vec(env, config.n_envs, self._train_env_kwargs, sources, self._env_wrappers)
             super().__init__(venv, seed=seed, **hyperparameters)
             self.env_kwargs = dict(self._train_env_kwargs)
             self._env_source = describe_env_source(env, self.env_kwargs)
@@ -267,6 +276,8 @@ class SB3Agent(Agent):
         if self.config.noise_type is not None and "action_noise" not in kwargs:
             kwargs["action_noise"] = _action_noise(self.config.noise_type, self.config.noise_std, self.action_space)
         factories = _single_env_factories(self._env_argument, self._train_env_kwargs, self.config.n_envs)
+        if isinstance(self._env_argument, str) and self._env_wrappers:  # an env object came wrapped
+            factories = [lambda make=make: wrap_env(make(), self._env_wrappers) for make in factories]
         # SB3's Monitor, as make_vec_env and the zoo wrap every env: without it SB3 records no episode, and
         # logs no rollout/ep_rew_mean or ep_len_mean (tensorboard_log)
         factories = [lambda make=make: Monitor(make()) for make in factories]
@@ -680,15 +691,17 @@ def _warn_potential_gamma(env: Any, agent_gamma: float, algo: str) -> None:
                       f"with gamma={agent_gamma!r} (or pass the env id: the agent then sets it)", stacklevel=3)
 
 
-def _make_sync_vec(env_id: str, n_envs: int, env_kwargs: Mapping[str, Any],
-                   sources: Mapping[str, str]) -> gym.vector.VectorEnv:
+def _make_sync_vec(env_id: str, n_envs: int, env_kwargs: Mapping[str, Any], sources: Mapping[str, str],
+                   wrappers: list[tuple[type, dict[str, Any]]]) -> gym.vector.VectorEnv:
     """The evaluation env: ``n_envs`` of the very single envs SB3 trains on, so the observation layout matches.
 
     ``sources`` says where each keyword the agent added comes from; a keyword of theirs that the env
     refuses is named with its source, one of the user's own is left to the env's own error.
     """
     try:
-        return gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="sync", **env_kwargs)
+        return gym.make_vec(env_id, num_envs=n_envs, vectorization_mode="sync",
+                            wrappers=[functools.partial(wrapper, **keywords) for wrapper, keywords in wrappers],
+                            **env_kwargs)
     except TypeError as error:
         own_words = str(error).split(" was raised from the environment creator")[0]  # Gymnasium appends all kwargs
         culprit = re.search(r"'([^']+)'", own_words)  # the env names its culprit first; a hint may quote another
@@ -719,7 +732,7 @@ def _default_policy(algo_class: type, observation_space: gym.Space) -> str:
     if policy is None and kind == "MultiInput":
         raise ValueError(
             f"{algo_class.__name__} has no policy for Dict observations (its policies: {', '.join(aliases)}): flatten "
-            "the observation, SB3Agent(gymnasium.wrappers.FlattenObservation(gym.make(...)), ...), or use an "
+            "the observation, env_wrapper='gymnasium.wrappers.FlattenObservation' (the zoo's key), or use an "
             "algorithm with a MultiInputPolicy (SAC, TD3, TQC, PPO)")
     return policy or f"{kind}Policy"
 

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 
 from tl_gym.checks import check_count, check_fraction, check_positive, did_you_mean
@@ -75,7 +76,8 @@ HYPERPARAMS_FILE = Path(__file__).with_name("hyperparams") / "sb3.yml"
 MARKOV_ENV_KWARGS = "markov_env_kwargs"
 
 #: Keys of a hyperparameter entry that are not the algorithm's constructor arguments.
-ENTRY_KEYS = ("n_envs", "policy", "n_timesteps", "normalize", "noise_type", "noise_std", MARKOV_ENV_KWARGS)
+ENTRY_KEYS = ("n_envs", "policy", "n_timesteps", "normalize", "noise_type", "noise_std", "env_wrapper",
+              MARKOV_ENV_KWARGS)
 
 #: Exploration noise of off-policy algorithms, by the zoo's ``noise_type`` names.
 NOISE_TYPES = ("normal", "ornstein-uhlenbeck")
@@ -195,6 +197,52 @@ def tl_reward_of_env_kwargs(asked: str | None, env_kwargs: Mapping[str, Any], so
                          f"observe_monitor={env_kwargs.get('observe_monitor')!r}: drop one of the two "
                          f"(without tl_reward, these keywords make tl_reward='{read}')")
     return read
+
+
+def parse_env_wrappers(value: Any) -> list[tuple[type, dict[str, Any]]]:
+    """The zoo's ``env_wrapper`` as ``[(wrapper class, keywords), ...]``, innermost first.
+
+    ``value`` is None, a class path (``"gymnasium.wrappers.FlattenObservation"``, or ``"module:Class"``), a
+    ``{path: keywords}`` dict, or a list of either, as rl-baselines3-zoo's hyperparameter files write it.
+
+    Raises:
+        ValueError: naming the entry that is no importable Gymnasium wrapper, or the form that is not one of these.
+
+    Example:
+        >>> parse_env_wrappers(["gymnasium.wrappers.FlattenObservation"])
+        [(<class 'gymnasium.wrappers.transform_observation.FlattenObservation'>, {})]
+    """
+    if value is None:
+        return []
+    items = value if isinstance(value, list) else [value]
+    wrappers = []
+    for item in items:
+        if isinstance(item, dict) and len(item) == 1:
+            (path, keywords), = item.items()
+            keywords = {} if keywords is None else keywords
+        elif isinstance(item, str):
+            path, keywords = item, {}
+        else:
+            raise ValueError("env_wrapper entries are 'module.Class' or {'module.Class': {keywords}}, "
+                             f"got {item!r}")
+        if not isinstance(keywords, dict):
+            raise ValueError(f"env_wrapper {path!r}: its keywords must be a dict, got {keywords!r}")
+        module_name, _, name = path.rpartition(":") if ":" in path else path.rpartition(".")
+        try:
+            wrapper = getattr(importlib.import_module(module_name), name)
+        except (ImportError, AttributeError, ValueError) as exc:
+            raise ValueError(f"env_wrapper {path!r} does not import ({exc})") from None
+        if not (isinstance(wrapper, type) and issubclass(wrapper, gym.Wrapper)):
+            raise ValueError(f"env_wrapper {path!r} is not a gymnasium.Wrapper class")
+        wrappers.append((wrapper, dict(keywords)))
+    return wrappers
+
+
+def wrap_env(env: gym.Env, wrappers: list[tuple[type, dict[str, Any]]]) -> gym.Env:
+    """``env`` inside `parse_env_wrappers`' wrappers, innermost first."""
+    for wrapper, keywords in wrappers:
+        env = wrapper(env, **keywords)
+    return env
 
 
 def parse_normalize(value: Any) -> dict[str, Any] | None:
@@ -328,6 +376,10 @@ class SB3Config:
     noise_std: float = 0.1
     """Standard deviation of ``noise_type`` noise on SB3's scaled actions, ``[-1, 1]`` across the Box (where SB3 adds
     it, as in the zoo): in the env's units it is ``noise_std * (high - low) / 2``."""
+    env_wrapper: str | list[Any] | dict[str, Any] | None = None
+    """The zoo's ``env_wrapper``: Gymnasium wrappers put around each env the agent trains and evaluates on, innermost
+    first, as ``"module.Class"``, a list of them, or ``{"module.Class": {keywords}}`` items (`parse_env_wrappers`),
+    e.g. ``"gymnasium.wrappers.FlattenObservation"`` for an algorithm without a policy for Dict observations."""
     end_is_terminal: bool = True
     """Report the end of every episode to SB3 as a termination. The robustness is of the finite trace
     s_0 … s_T: nothing after its end counts, so SB3 must not add a bootstrapped value past a time-limit
@@ -367,6 +419,7 @@ class SB3Config:
         if self.noise_type is not None and self.noise_type not in NOISE_TYPES:
             raise ValueError(f"noise_type must be None or one of {NOISE_TYPES}, got {self.noise_type!r}")
         check_positive("noise_std", self.noise_std, allow_zero=True)
+        parse_env_wrappers(self.env_wrapper)
         algo_class = resolve_algorithm(self.algo)
         if algo_class.__name__ in REFUSED_ALGORITHMS:
             raise ValueError(REFUSED_ALGORITHMS[algo_class.__name__])

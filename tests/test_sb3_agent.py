@@ -29,6 +29,7 @@ from tl_gym.agents.sb3_settings import (
 )
 
 import tl_gym
+from tl_gym.relabel import find_wrapper
 
 #: A budget small enough for fast tests (PPO: one rollout of 2 envs x 32 steps).
 TINY = {"steps_per_iteration": 64, "n_envs": 2, "batch_size": 32, "n_epochs": 1}
@@ -842,8 +843,44 @@ def test_a_dict_observation_with_an_algorithm_without_a_multi_input_policy_names
     pytest.importorskip("sb3_contrib")
     pytest.importorskip("highway_env")
     with pytest.raises(ValueError, match=r"CrossQ has no policy for Dict observations \(its policies: MlpPolicy\): "
-                                         r"flatten the observation, .*FlattenObservation"):
+                                         r"flatten the observation, env_wrapper='gymnasium.wrappers.Flatten"):
         SB3Agent("TLParking-v0", "crossq", n_timesteps=100)
+
+
+def test_the_zoos_env_wrapper_wraps_every_env_the_agent_trains_and_evaluates_on_and_is_saved(tmp_path):
+    """CrossQ takes no Dict observation: the zoo's env_wrapper flattens parking's for it, in training, evaluation
+    and after loading (the config keeps the key)."""
+    pytest.importorskip("sb3_contrib")
+    pytest.importorskip("highway_env")
+    agent = SB3Agent("TLParking-v0", "crossq", seed=0, n_timesteps=200, steps_per_iteration=64, learning_starts=32,
+                     batch_size=16, hyperparams=False, env_wrapper="gymnasium.wrappers.FlattenObservation",
+                     policy_kwargs={"net_arch": {"pi": [16, 16], "qf": [16, 16]}})
+    flat = agent.observation_space
+    assert isinstance(flat, gym.spaces.Box) and agent.sb3_env.observation_space == flat
+    assert all(find_wrapper(env, gym.wrappers.FlattenObservation) is not None for env in agent.sb3_env.envs)
+    agent.learn(1)
+    loaded = Agent.load(agent.save(tmp_path / "flat.zip"))
+    assert loaded.config.env_wrapper == "gymnasium.wrappers.FlattenObservation" and loaded.observation_space == flat
+    assert loaded.evaluate(2, seed=3)["robustness"].tolist() == agent.evaluate(2, seed=3)["robustness"].tolist()
+
+
+def test_an_env_object_gets_the_env_wrapper_too_with_its_keywords_and_a_vector_env_is_refused():
+    import tl_gym
+
+    env = tl_gym.TLTLRewardWrapper(gym.make("Pendulum-v1", max_episode_steps=20), "G(abs(th) < 3)", {"th": 2})
+    wrapper = [{"gymnasium.wrappers.NormalizeObservation": {"epsilon": 0.125}}]
+    agent = SB3Agent(env, "ppo", seed=0, steps_per_iteration=40, n_envs=2, batch_size=40, hyperparams=False,
+                     env_wrapper=wrapper)
+    assert find_wrapper(env, gym.wrappers.NormalizeObservation) is None  # the user's env object is left as it was
+    for wrapped in (*agent.sb3_env.envs, *agent.env.envs):  # SB3's training envs and the agent's own
+        assert find_wrapper(wrapped, gym.wrappers.NormalizeObservation).epsilon == 0.125
+    vector = gym.make_vec("TLPendulum-v0", num_envs=2, vectorization_mode="sync")
+    with pytest.raises(TypeError, match="env_wrapper=.* wraps single envs: pass an env id or an Env"):
+        SB3Agent(vector, "ppo", env_wrapper=wrapper)
+    with pytest.raises(ValueError, match="env_wrapper 'gymnasium.Env' is not a gymnasium.Wrapper class"):
+        SB3Agent("TLPendulum-v0", "ppo", env_wrapper="gymnasium.Env")
+    with pytest.raises(ValueError, match="env_wrapper 'nope.Wrapper' does not import"):
+        SB3Agent("TLPendulum-v0", "ppo", env_wrapper="nope.Wrapper")
 
 
 def test_an_env_object_that_flattens_a_dict_task_gets_a_policy_for_its_own_observation():
