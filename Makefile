@@ -32,7 +32,7 @@ lint: $(STAMP)
 
 # Every benchmark script in turn (hours; the learning benchmark is almost all of it); bench-quick is the CI
 # smoke run. They run in this order and stop at the first that fails.
-BENCH_SCRIPTS := bench_robustness bench_env bench_agents reproduce_paper
+BENCH_SCRIPTS := bench_robustness bench_gradient bench_env bench_agents reproduce_paper
 
 bench: $(STAMP)
 	$(foreach script,$(BENCH_SCRIPTS),$(PY) -m benchmarks.$(script) &&) true

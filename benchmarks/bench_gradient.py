@@ -81,7 +81,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--form", choices=FORMS, default="linear", help="smoothing form (default: TLPS's linear)")
     parser.add_argument("--backends", nargs="+", default=["numpy", "numba"], help="engine backends to time")
     parser.add_argument("--repeats", type=int, default=60, help="calls timed per measurement (the best counts)")
+    parser.add_argument("--quick", action="store_true", help="3 repeats (make bench-quick)")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.repeats = 3
     trace = car_batch(args.n)
     print(f"task 2, {args.n} x {trace['x'].shape[1]} states, form {args.form}; best CPU ms of {args.repeats}")
     for backend in args.backends:

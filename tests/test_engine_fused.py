@@ -114,3 +114,18 @@ def test_auto_without_numba_is_the_numpy_plan(monkeypatch):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert parse("F(x > 1)").robustness({"x": [0.0, 2.0]}) == 1.0
+
+
+@pytest.mark.parametrize("text, a", [("(-2) ^ 4 + a > 0", [0.0, 1.0]), ("G((-0.5) ^ a < 1)", [2.0, 3.0]),
+                                     ("F((0 - 3) ^ 3 < a)", [-30.0, -20.0]), ("F(-(2 ^ 2) < a)", [-5.0, 0.0])])
+def test_a_negative_literal_base_is_powered_as_numpy_powers_it(text, a):
+    """The kernel wrote ``-2.0 ** 4.0``, which Python reads as ``-(2.0 ** 4.0)``: numba gave -16 where numpy 16."""
+    formula, trace = parse(text), {"a": np.array(a)}
+    assert formula.robustness(trace, backend="numba") == formula.robustness(trace, backend="numpy")
+
+
+def test_a_negative_base_to_a_fractional_power_is_nan_in_both_backends():
+    formula, trace = parse("G((-0.5) ^ a < 1)"), {"a": np.array([0.5])}
+    for backend in ("numpy", "numba"):
+        with pytest.raises(TraceError):
+            formula.robustness(trace, backend=backend)

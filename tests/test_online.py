@@ -328,3 +328,15 @@ def test_value_of_state_checks_the_length():
     assert len(monitor.slots) == 2
     with pytest.raises(ValueError, match="2 floats, got 3"):
         monitor.value_of_state([0.0, 1.0, 2.0])
+
+
+@pytest.mark.parametrize("negations", [0, 33])
+def test_formulas_deeper_than_the_closures_judge_a_window_as_the_shallow_ones(negations):
+    """Past 64 levels a window is judged by the exact evaluator; it evaluated every part at every state of the
+    window (robustness_over_time), so `log(a) > -5`, read at s_0 alone, raised at a = 0 in s_1."""
+    formula = parse("(log(a) > -5) & X(b > 0)")
+    for _ in range(negations):
+        formula = ~~formula
+    monitor = PrefixMonitor(formula)
+    values = [monitor.update({"a": 1.0, "b": 0.0}), monitor.update({"a": 0.0, "b": 1.0})]
+    assert values[-1] == formula.robustness({"a": np.array([1.0, 0.0]), "b": np.array([0.0, 1.0])}) == 1.0

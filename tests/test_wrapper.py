@@ -639,3 +639,17 @@ def test_the_reward_attributes_are_the_settings_and_cannot_be_set(name):
     with pytest.raises(AttributeError, match=f"{name} is fixed when the env is built.*make the env again"):
         setattr(env, name, getattr(env, name))
     assert env.satisfaction_bonus == 2.0 and env.settings.satisfaction_bonus == 2.0
+
+
+def test_the_terminal_infos_trace_stays_read_only_through_deepcopy_and_pickle():
+    """SB3's DummyVecEnv deep-copies its infos; the async vector envs pickle them."""
+    import copy
+    import pickle
+
+    from tl_gym.wrapper import Trace
+
+    trace = Trace({"a": np.array([1.0, 2.0])})
+    for again in (copy.deepcopy(trace), pickle.loads(pickle.dumps(trace))):
+        assert again["a"].tolist() == [1.0, 2.0]
+        with pytest.raises(ValueError, match="read-only"):
+            again["a"][0] = 0.0

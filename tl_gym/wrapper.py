@@ -571,6 +571,10 @@ class Trace(Mapping):
     def __repr__(self) -> str:
         return f"Trace({self._arrays!r})"
 
+    def __reduce__(self) -> tuple[type, tuple[dict[str, np.ndarray]]]:
+        """Rebuilt through ``__init__`` by pickle and deepcopy (SB3 deep-copies its infos), so read-only."""
+        return Trace, (self._arrays,)
+
 
 def _read_only_view(values: np.ndarray) -> np.ndarray:
     """A view of ``values`` that cannot be written (the array itself keeps its flags)."""

@@ -333,7 +333,8 @@ def _expression(expr: Any, column: dict[str, str], body: list[str], step: int, s
         elif isinstance(e, nodes.BinOp):
             b, a = stack.pop(), stack.pop()
             if e.op == "^":
-                code = f"{a} * {a}" if isinstance(e.right, nodes.Num) and e.right.value == 2.0 else f"{a} ** {b}"
+                # the base in parentheses: a negative literal, "-2.0 ** 4.0", is -(2.0 ** 4.0) in Python
+                code = f"{a} * {a}" if isinstance(e.right, nodes.Num) and e.right.value == 2.0 else f"({a}) ** {b}"
             else:
                 code = f"{a} {e.op} {b}"
             body.append(f"{name} = {code}")

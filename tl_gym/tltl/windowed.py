@@ -131,7 +131,7 @@ def _compile_predicate(node: nodes.Predicate) -> StateFn:
     def value(s: State) -> float:
         try:
             v = operators.margin(op, lhs(s), rhs(s))
-        except (ValueError, ZeroDivisionError, OverflowError):  # rare: costs nothing until raised
+        except (ValueError, ZeroDivisionError, OverflowError, FloatingPointError):  # rare: free until raised
             return numpy_margin(s)
         if checked and not math.isfinite(v):
             raise TraceError(not_finite)
@@ -158,18 +158,21 @@ def compile_state_formula(formula: Formula, rho_max: float) -> StateFn:
 
 
 def _engine_window_formula(formula: Formula, rho_max: float) -> WindowFn:
-    """Robustness at ``window[i]`` by the exact evaluator on the window's states (any depth).
+    """Robustness at ``window[i]`` by the exact evaluator on the window's states from ``i`` on (any depth).
 
-    The window is a trace of its own, so ``X`` past its end is −ρ_max, as in `compile_window_formula`.
+    The suffix is a trace of its own, judged at its first position as the offline evaluators judge one: ``X`` past
+    its end is −ρ_max, as in `compile_window_formula`, and a part is evaluated only at the states it is read at
+    (``robustness_over_time`` evaluated every part at every state of the window, and raised where the shallow
+    monitors do not).
     """
     names = formula.signals
 
     def value(window: list, i: int) -> float:
         if not names:  # a formula of constants still needs a length
-            trace = {"_": np.zeros(len(window))}
+            trace = {"_": np.zeros(len(window) - i)}
         else:
-            trace = {n: np.array([float(state[n]) for state in window]) for n in names}
-        return float(formula.robustness_over_time(trace, rho_max)[i])
+            trace = {n: np.array([float(state[n]) for state in window[i:]]) for n in names}
+        return float(formula.robustness(trace, rho_max))
 
     return value
 
