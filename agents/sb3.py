@@ -182,8 +182,9 @@ class SB3Agent(Agent):
         explicit = canonical_settings({**explicit, **algo_kwargs})
         hyperparams = hyperparams.hyperparams if saved else check_hyperparams_source(hyperparams)
         entry = {} if saved else _task_entry(self.algo_class, env, env_kwargs, hyperparams)
-        if not isinstance(env, str) and not _policy_fits(entry.get("policy"), env.observation_space):
-            entry.pop("policy")  # the entry's is for the id's own observation, which this env object changed
+        # the entry's policy is for the id's own observation; _setup drops it where the env (object, env_wrapper)
+        # changed that observation
+        self._entry_policy = entry.get("policy") if policy is None else None
         # where each keyword the agent adds comes from, for the message of an env that does not take it
         sources = dict.fromkeys(TL_REWARD_ENV_KWARGS[tl_reward], f"tl_reward={tl_reward!r}")
         task_shaping = entry.pop(MARKOV_ENV_KWARGS, {})  # only an entry the file gave has any
@@ -210,6 +211,10 @@ class SB3Agent(Agent):
             check_tensorboard(algo_kwargs)
             check_exploration_budget(self.algo_class, config.n_timesteps)
         self._env_wrappers = parse_env_wrappers(config.env_wrapper)  # the zoo's env_wrapper, innermost first
+        if self._env_wrappers and config.her_goals:
+            raise ValueError(f"her_goals={config.her_goals} relabels the goals of the env's own observation, which "
+                             f"env_wrapper={config.env_wrapper!r} changes: use one or the other")
+        users_env = env
         if self._env_wrappers and not isinstance(env, str):
             if isinstance(env, gym.vector.VectorEnv):
                 raise TypeError(f"env_wrapper={config.env_wrapper!r} wraps single envs: pass an env id or an Env, "
@@ -224,6 +229,13 @@ class SB3Agent(Agent):
             self._env_source = describe_env_source(env, self.env_kwargs)
         else:
             super().__init__(env, seed=seed, env_kwargs=env_kwargs, **hyperparameters)
+            # loading rebuilds the env from this and wraps it again: the user's env, not the wrapped one
+            self._env_source = describe_env_source(users_env, self.env_kwargs)
+
+    @property
+    def env_wrappers(self) -> list[tuple[type, dict[str, Any]]]:
+        """The ``env_wrapper`` setting as ``[(wrapper class, keywords), ...]``, innermost first (`wrap_env`)."""
+        return list(self._env_wrappers)
 
     @classmethod
     def _saved_config(cls, config: dict[str, Any]) -> dict[str, Any]:
@@ -305,6 +317,9 @@ class SB3Agent(Agent):
                 normalize.setdefault("norm_obs_keys", [k for k, sub in space.spaces.items()
                                                        if isinstance(sub, gym.spaces.Box)])
             self.vec_normalize = VecNormalize(self.sb3_env, **normalize)
+        if (self.config.policy is not None and self.config.policy == self._entry_policy
+                and not _policy_fits(self.config.policy, self.observation_space)):
+            self.config = dataclasses.replace(self.config, policy=None)  # saved so: the default fits on load too
         policy = self.config.policy or _default_policy(self.algo_class, self.observation_space)
         try:
             self.model = self.algo_class(policy, self._training_env(), seed=self.seed, verbose=0, device="cpu",
@@ -409,6 +424,9 @@ class SB3Agent(Agent):
             hint = (" The agent observes its env's monitor (the Markov view, tl_reward='markov'): act on observations "
                     "of an env made as the agent's, gym.make(id, **agent.env_kwargs), or of agent.env."
                     if self.config.tl_reward == "markov" else "")
+            if self._env_wrappers:
+                hint += (f" It also observes through env_wrapper={self.config.env_wrapper!r}: wrap the env so "
+                         "(tl_gym.agents.sb3_settings.wrap_env(env, agent.env_wrappers)).")
             what = "keys" if isinstance(got, list) else "shape"
             raise ValueError(f"the observation has {what} {got}; the agent's observation space has {what} {wanted}."
                              f"{hint}")

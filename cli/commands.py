@@ -54,6 +54,7 @@ from tl_gym.agents.horizon import env_attribute, infer_horizon
 from tl_gym.agents.registry import is_episodic, is_sb3, make_agent
 from tl_gym.agents.run_folder import AGENT_FILE, HISTORY_FILE, RUNNER_DONE_FILE, RUNNER_SPEC_FILE
 from tl_gym.agents.sampling import run_episodes
+from tl_gym.agents.sb3_settings import wrap_env
 
 import tl_gym
 from tl_gym.checks import check_count
@@ -111,8 +112,10 @@ def rendered_env(run: dict[str, Any], agent: Any) -> Any:
     the run's wrapped env.
     """
     if run.get("spec") is None:
-        return gym.make(run["env"], **{**agent.env_kwargs, "render_mode": "rgb_array"})
-    return build_env(run, render_mode="rgb_array")
+        env = gym.make(run["env"], **{**agent.env_kwargs, "render_mode": "rgb_array"})
+    else:
+        env = build_env(run, render_mode="rgb_array")
+    return wrap_env(env, getattr(agent, "env_wrappers", []))  # an SB3 agent's env_wrapper, as it trained
 
 
 def _tl_reward_env_kwargs(run: dict[str, Any]) -> dict[str, Any]:

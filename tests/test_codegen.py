@@ -3,6 +3,7 @@
 import math
 from unittest import mock
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -109,3 +110,11 @@ def test_margin_source_computes_the_margin(op, lhs, rhs):
     code = CodeWriter()
     written = code.scalar_function("f", "", operators.margin_source(op, code.bind(lhs), code.bind(rhs)))()
     assert same(written, operators.margin(op, lhs, rhs))
+
+
+def test_numpy_scalars_under_floating_point_errors_still_name_the_predicate():
+    """Under np.errstate(all="raise") numpy scalars raise FloatingPointError; the written code falls back to the
+    closure as for Python's own errors."""
+    state_formula = compile_state_formula(parse("x * y > 0 & z > 0"), math.inf)
+    with np.errstate(all="raise"), pytest.raises(TraceError, match=r"predicate 'x \* y > 0' is NaN or infinite"):
+        state_formula({"x": np.float64(1e200), "y": np.float64(1e200), "z": 1.0})

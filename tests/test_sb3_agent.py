@@ -899,3 +899,31 @@ def test_default_n_envs_is_one_for_off_policy_algorithms(algo, n_envs):
     """With 8 envs an off-policy algorithm took one gradient step per 8 env steps; the zoo's default is 1."""
     agent = SB3Agent("TLPendulum-v0", algo, hyperparams=False, steps_per_iteration=1024)
     assert agent.config.n_envs == agent.model.n_envs == n_envs
+
+
+def test_env_wrapper_edges_entry_policy_her_goals_json_and_loading_an_env_object(tmp_path):
+    """The parking entries' MultiInputPolicy is for the Dict observation a FlattenObservation changes; relabelling
+    reads the Dict goals; keywords must be JSON to be saved; an env object is saved unwrapped (it loaded wrapped
+    twice)."""
+    pytest.importorskip("highway_env")
+    import tl_gym
+
+    flat = "gymnasium.wrappers.FlattenObservation"
+    agent = SB3Agent("TLParking-v0", "ppo", seed=0, env_wrapper=flat, steps_per_iteration=64, n_envs=1, batch_size=32)
+    assert type(agent.model.policy).__name__ == "ActorCriticPolicy" and agent.config.policy is None
+    with pytest.raises(ValueError, match="her_goals=1 relabels the goals .* env_wrapper=.* changes"):
+        SB3Agent("TLParking-v0", "sac", env_wrapper=flat, her_goals=1)
+    with pytest.raises(ValueError, match="keywords must be JSON values"):
+        SB3Agent("TLPendulum-v0", "ppo", env_wrapper=[{"gymnasium.wrappers.TransformReward": {"func": np.tanh}}])
+    env = tl_gym.TLTLRewardWrapper(gym.make("Pendulum-v1", max_episode_steps=20), "G(abs(th) < 3)", {"th": 2})
+    timed = SB3Agent(env, "ppo", seed=0, steps_per_iteration=40, n_envs=2, batch_size=40, hyperparams=False,
+                     env_wrapper="gymnasium.wrappers.TimeAwareObservation")
+    loaded = Agent.load(timed.save(tmp_path / "timed.zip"))
+    assert loaded.observation_space == timed.observation_space and loaded.observation_space.shape == (4,)
+    for agent_ in (timed, loaded):
+        chain = agent_.env.envs[0]
+        count = 0
+        while chain is not None:
+            count += isinstance(chain, gym.wrappers.TimeAwareObservation)
+            chain = getattr(chain, "env", None)
+        assert count == 1

@@ -573,7 +573,7 @@ class Trace(Mapping):
 
     def __reduce__(self) -> tuple[type, tuple[dict[str, np.ndarray]]]:
         """Rebuilt through ``__init__`` by pickle and deepcopy (SB3 deep-copies its infos), so read-only."""
-        return Trace, (self._arrays,)
+        return type(self), (self._arrays,)
 
 
 def _read_only_view(values: np.ndarray) -> np.ndarray:

@@ -81,7 +81,7 @@ class CodeWriter:
                         fallback: Callable[..., Any] | None = None) -> Callable[..., Any]:
         """``def name(arguments): <lines>; return expression``, compiled in this writer's namespace.
 
-        With ``fallback``, an arithmetic error (ValueError, ZeroDivisionError, OverflowError) in the
+        With ``fallback``, an arithmetic error (ValueError, ZeroDivisionError, OverflowError, FloatingPointError) in the
         expression returns ``fallback(arguments)`` instead: the closures, whose error names the culprit.
         """
         body = "".join(f"    {line}\n" for line in self.lines)
@@ -89,7 +89,7 @@ class CodeWriter:
             source = f"def {name}({arguments}):\n{body}    return {expression}\n"
         else:  # a try block costs nothing on CPython 3.11 until something is raised
             source = (f"def {name}({arguments}):\n{body}    try:\n        return {expression}\n"
-                      f"    except (ValueError, ZeroDivisionError, OverflowError):\n"
+                      f"    except (ValueError, ZeroDivisionError, OverflowError, FloatingPointError):\n"
                       f"        return {self.bind(fallback)}({arguments})\n")
         scope = dict(self.namespace)
         exec(compile(source, f"<tl_gym {name}>", "exec"), scope)

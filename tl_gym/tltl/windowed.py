@@ -161,9 +161,9 @@ def _engine_window_formula(formula: Formula, rho_max: float) -> WindowFn:
     """Robustness at ``window[i]`` by the exact evaluator on the window's states from ``i`` on (any depth).
 
     The suffix is a trace of its own, judged at its first position as the offline evaluators judge one: ``X`` past
-    its end is −ρ_max, as in `compile_window_formula`, and a part is evaluated only at the states it is read at
-    (``robustness_over_time`` evaluated every part at every state of the window, and raised where the shallow
-    monitors do not).
+    its end is −ρ_max, as in `compile_window_formula`; a temporal-free part is evaluated at the suffix's first state
+    alone, but an ``X``'s operand at every state of the suffix, as offline (docs/engine.md: formulas deeper than
+    64 levels may raise where the shallow monitors do not).
     """
     names = formula.signals
 
@@ -172,7 +172,7 @@ def _engine_window_formula(formula: Formula, rho_max: float) -> WindowFn:
             trace = {"_": np.zeros(len(window) - i)}
         else:
             trace = {n: np.array([float(state[n]) for state in window[i:]]) for n in names}
-        return float(formula.robustness(trace, rho_max))
+        return float(formula.robustness(trace, rho_max, backend="numpy"))  # no kernel compiled within an env step
 
     return value
 
