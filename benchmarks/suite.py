@@ -137,8 +137,9 @@ def plot_task(name: str, runs: Sequence[RunResult], path: Path | None) -> Figure
 def final_success(run: RunResult) -> float:
     """The final policy's success on its last evaluation along training and the final one (``done.json``), pooled.
 
-    Both evaluate the same final policy on 100 fresh episodes of their own; either alone is a sample whose noise
-    (± 6 points at 80 %) decides a verdict at the 90 % line, so the verdict reads both (200 episodes).
+    Both evaluate the same final policy on fresh episodes of their own (100 each in the suite's configs); either
+    alone is a sample whose noise (± 6 points at 80 % on 100) decides a verdict at the 90 % line, so the verdict
+    reads both, weighted by their episodes.
     """
     steps, values = eval_points(run)
     done = run.summary.get("eval_deterministic")
