@@ -742,7 +742,7 @@ def _default_policy(algo_class: type, observation_space: gym.Space) -> str:
         >>> _default_policy(SAC, gym.spaces.Box(-1, 1, (3,)))
         'MlpPolicy'
     """
-    kind = "MultiInput" if isinstance(observation_space, gym.spaces.Dict) else "Mlp"
+    kind = _policy_kind(observation_space)
     aliases = list(getattr(algo_class, "policy_aliases", {}))
     if f"{kind}Policy" in aliases or not aliases:
         return f"{kind}Policy"
@@ -755,11 +755,16 @@ def _default_policy(algo_class: type, observation_space: gym.Space) -> str:
     return policy or f"{kind}Policy"
 
 
+def _policy_kind(observation_space: gym.Space) -> str:
+    """The prefix of SB3's policy names for ``observation_space``: ``MultiInput`` for a Dict, else ``Mlp``."""
+    return "MultiInput" if isinstance(observation_space, gym.spaces.Dict) else "Mlp"
+
+
 def _policy_fits(policy: Any, observation_space: gym.Space) -> bool:
     """Whether a policy named by a hyperparameter entry is of the kind ``observation_space`` needs (a class: yes)."""
     if not isinstance(policy, str):
         return True
-    return policy.startswith("MultiInput") == isinstance(observation_space, gym.spaces.Dict)
+    return policy.startswith("MultiInput") == (_policy_kind(observation_space) == "MultiInput")
 
 
 def _single_env_factories(env: Any, env_kwargs: dict[str, Any], n_envs: int) -> list[Any]:

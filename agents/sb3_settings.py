@@ -17,7 +17,6 @@ import functools
 import importlib
 import importlib.util
 import inspect
-import json
 import math
 import os
 import re
@@ -31,6 +30,8 @@ import numpy as np
 
 from tl_gym.checks import check_count, check_fraction, check_positive, did_you_mean
 from tl_gym.relabel import RELABEL_STRATEGIES
+
+from .serialization import is_jsonable
 
 #: The names a stable-baselines3 algorithm takes here.
 SB3_ALGORITHMS = ("a2c", "ddpg", "dqn", "ppo", "sac", "td3")
@@ -239,14 +240,6 @@ def parse_env_wrappers(value: Any) -> list[tuple[type, dict[str, Any]]]:
     return wrappers
 
 
-def _is_json(value: Any) -> bool:
-    try:
-        json.dumps(value)
-    except (TypeError, ValueError):
-        return False
-    return True
-
-
 def wrap_env(env: gym.Env, wrappers: list[tuple[type, dict[str, Any]]]) -> gym.Env:
     """``env`` inside `parse_env_wrappers`' wrappers, innermost first."""
     for wrapper, keywords in wrappers:
@@ -429,7 +422,7 @@ class SB3Config:
             raise ValueError(f"noise_type must be None or one of {NOISE_TYPES}, got {self.noise_type!r}")
         check_positive("noise_std", self.noise_std, allow_zero=True)
         parse_env_wrappers(self.env_wrapper)
-        if not _is_json(self.env_wrapper):  # the agent saves its settings as JSON
+        if not is_jsonable(self.env_wrapper):  # the agent saves its settings as JSON
             raise ValueError(f"env_wrapper={self.env_wrapper!r}: its keywords must be JSON values (numbers, text, "
                              "lists, dicts) so that the agent can be saved; wrap the env object yourself instead")
         algo_class = resolve_algorithm(self.algo)

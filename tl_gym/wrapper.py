@@ -427,10 +427,7 @@ class TLTLRewardWrapper(RewardSettingsAttributes, gym.Wrapper, gym.utils.RecordC
     @property
     def trace(self) -> dict[str, np.ndarray]:
         """Signals recorded since the last reset: name -> read-only float64 array s_0 … s_t."""
-        out = self._trace_arrays()
-        for array in out.values():
-            array.flags.writeable = False
-        return out
+        return {name: _read_only_view(values) for name, values in self._trace_arrays().items()}
 
     def _trace_arrays(self) -> dict[str, np.ndarray]:
         table = np.array(self._rows, dtype=np.float64).reshape(len(self._rows), len(self._reader.names))
